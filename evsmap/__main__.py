@@ -1,0 +1,3 @@
+from evsmap.cli.main import main
+
+raise SystemExit(main())

@@ -1,0 +1,49 @@
+"""Label sets: the NYUv2 40-class set (Gupta et al. 2013 mapping, standard order) used by the
+synthetic scenes, and display colours."""
+
+from __future__ import annotations
+
+import numpy as np
+
+NYU40_CLASSES: tuple[str, ...] = (
+    "wall", "floor", "cabinet", "bed", "chair", "sofa", "table", "door", "window", "bookshelf",
+    "picture", "counter", "blinds", "desk", "shelves", "curtain", "dresser", "pillow", "mirror",
+    "floor mat", "clothes", "ceiling", "books", "refrigerator", "television", "paper", "towel",
+    "shower curtain", "box", "whiteboard", "person", "night stand", "toilet", "sink", "lamp",
+    "bathtub", "bag", "otherstructure", "otherfurniture", "otherprop",
+)
+"""Class names by id (0-based; 255 is void)."""
+
+NYU40 = {name: i for i, name in enumerate(NYU40_CLASSES)}
+"""Class id by name."""
+
+
+def palette(num_classes: int) -> np.ndarray:
+    """Distinct display colours, ``uint8`` (num_classes, 3), the same on every call.
+
+    Colours walk the hue circle by the golden angle with alternating value, so neighbouring ids
+    never look alike.
+    """
+    i = np.arange(num_classes, dtype=np.float64)
+    hue = (i * 0.618033988749895) % 1.0
+    sat = 0.55 + 0.35 * ((i % 3) / 2.0)
+    val = 0.95 - 0.3 * (i % 2)
+    h6 = hue * 6.0
+    c = val * sat
+    x = c * (1 - np.abs(h6 % 2 - 1))
+    m = val - c
+    sector = np.floor(h6).astype(int) % 6
+    zeros = np.zeros_like(c)
+    table = np.stack([
+        np.stack([c, x, zeros], 1), np.stack([x, c, zeros], 1), np.stack([zeros, c, x], 1),
+        np.stack([zeros, x, c], 1), np.stack([x, zeros, c], 1), np.stack([c, zeros, x], 1),
+    ], 0)
+    rgb = table[sector, np.arange(num_classes)] + m[:, None]
+    return np.round(rgb * 255).astype(np.uint8)
+
+
+def colorize(labels: np.ndarray, num_classes: int = len(NYU40_CLASSES)) -> np.ndarray:
+    """HxWx3 ``uint8`` picture of a label image; void (255) is black."""
+    lut = np.zeros((256, 3), dtype=np.uint8)
+    lut[:num_classes] = palette(num_classes)
+    return lut[labels]

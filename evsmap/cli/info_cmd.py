@@ -1,0 +1,90 @@
+"""``evsmap info``: what a sequence folder holds."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.progress import progress
+from evsmap.registry import READERS
+from evsmap.summary import summarize_sequence
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "info", help="describe a sequence folder (layout, frames, depth, poses, labels)",
+        description="Detect the layout of PATH (TUM RGB-D, evsmap synthetic, ...) and print the "
+                    "number of frames, resolution, depth range, pose span and label classes.")
+    p.add_argument("path", type=Path, metavar="PATH", help="sequence folder")
+    p.add_argument("--json", action="store_true", help="print the record as JSON")
+    p.add_argument("--reader", metavar="NAME", help="use this reader instead of detecting one")
+    p.add_argument("--camera", metavar="NAME",
+                   help="TUM camera intrinsics when the folder name does not tell "
+                        "(fr1, fr2, fr3, ros-default)")
+    p.set_defaults(run=run)
+
+
+def detect_reader(path: Path) -> str:
+    """Name of the first registered reader whose ``detect`` accepts ``path``."""
+    if not path.exists():
+        raise DataFormatError(f"{path}: no such file or folder")
+    for entry in READERS.entries():
+        detect = entry.extras.get("detect")
+        if detect is not None and detect(path):
+            return entry.name
+    known = [e.name for e in READERS.entries() if e.extras.get("detect")]
+    raise DataFormatError(f"{path}: layout not recognised (readers tried: {', '.join(known)})")
+
+
+def run(args: argparse.Namespace) -> int:
+    name = args.reader or detect_reader(args.path)
+    config = {"path": str(args.path)}
+    if args.camera:
+        if "camera" not in READERS.get(name).parameters():
+            raise EvsmapError(f"--camera does not apply to reader {name!r}")
+        config["camera"] = args.camera
+    seq = READERS.create(name, **config)
+    record = {"reader": name, **summarize_sequence(
+        seq, progress=lambda frames: progress(frames, total=len(seq), desc="reading"))}
+    if args.json:
+        print(json.dumps(record, indent=2))
+    else:
+        print(format_info(record))
+    return 0
+
+
+def format_info(r: dict) -> str:
+    lines = [
+        f"path        {r.get('name')}  (layout: {r['layout']}, reader: {r['reader']})",
+        f"frames      {r['frames']}",
+        f"resolution  {r['width']}x{r['height']}  fx {r['intrinsics']['fx']:.2f} "
+        f"fy {r['intrinsics']['fy']:.2f} cx {r['intrinsics']['cx']:.2f} "
+        f"cy {r['intrinsics']['cy']:.2f}  ({r['intrinsics_source']})",
+    ]
+    d = r["depth"]
+    if "min_m" in d:
+        lines.append(f"depth       {d['min_m']:.3f} .. {d['max_m']:.3f} m  (1-99 %: "
+                     f"{d['p01_m']:.3f} .. {d['p99_m']:.3f}, median {d['median_m']:.3f}, "
+                     f"valid {100 * d['valid_fraction']:.1f} %)")
+    else:
+        lines.append("depth       no valid depth")
+    if "poses" in r:
+        p = r["poses"]
+        ext = " x ".join(f"{v:.2f}" for v in p["extent_m"])
+        lines.append(f"poses       {p['duration_s']:.2f} s, path {p['path_length_m']:.2f} m, "
+                     f"extent {ext} m")
+    if r.get("dropped"):
+        dropped = ", ".join(f"{k.replace('_', ' ')}: {v}" for k, v in r["dropped"].items() if v)
+        if dropped:
+            lines.append(f"dropped     {dropped}")
+    if r["labels"]:
+        lab = r["labels"]
+        top = sorted(lab["classes"], key=lambda c: -c["fraction"])
+        listed = ", ".join(f"{c['name']} {100 * c['fraction']:.1f}%" for c in top)
+        lines.append(f"labels      {lab['classes_present']} classes, void "
+                     f"{100 * lab['void_fraction']:.1f} %: {listed}")
+    else:
+        lines.append("labels      none")
+    return "\n".join(lines)

@@ -1,0 +1,33 @@
+"""``evsmap list``: the registered plug-ins."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("list", help="list registered segmenters, updaters and readers",
+                       description="List the registered segmenters, map updaters and sequence "
+                                   "readers with one-line descriptions.")
+    p.add_argument("--json", action="store_true",
+                   help='print {"segmenters": [...], "updaters": [...], "readers": [...]}')
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    kinds = {"segmenters": SEGMENTERS, "updaters": UPDATERS, "readers": READERS}
+    if args.json:
+        print(json.dumps({k: reg.names() for k, reg in kinds.items()}))
+        return 0
+    for title, reg in kinds.items():
+        print(f"{title}:")
+        entries = reg.entries()
+        if not entries:
+            print("  (none registered)")
+        width = max((len(e.name) for e in entries), default=0)
+        for e in entries:
+            print(f"  {e.name:<{width}}  {e.description}")
+    return 0

@@ -1,0 +1,322 @@
+"""The data model shared by every reader, segmenter and updater.
+
+* :class:`Intrinsics` - pinhole camera (fx, fy, cx, cy, width, height), no distortion.
+* :class:`Frame` - one RGB-D observation: RGB ``uint8`` HxWx3, metric depth ``float32`` HxW with 0
+  for invalid, the camera's intrinsics, camera-to-world pose ``float64`` 4x4 (OpenCV camera axes:
+  x right, y down, z forward), a timestamp in seconds and optional ``uint8`` labels (255 = void).
+* :class:`SemanticObservation` - a segmenter's per-pixel top-k class ids and probabilities.
+* :class:`Sequence` - a named, sized, iterable series of frames with one set of intrinsics.
+
+Constructors validate shapes, dtypes and finiteness and say exactly what is wrong.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from evsmap.errors import InvalidDataError
+
+VOID = 255
+"""Label value of pixels without a class."""
+
+
+def _array(name: str, value: object, dtype: np.dtype | type, ndim: int) -> np.ndarray:
+    if not isinstance(value, np.ndarray):
+        raise InvalidDataError(f"{name} must be a numpy array, got {type(value).__name__}")
+    if value.dtype != np.dtype(dtype):
+        raise InvalidDataError(f"{name} must have dtype {np.dtype(dtype)}, got {value.dtype}")
+    if value.ndim != ndim:
+        raise InvalidDataError(f"{name} must have {ndim} dimensions, got shape {value.shape}")
+    return value
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics in pixels for an image of ``width`` x ``height``."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+                raise InvalidDataError(f"intrinsics {name} must be a number, got {v!r}")
+            if not np.isfinite(v):
+                raise InvalidDataError(f"intrinsics {name} must be finite, got {v!r}")
+            object.__setattr__(self, name, float(v))
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+                raise InvalidDataError(f"intrinsics {name} must be a positive integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        if self.fx <= 0 or self.fy <= 0:
+            raise InvalidDataError(
+                f"intrinsics focal lengths must be positive, got fx={self.fx} fy={self.fy}"
+            )
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3x3 camera matrix K (float64)."""
+        return np.array(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64
+        )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width), the shape of the images these intrinsics describe."""
+        return (self.height, self.width)
+
+    def scaled(self, width: int, height: int) -> Intrinsics:
+        """The same camera resampled to ``width`` x ``height`` (pixel-centre convention)."""
+        sx, sy = width / self.width, height / self.height
+        return Intrinsics(
+            fx=self.fx * sx, fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5, cy=(self.cy + 0.5) * sy - 0.5,
+            width=width, height=height,
+        )
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
+                "width": self.width, "height": self.height}
+
+
+def _check_pose(name: str, pose: object) -> np.ndarray:
+    pose = _array(name, pose, np.float64, 2)
+    if pose.shape != (4, 4):
+        raise InvalidDataError(f"{name} must be 4x4, got shape {pose.shape}")
+    if not np.all(np.isfinite(pose)):
+        raise InvalidDataError(f"{name} has non-finite entries")
+    if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+        raise InvalidDataError(f"{name} last row must be [0 0 0 1], got {pose[3].tolist()}")
+    rot = pose[:3, :3]
+    err = np.abs(rot @ rot.T - np.eye(3)).max()
+    if err > 1e-5 or np.linalg.det(rot) < 0:
+        raise InvalidDataError(
+            f"{name} rotation block is not a proper rotation (|R R^T - I| = {err:.2e})"
+        )
+    return pose
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One RGB-D observation with its camera-to-world pose.
+
+    Args (fields):
+        rgb: ``uint8`` array HxWx3.
+        depth: ``float32`` array HxW in metres, 0 where invalid; no NaN, no inf, no negatives.
+        intrinsics: the camera that took the frame; its size must match the images.
+        pose: ``float64`` 4x4 camera-to-world transform (OpenCV camera axes).
+        timestamp: seconds (any epoch), finite.
+        labels: optional ``uint8`` HxW class ids, 255 for void.
+        name: optional identifier for messages (a file name, an index).
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    intrinsics: Intrinsics
+    pose: np.ndarray
+    timestamp: float
+    labels: np.ndarray | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        where = f"frame {self.name!r}: " if self.name else "frame: "
+        try:
+            rgb = _array("rgb", self.rgb, np.uint8, 3)
+            if rgb.shape[2] != 3:
+                raise InvalidDataError(f"rgb must be HxWx3, got shape {rgb.shape}")
+            depth = _array("depth", self.depth, np.float32, 2)
+            if depth.shape != rgb.shape[:2]:
+                raise InvalidDataError(
+                    f"depth shape {depth.shape} does not match rgb shape {rgb.shape[:2]}"
+                )
+            if not np.all(np.isfinite(depth)):
+                raise InvalidDataError("depth has NaN or inf values (use 0 for invalid)")
+            if depth.size and depth.min() < 0:
+                raise InvalidDataError(f"depth has negative values (min {depth.min()})")
+            if not isinstance(self.intrinsics, Intrinsics):
+                raise InvalidDataError(
+                    f"intrinsics must be Intrinsics, got {type(self.intrinsics).__name__}"
+                )
+            if self.intrinsics.shape != rgb.shape[:2]:
+                raise InvalidDataError(
+                    f"intrinsics are for {self.intrinsics.width}x{self.intrinsics.height} but the "
+                    f"images are {rgb.shape[1]}x{rgb.shape[0]}"
+                )
+            _check_pose("pose", self.pose)
+            ts = self.timestamp
+            if isinstance(ts, bool) or not isinstance(ts, (int, float, np.floating, np.integer)):
+                raise InvalidDataError(f"timestamp must be a number, got {ts!r}")
+            if not np.isfinite(ts):
+                raise InvalidDataError(f"timestamp must be finite, got {ts!r}")
+            object.__setattr__(self, "timestamp", float(ts))
+            if self.labels is not None:
+                labels = _array("labels", self.labels, np.uint8, 2)
+                if labels.shape != rgb.shape[:2]:
+                    raise InvalidDataError(
+                        f"labels shape {labels.shape} does not match rgb shape {rgb.shape[:2]}"
+                    )
+        except InvalidDataError as exc:
+            raise InvalidDataError(where + str(exc)) from None
+
+    @property
+    def height(self) -> int:
+        return int(self.rgb.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.rgb.shape[1])
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Boolean HxW mask of pixels with a depth measurement."""
+        return self.depth > 0
+
+
+@dataclass(frozen=True, eq=False)
+class SemanticObservation:
+    """Per-pixel top-k classes and probabilities from a segmenter.
+
+    Args (fields):
+        classes: integer array HxWxk (stored as ``int16``), most likely class first.
+        probs: ``float32`` array HxWxk, probabilities in [0, 1], non-increasing along k, summing
+            to at most 1 (the rest is the mass of the classes not kept).
+        num_classes: size of the segmenter's label set; every class id is below it.
+    """
+
+    classes: np.ndarray
+    probs: np.ndarray
+    num_classes: int
+
+    def __post_init__(self) -> None:
+        c, p = self.classes, self.probs
+        if not isinstance(c, np.ndarray) or not np.issubdtype(c.dtype, np.integer):
+            raise InvalidDataError(
+                f"observation classes must be an integer array, got "
+                f"{getattr(c, 'dtype', type(c).__name__)}"
+            )
+        _array("observation probs", p, np.float32, 3)
+        if c.ndim != 3 or c.shape != p.shape:
+            raise InvalidDataError(
+                f"observation classes {c.shape} and probs {p.shape} must both be HxWxk"
+            )
+        n = self.num_classes
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise InvalidDataError(f"num_classes must be a positive integer, got {n!r}")
+        if not np.all(np.isfinite(p)):
+            raise InvalidDataError("observation probs have NaN or inf values")
+        if p.size:
+            if p.min() < 0 or p.max() > 1:
+                raise InvalidDataError(
+                    f"observation probs must lie in [0, 1], got [{p.min()}, {p.max()}]"
+                )
+            if np.any(p.sum(axis=2) > 1 + 1e-4):
+                raise InvalidDataError("observation probs sum to more than 1 at some pixels")
+            if np.any(np.diff(p, axis=2) > 1e-6):
+                raise InvalidDataError("observation probs must be sorted, most likely first")
+            if c.min() < 0 or c.max() >= n:
+                raise InvalidDataError(
+                    f"observation class ids must lie in [0, {n - 1}], got [{c.min()}, {c.max()}]"
+                )
+        object.__setattr__(self, "classes", c.astype(np.int16, copy=False))
+        object.__setattr__(self, "num_classes", int(n))
+
+    @property
+    def k(self) -> int:
+        return int(self.classes.shape[2])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.classes.shape[0]), int(self.classes.shape[1]))
+
+    @property
+    def argmax(self) -> np.ndarray:
+        """HxW most likely class."""
+        return self.classes[..., 0]
+
+    @property
+    def others(self) -> np.ndarray:
+        """HxW probability mass not held by the k kept classes."""
+        return np.clip(1.0 - self.probs.sum(axis=2), 0.0, 1.0)
+
+    @classmethod
+    def from_probabilities(cls, probs: np.ndarray, *, k: int = 3) -> SemanticObservation:
+        """Keep the top ``k`` classes of a full HxWxC softmax."""
+        probs = np.asarray(probs, dtype=np.float32)
+        if probs.ndim != 3:
+            raise InvalidDataError(f"probabilities must be HxWxC, got shape {probs.shape}")
+        num_classes = probs.shape[2]
+        k = min(k, num_classes)
+        idx = np.argpartition(-probs, k - 1, axis=2)[..., :k]
+        top = np.take_along_axis(probs, idx, axis=2)
+        order = np.argsort(-top, axis=2, kind="stable")
+        return cls(
+            classes=np.take_along_axis(idx, order, axis=2).astype(np.int16),
+            probs=np.take_along_axis(top, order, axis=2),
+            num_classes=num_classes,
+        )
+
+
+class Sequence(abc.ABC):
+    """A named series of frames seen by one camera.
+
+    Subclasses implement :meth:`__len__` and :meth:`frame`; iteration, indexing and slicing come
+    from them. ``meta`` holds reader-specific facts (layout, source, dropped frames).
+    """
+
+    def __init__(self, name: str, intrinsics: Intrinsics, meta: dict | None = None) -> None:
+        if not isinstance(intrinsics, Intrinsics):
+            raise InvalidDataError(
+                f"sequence {name!r}: intrinsics must be Intrinsics, got {type(intrinsics).__name__}"
+            )
+        self.name = name
+        self.intrinsics = intrinsics
+        self.meta = dict(meta or {})
+
+    @abc.abstractmethod
+    def __len__(self) -> int:
+        """Number of frames."""
+
+    @abc.abstractmethod
+    def frame(self, index: int) -> Frame:
+        """Frame ``index`` (0 <= index < len)."""
+
+    def __getitem__(self, index: int) -> Frame:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"frame index {index} out of range for {n} frames of {self.name!r}")
+        return self.frame(index % n)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self.frame(i)
+
+
+class FrameList(Sequence):
+    """A sequence held in memory (tests, generated data)."""
+
+    def __init__(self, name: str, intrinsics: Intrinsics, frames: list[Frame],
+                 meta: dict | None = None) -> None:
+        super().__init__(name, intrinsics, meta)
+        for f in frames:
+            if f.intrinsics != intrinsics:
+                raise InvalidDataError(
+                    f"frame {f.name!r} has intrinsics {f.intrinsics} but the sequence {name!r} "
+                    f"has {intrinsics}"
+                )
+        self._frames = list(frames)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def frame(self, index: int) -> Frame:
+        return self._frames[index]

@@ -1,0 +1,101 @@
+"""The two plug-in interfaces: segmenters (2D) and map updaters (3D).
+
+Later modules implement them; the runner and the CLI only talk to these methods. A reader is any
+factory registered in :data:`evsmap.registry.READERS` that returns a :class:`evsmap.data.Sequence`.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from os import PathLike
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from evsmap.data import Frame, SemanticObservation
+
+if TYPE_CHECKING:  # torch is heavy to import; only type checkers need it here
+    import torch
+
+
+class Segmenter(abc.ABC):
+    """Turns a :class:`Frame` into a :class:`SemanticObservation`.
+
+    Attributes:
+        num_classes: size of the label set the segmenter predicts.
+        class_names: one name per class id.
+        uses_depth: whether the depth image is an input (RGB-D networks) or ignored.
+    """
+
+    num_classes: int
+    class_names: tuple[str, ...]
+    uses_depth: ClassVar[bool] = True
+
+    @property
+    @abc.abstractmethod
+    def module(self) -> torch.nn.Module | None:
+        """The torch module that does the work (for parameter/FLOP counts and export), or
+        ``None`` for segmenters that are not networks."""
+
+    @abc.abstractmethod
+    def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
+        """Top-``k`` classes and probabilities for every pixel of ``frame``."""
+
+    def __call__(self, frame: Frame) -> SemanticObservation:
+        return self.predict(frame)
+
+
+@dataclass(frozen=True)
+class MapStats:
+    """Size of a map: octree nodes, leaves and bytes held in memory."""
+
+    nodes: int
+    leaves: int
+    memory_bytes: int
+
+
+UNKNOWN, FREE, OCCUPIED = -1, 0, 1
+
+
+@dataclass(frozen=True)
+class PointQuery:
+    """What a map knows at N query points.
+
+    Attributes:
+        state: ``int8`` (N,), -1 unknown, 0 free, 1 occupied.
+        probability: ``float32`` (N,) occupancy probability, NaN where unknown.
+        label: ``int16`` (N,) most likely class, -1 where unknown, free or unlabelled.
+    """
+
+    state: np.ndarray
+    probability: np.ndarray
+    label: np.ndarray
+
+
+class MapUpdater(abc.ABC):
+    """Integrates frames (and optionally their semantics) into a volumetric map.
+
+    Attributes:
+        resolution: leaf voxel edge length in metres.
+        uses_semantics: whether :meth:`integrate` reads the observation.
+    """
+
+    resolution: float
+    uses_semantics: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
+        """Fuse one frame (depth, colour, pose, intrinsics) and its semantics into the map."""
+
+    @abc.abstractmethod
+    def stats(self) -> MapStats:
+        """Current node and memory counts."""
+
+    @abc.abstractmethod
+    def write(self, path: str | PathLike[str]) -> int:
+        """Write the map to ``path``; returns the file size in bytes (the paper's "Map Size")."""
+
+    @abc.abstractmethod
+    def query(self, points: np.ndarray) -> PointQuery:
+        """Occupancy and label at ``points`` (N x 3 world coordinates, metres)."""

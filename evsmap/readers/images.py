@@ -1,0 +1,66 @@
+"""Checked image loading: every failure names the file and what was expected."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
+from evsmap.errors import DataFormatError
+
+
+def _open(path: Path) -> Image.Image:
+    if not path.is_file():
+        raise DataFormatError(f"{path}: file not found")
+    try:
+        img = Image.open(path)
+        img.load()
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        raise DataFormatError(f"{path}: unreadable or corrupt image ({exc})") from None
+    return img
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """8-bit colour image as ``uint8`` HxWx3 (RGBA and palette images are converted; grey and
+    16-bit images are refused)."""
+    img = _open(path)
+    if img.mode not in ("RGB", "RGBA", "P"):
+        raise DataFormatError(f"{path}: expected an 8-bit colour image, got mode {img.mode}")
+    return np.asarray(img.convert("RGB"), dtype=np.uint8)
+
+
+def read_uint16(path: Path) -> np.ndarray:
+    """16-bit single-channel image (depth) as ``uint16`` HxW."""
+    img = _open(path)
+    if img.mode not in ("I;16", "I;16B", "I;16L", "I"):
+        raise DataFormatError(f"{path}: expected a 16-bit single-channel depth image, "
+                              f"got mode {img.mode}")
+    arr = np.asarray(img)
+    if arr.ndim != 2:
+        raise DataFormatError(f"{path}: expected a single-channel image, got shape {arr.shape}")
+    if arr.dtype != np.uint16:
+        if arr.min() < 0 or arr.max() > 65535:
+            raise DataFormatError(f"{path}: depth values outside the 16-bit range")
+        arr = arr.astype(np.uint16)
+    return arr
+
+
+def read_uint8_labels(path: Path) -> np.ndarray:
+    """8-bit single-channel label image as ``uint8`` HxW."""
+    img = _open(path)
+    if img.mode not in ("L", "P"):
+        raise DataFormatError(f"{path}: expected an 8-bit single-channel label image, "
+                              f"got mode {img.mode}")
+    return np.asarray(img, dtype=np.uint8)
+
+
+def write_png(path: Path, array: np.ndarray) -> None:
+    """Write ``uint8`` HxW / HxWx3 or ``uint16`` HxW as PNG (deterministic bytes)."""
+    if array.dtype == np.uint16:
+        img = Image.fromarray(array)
+    elif array.dtype == np.uint8 and array.ndim in (2, 3):
+        img = Image.fromarray(array)
+    else:
+        raise ValueError(f"cannot write {array.dtype} {array.shape} as PNG")
+    img.save(path, format="PNG", compress_level=1)

@@ -1,0 +1,350 @@
+"""TUM RGB-D benchmark layout (Sturm et al., IROS 2012): reader and writer.
+
+Layout: ``rgb.txt`` / ``depth.txt`` list ``timestamp path`` (``#`` comments), ``groundtruth.txt``
+lists ``timestamp tx ty tz qx qy qz qw`` (camera-to-world), depth PNGs are ``uint16`` with
+metres = value / 5000. evsmap's synthetic sequences add ``labels.txt`` + ``labels/`` (``uint8``,
+255 void), ``intrinsics.txt`` and ``evsmap.json``.
+
+Depth and RGB are associated one-to-one by timestamp within ``max_time_difference`` (0.02 s as
+TUM's tools; see :func:`associate` for the matching and TUM's greedy variant), and the
+ground-truth pose is interpolated to each depth timestamp (linear translation, slerp rotation).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from evsmap.data import Frame, Intrinsics, Sequence
+from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.geometry import interpolate_poses, matrix_to_quat
+from evsmap.readers.images import read_rgb, read_uint8_labels, read_uint16, write_png
+from evsmap.registry import READERS
+from evsmap.synth.render import DEPTH_SCALE, dequantize_depth, quantize_depth
+
+# Published intrinsics of the TUM RGB-D cameras (640x480), from the dataset's documentation.
+TUM_CAMERAS: dict[str, Intrinsics] = {
+    "fr1": Intrinsics(517.3, 516.5, 318.6, 255.3, 640, 480),
+    "fr2": Intrinsics(520.9, 521.0, 325.1, 249.7, 640, 480),
+    "fr3": Intrinsics(535.4, 539.2, 320.1, 247.6, 640, 480),
+    "ros-default": Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480),
+}
+METADATA_FILE = "evsmap.json"
+INTRINSICS_FILE = "intrinsics.txt"
+
+
+def detect_camera(path: Path) -> str | None:
+    """``fr1``/``fr2``/``fr3`` from a folder name such as ``rgbd_dataset_freiburg1_xyz``."""
+    m = re.search(r"(?:freiburg|fr)([123])(?![0-9])", path.resolve().name.lower())
+    return f"fr{m.group(1)}" if m else None
+
+
+def read_list(path: Path, columns: int) -> list[list[str]]:
+    """Non-comment lines of a TUM text file split on whitespace, each with ``columns`` fields."""
+    if not path.is_file():
+        raise DataFormatError(f"{path}: file not found")
+    rows = []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataFormatError(f"{path}: cannot read ({exc})") from None
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = line.replace(",", " ").split()
+        if len(fields) != columns:
+            raise DataFormatError(
+                f"{path}:{lineno}: expected {columns} fields, got {len(fields)}: {line[:80]!r}")
+        try:
+            float(fields[0])
+        except ValueError:
+            raise DataFormatError(f"{path}:{lineno}: bad timestamp {fields[0]!r}") from None
+        rows.append(fields)
+    return rows
+
+
+def _candidates(a: np.ndarray, b: np.ndarray, max_difference: float):
+    """For each a_i, the indices j of b (into the sorted order) with |a_i - b_j| < tolerance."""
+    order_b = np.argsort(b, kind="stable")
+    bs = b[order_b]
+    lo = np.searchsorted(bs, a - max_difference, side="left")
+    hi = np.searchsorted(bs, a + max_difference, side="right")
+    cands = []
+    for i, (l, h) in enumerate(zip(lo, hi, strict=True)):
+        js = np.arange(l, h)
+        d = np.abs(a[i] - bs[js])
+        keep = d < max_difference
+        cands.append(list(zip(js[keep].tolist(), d[keep].tolist(), strict=True)))
+    return order_b, cands
+
+
+def associate(a: np.ndarray, b: np.ndarray, max_difference: float,
+              method: str = "optimal") -> list[tuple[int, int]]:
+    """One-to-one matches (i, j) between timestamp arrays ``a`` and ``b`` with
+    |a_i - b_j| < ``max_difference``, sorted by ``a``.
+
+    ``greedy`` is TUM's ``associate.py``: take the globally closest pairs first. Between two
+    30 Hz streams offset by about half a period (as in freiburg1) it strands frames: on the first
+    37 frames of fr1_xyz it keeps 32. ``optimal`` (default) is an order-preserving matching that
+    keeps the most pairs and, among those, the smallest total time difference (dynamic programming
+    over each frame's at most few candidates); it keeps all 37 there.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if method not in ("optimal", "greedy"):
+        raise EvsmapError(f"unknown association method {method!r} (known: optimal, greedy)")
+    order_a = np.argsort(a, kind="stable")
+    order_b, cands = _candidates(a[order_a], b, max_difference)
+    if method == "greedy":
+        flat = [(d, i, j) for i, cs in enumerate(cands) for j, d in cs]
+        used_a, used_b, pairs = set(), set(), []
+        for _, i, j in sorted(flat):
+            if i not in used_a and j not in used_b:
+                used_a.add(i)
+                used_b.add(j)
+                pairs.append((int(order_a[i]), int(order_b[j])))
+        return sorted(pairs)
+    # best[(j)] after frame i: score (pairs, -total diff) and back-pointer, j = last used b (-1)
+    states: dict[int, tuple[tuple[int, float], list[tuple[int, int]]]] = {-1: ((0, 0.0), [])}
+    for i, cs in enumerate(cands):
+        new = dict(states)  # a_i left unmatched
+        for j, d in cs:
+            best = None
+            for last, (score, path) in states.items():
+                if last < j and (best is None or score > best[0]):
+                    best = (score, path)
+            if best is None:
+                continue
+            score = (best[0][0] + 1, best[0][1] - d)
+            if j not in new or score > new[j][0]:
+                new[j] = (score, best[1] + [(i, j)])
+        # keep, for every last-used j, only states not dominated by one with a smaller j
+        pruned, top = {}, None
+        for last in sorted(new):
+            if top is None or new[last][0] > top:
+                pruned[last] = new[last]
+                top = new[last][0]
+        states = pruned
+    _, path = max(states.values(), key=lambda s: s[0])
+    return sorted((int(order_a[i]), int(order_b[j])) for i, j in path)
+
+
+def read_intrinsics_file(path: Path) -> Intrinsics:
+    """``intrinsics.txt``: one line ``fx fy cx cy width height`` (``#`` comments allowed)."""
+    rows = read_list(path, 6)
+    if len(rows) != 1:
+        raise DataFormatError(f"{path}: expected one line 'fx fy cx cy width height'")
+    try:
+        fx, fy, cx, cy = (float(v) for v in rows[0][:4])
+        width, height = int(rows[0][4]), int(rows[0][5])
+        return Intrinsics(fx, fy, cx, cy, width, height)
+    except (ValueError, EvsmapError) as exc:
+        raise DataFormatError(f"{path}: bad intrinsics ({exc})") from None
+
+
+class TumSequence(Sequence):
+    """A TUM RGB-D sequence folder (or an ``evsmap synth`` output).
+
+    Args:
+        path: the sequence folder (holding ``rgb.txt``, ``depth.txt``, ``groundtruth.txt``).
+        camera: ``fr1``, ``fr2``, ``fr3`` or ``ros-default``; detected from the folder name when
+            omitted. Ignored when ``intrinsics`` is given or the folder has ``intrinsics.txt``.
+        intrinsics: explicit camera parameters (override everything else).
+        max_time_difference: association tolerance between depth and RGB stamps, seconds.
+        association: ``optimal`` (most pairs) or ``greedy`` (TUM's associate.py).
+        max_pose_gap: a frame is dropped when the ground-truth samples around its stamp are
+            further apart than this (motion-capture dropouts), seconds.
+        depth_scale: depth PNG value per metre.
+    """
+
+    def __init__(self, *, path: str | Path, camera: str | None = None,
+                 intrinsics: Intrinsics | None = None, max_time_difference: float = 0.02,
+                 max_pose_gap: float = 0.1, depth_scale: float = DEPTH_SCALE,
+                 association: str = "optimal") -> None:
+        root = Path(path)
+        if not root.is_dir():
+            raise DataFormatError(f"{root}: not a folder")
+        if not (max_time_difference > 0):
+            raise EvsmapError(f"max_time_difference must be positive, got {max_time_difference}")
+        self.root = root
+        self.depth_scale = float(depth_scale)
+        meta: dict = {"layout": "tum", "path": str(root)}
+        meta_file = root / METADATA_FILE
+        if meta_file.is_file():
+            try:
+                info = json.loads(meta_file.read_text())
+            except (OSError, json.JSONDecodeError) as exc:
+                raise DataFormatError(f"{meta_file}: not valid JSON ({exc})") from None
+            if info.get("format") == "evsmap-synthetic":
+                meta.update(layout="synthetic", synthetic=info)
+        intr, source = self._intrinsics(root, camera, intrinsics)
+        meta["intrinsics_source"] = source
+        super().__init__(root.resolve().name, intr, meta)
+
+        rgb = read_list(root / "rgb.txt", 2)
+        depth = read_list(root / "depth.txt", 2)
+        if not depth:
+            raise DataFormatError(f"{root / 'depth.txt'}: lists no depth images")
+        gt_path = root / "groundtruth.txt"
+        gt = read_list(gt_path, 8)
+        if len(gt) < 1:
+            raise DataFormatError(f"{gt_path}: no poses (camera-to-world poses are required)")
+        gt_arr = np.array([[float(v) for v in row] for row in gt])
+        order = np.argsort(gt_arr[:, 0], kind="stable")
+        gt_arr = gt_arr[order]
+        dup = np.diff(gt_arr[:, 0]) <= 0
+        if np.any(dup):
+            gt_arr = gt_arr[np.concatenate([[True], ~dup])]
+        t_rgb = np.array([float(r[0]) for r in rgb])
+        t_depth = np.array([float(r[0]) for r in depth])
+        pairs = associate(t_depth, t_rgb, max_time_difference, association)
+        dropped = {"no_rgb_within_tolerance": len(depth) - len(pairs), "no_pose": 0}
+        matched = np.array([i for i, _ in pairs], dtype=np.int64)
+        ts = t_depth[matched] if len(matched) else np.zeros(0)
+        gt_t = gt_arr[:, 0]
+        inside = (ts >= gt_t[0]) & (ts <= gt_t[-1])
+        hi = np.clip(np.searchsorted(gt_t, ts, side="left"), 0, len(gt_t) - 1)
+        lo = np.clip(hi - 1, 0, len(gt_t) - 1)
+        exact = gt_t[hi] == ts
+        gap = np.where(exact, 0.0, gt_t[hi] - gt_t[lo])
+        ok = inside & (gap <= max_pose_gap)
+        dropped["no_pose"] = int((~ok).sum())
+        pairs = [p for p, keep in zip(pairs, ok, strict=True) if keep]
+        ts = ts[ok]
+        self.poses = interpolate_poses(gt_t, gt_arr[:, 1:4], gt_arr[:, 4:8], ts) if len(ts) else \
+            np.zeros((0, 4, 4))
+        self.timestamps = ts
+        self.depth_files = [root / depth[i][1] for i, _ in pairs]
+        self.rgb_files = [root / rgb[j][1] for _, j in pairs]
+        self.label_files: list[Path] | None = None
+        labels_txt = root / "labels.txt"
+        if labels_txt.is_file():
+            lab = {row[0]: root / row[1] for row in read_list(labels_txt, 2)}
+            missing = [depth[i][0] for i, _ in pairs if depth[i][0] not in lab]
+            if missing:
+                raise DataFormatError(
+                    f"{labels_txt}: no label image for depth timestamp {missing[0]} "
+                    f"({len(missing)} missing)")
+            self.label_files = [lab[depth[i][0]] for i, _ in pairs]
+        self.meta.update(
+            listed_depth=len(depth), listed_rgb=len(rgb), groundtruth_poses=len(gt_arr),
+            dropped=dropped, has_labels=self.label_files is not None,
+        )
+        if not len(self):
+            raise DataFormatError(
+                f"{root}: no usable frames ({dropped['no_rgb_within_tolerance']} depth images "
+                f"without RGB within {max_time_difference} s, {dropped['no_pose']} without pose)")
+
+    @staticmethod
+    def _intrinsics(root: Path, camera: str | None,
+                    intrinsics: Intrinsics | None) -> tuple[Intrinsics, str]:
+        if intrinsics is not None:
+            return intrinsics, "explicit"
+        if (root / INTRINSICS_FILE).is_file() and camera is None:
+            return read_intrinsics_file(root / INTRINSICS_FILE), INTRINSICS_FILE
+        if camera is not None:
+            if camera not in TUM_CAMERAS:
+                raise EvsmapError(
+                    f"unknown TUM camera {camera!r} (known: {', '.join(TUM_CAMERAS)})")
+            return TUM_CAMERAS[camera], f"camera {camera}"
+        detected = detect_camera(root)
+        if detected is None:
+            raise EvsmapError(
+                f"{root}: cannot tell which TUM camera recorded this folder (its name has no "
+                f"freiburg1/2/3); pass camera=fr1|fr2|fr3|ros-default (--camera) or add "
+                f"{INTRINSICS_FILE}")
+        return TUM_CAMERAS[detected], f"camera {detected} (from folder name)"
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def frame(self, index: int) -> Frame:
+        rgb = read_rgb(self.rgb_files[index])
+        raw = read_uint16(self.depth_files[index])
+        if raw.shape != rgb.shape[:2]:
+            raise DataFormatError(
+                f"{self.depth_files[index]}: depth is {raw.shape[1]}x{raw.shape[0]} but "
+                f"{self.rgb_files[index].name} is {rgb.shape[1]}x{rgb.shape[0]}")
+        if raw.shape != self.intrinsics.shape:
+            raise DataFormatError(
+                f"{self.depth_files[index]}: image is {raw.shape[1]}x{raw.shape[0]} but the "
+                f"intrinsics ({self.meta['intrinsics_source']}) are for "
+                f"{self.intrinsics.width}x{self.intrinsics.height}")
+        labels = None
+        if self.label_files is not None:
+            labels = read_uint8_labels(self.label_files[index])
+            if labels.shape != raw.shape:
+                raise DataFormatError(f"{self.label_files[index]}: label size {labels.shape} "
+                                      f"differs from depth size {raw.shape}")
+        return Frame(rgb=rgb, depth=dequantize_depth(raw, self.depth_scale),
+                     intrinsics=self.intrinsics, pose=self.poses[index],
+                     timestamp=float(self.timestamps[index]), labels=labels,
+                     name=self.depth_files[index].name)
+
+
+def is_tum_folder(path: Path) -> bool:
+    path = Path(path)
+    return (path / "rgb.txt").is_file() and (path / "depth.txt").is_file()
+
+
+@READERS.register("tum", detect=is_tum_folder,
+                  description="TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt) or an "
+                              "`evsmap synth` output")
+def open_tum(*, path: str, camera: str | None = None, intrinsics: Intrinsics | None = None,
+             max_time_difference: float = 0.02, max_pose_gap: float = 0.1,
+             association: str = "optimal") -> TumSequence:
+    """TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt) or an `evsmap synth` output."""
+    return TumSequence(path=path, camera=camera, intrinsics=intrinsics,
+                       max_time_difference=max_time_difference, max_pose_gap=max_pose_gap,
+                       association=association)
+
+
+def write_tum(sequence: Sequence, out: Path, *, quaternions: np.ndarray | None = None,
+              progress=None) -> None:
+    """Write ``sequence`` to the folder ``out`` in the TUM layout (plus labels and intrinsics).
+
+    RGB, depth and labels share each frame's timestamp; poses are written with full float
+    precision (``repr``). ``quaternions`` (N x 4, x y z w), when the sequence was generated from
+    them, are written as they are instead of being recovered from the matrices, so reading the
+    folder back gives bit-identical pose matrices. ``progress`` wraps the frame iterator.
+    """
+    out = Path(out)
+    for sub in ("rgb", "depth"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    intr = sequence.intrinsics
+    (out / INTRINSICS_FILE).write_text(
+        "# fx fy cx cy width height (pixels, pinhole, no distortion)\n"
+        f"{intr.fx!r} {intr.fy!r} {intr.cx!r} {intr.cy!r} {intr.width} {intr.height}\n")
+    header = "# {what}\n# file: '{name}'\n# timestamp filename\n"
+    rgb_lines = [header.format(what="color images", name=sequence.name)]
+    depth_lines = [header.format(what="depth maps", name=sequence.name)]
+    label_lines = [header.format(what="semantic labels (uint8 class ids, 255 void)",
+                                 name=sequence.name)]
+    gt_lines = [f"# ground truth trajectory\n# file: '{sequence.name}'\n"
+                "# timestamp tx ty tz qx qy qz qw\n"]
+    has_labels = False
+    frames = iter(sequence) if progress is None else progress(sequence)
+    for frame in frames:
+        stamp = f"{frame.timestamp:.6f}"
+        write_png(out / "rgb" / f"{stamp}.png", frame.rgb)
+        write_png(out / "depth" / f"{stamp}.png", quantize_depth(frame.depth))
+        rgb_lines.append(f"{stamp} rgb/{stamp}.png\n")
+        depth_lines.append(f"{stamp} depth/{stamp}.png\n")
+        if frame.labels is not None:
+            (out / "labels").mkdir(exist_ok=True)
+            write_png(out / "labels" / f"{stamp}.png", frame.labels)
+            label_lines.append(f"{stamp} labels/{stamp}.png\n")
+            has_labels = True
+        index = len(gt_lines) - 1
+        t = frame.pose[:3, 3]
+        quat = quaternions[index] if quaternions is not None else matrix_to_quat(frame.pose[:3, :3])
+        gt_lines.append(" ".join([stamp] + [repr(float(v)) for v in (*t, *quat)]) + "\n")
+    (out / "rgb.txt").write_text("".join(rgb_lines))
+    (out / "depth.txt").write_text("".join(depth_lines))
+    (out / "groundtruth.txt").write_text("".join(gt_lines))
+    if has_labels:
+        (out / "labels.txt").write_text("".join(label_lines))

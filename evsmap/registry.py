@@ -1,0 +1,207 @@
+"""Plug-in registries: one per kind (segmenter, updater, reader).
+
+Modelled on torchvision's ``models/_api.py``: a name maps to a factory; registering a taken name
+raises, asking for an unknown name raises with the known names and the closest match, and every
+factory takes keyword-only arguments so a configuration is always explicit::
+
+    from evsmap.registry import READERS
+    seq = READERS.create("synthetic", scene="bedroom", frames=30)
+
+Third-party packages add plug-ins through the ``evsmap.plugins`` entry-point group: each entry
+point names a module (or a callable) that registers its plug-ins when imported (or called).
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+import inspect
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from importlib import metadata
+from typing import Any, Generic, TypeVar
+
+from evsmap.errors import DuplicateNameError, EvsmapError, UnknownNameError
+
+T = TypeVar("T")
+
+# Modules that register the built-in plug-ins; imported on first use of any registry.
+_BUILTIN_MODULES = (
+    "evsmap.readers.tum",
+    "evsmap.readers.synthetic",
+    "baselines",
+)
+_loaded = False
+
+
+@dataclass(frozen=True)
+class Entry(Generic[T]):
+    """One registered plug-in."""
+
+    name: str
+    factory: Callable[..., T]
+    description: str
+    kind: str
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    def parameters(self) -> dict[str, inspect.Parameter]:
+        """The factory's keyword-only parameters, by name."""
+        return dict(inspect.signature(self.factory).parameters)
+
+
+class Registry(Generic[T]):
+    """Names -> factories for one kind of plug-in.
+
+    Args:
+        kind: what the registry holds ("segmenter", "updater", "reader"), used in messages.
+    """
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self._entries: dict[str, Entry[T]] = {}
+
+    # -- registration -------------------------------------------------------------------------
+    def register(
+        self, name: str, *, description: str | None = None, **extras: Any
+    ) -> Callable[[Callable[..., T]], Callable[..., T]]:
+        """Decorator registering ``factory`` under ``name``.
+
+        Raises:
+            DuplicateNameError: ``name`` is already taken.
+            TypeError: the factory has a positional parameter.
+        """
+
+        def decorator(factory: Callable[..., T]) -> Callable[..., T]:
+            self.add(name, factory, description=description, **extras)
+            return factory
+
+        return decorator
+
+    def add(
+        self, name: str, factory: Callable[..., T], *, description: str | None = None,
+        **extras: Any,
+    ) -> None:
+        """Register ``factory`` under ``name`` (the non-decorator form of :meth:`register`)."""
+        if not name or name != name.strip() or name.lower() != name:
+            raise ValueError(f"{self.kind} name {name!r} must be non-empty lower case")
+        if name in self._entries:
+            raise DuplicateNameError(
+                f"{self.kind} {name!r} is already registered "
+                f"(by {_qualname(self._entries[name].factory)})"
+            )
+        for pname, param in inspect.signature(factory).parameters.items():
+            if param.kind in (param.POSITIONAL_ONLY, param.POSITIONAL_OR_KEYWORD, param.VAR_POSITIONAL):
+                raise TypeError(
+                    f"{self.kind} factory {_qualname(factory)} must take keyword-only arguments; "
+                    f"parameter {pname!r} is positional"
+                )
+        if description is None:
+            doc = inspect.getdoc(factory) or ""
+            description = doc.strip().splitlines()[0] if doc.strip() else ""
+        self._entries[name] = Entry(name, factory, description, self.kind, dict(extras))
+
+    def unregister(self, name: str) -> None:
+        """Remove ``name`` (used by tests and by plug-ins that replace themselves)."""
+        self.get(name)
+        del self._entries[name]
+
+    # -- lookup -------------------------------------------------------------------------------
+    def get(self, name: str) -> Entry[T]:
+        """The entry for ``name``.
+
+        Raises:
+            UnknownNameError: with the known names and the closest match.
+        """
+        _ensure_builtins()
+        try:
+            return self._entries[name]
+        except KeyError:
+            pass
+        known = sorted(self._entries)
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.4)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        listed = ", ".join(known) if known else "none registered"
+        raise UnknownNameError(f"unknown {self.kind} {name!r}{hint} (known: {listed})") from None
+
+    def create(self, name: str, **config: Any) -> T:
+        """Build the plug-in ``name`` with ``config``; unknown options are named in the error."""
+        entry = self.get(name)
+        params = entry.parameters()
+        takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
+        if not takes_any:
+            unknown = sorted(set(config) - set(params))
+            if unknown:
+                accepted = ", ".join(sorted(params)) or "none"
+                raise EvsmapError(
+                    f"{self.kind} {name!r} has no option {', '.join(map(repr, unknown))} "
+                    f"(accepted: {accepted})"
+                )
+        return entry.factory(**config)
+
+    def names(self) -> list[str]:
+        _ensure_builtins()
+        return sorted(self._entries)
+
+    def entries(self) -> list[Entry[T]]:
+        _ensure_builtins()
+        return [self._entries[n] for n in sorted(self._entries)]
+
+    def __contains__(self, name: object) -> bool:
+        _ensure_builtins()
+        return name in self._entries
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def __len__(self) -> int:
+        return len(self.names())
+
+
+def _qualname(obj: object) -> str:
+    return f"{getattr(obj, '__module__', '?')}.{getattr(obj, '__qualname__', repr(obj))}"
+
+
+SEGMENTERS: Registry[Any] = Registry("segmenter")
+UPDATERS: Registry[Any] = Registry("updater")
+READERS: Registry[Any] = Registry("reader")
+
+
+def list_segmenters() -> list[str]:
+    return SEGMENTERS.names()
+
+
+def list_updaters() -> list[str]:
+    return UPDATERS.names()
+
+
+def list_readers() -> list[str]:
+    return READERS.names()
+
+
+def get_segmenter(name: str, **config: Any) -> Any:
+    return SEGMENTERS.create(name, **config)
+
+
+def get_updater(name: str, **config: Any) -> Any:
+    return UPDATERS.create(name, **config)
+
+
+def get_reader(name: str, **config: Any) -> Any:
+    return READERS.create(name, **config)
+
+
+def _ensure_builtins() -> None:
+    """Import the built-in plug-in modules and the ``evsmap.plugins`` entry points once."""
+    global _loaded
+    if _loaded:
+        return
+    _loaded = True
+    for module in _BUILTIN_MODULES:
+        importlib.import_module(module)
+    for ep in metadata.entry_points(group="evsmap.plugins"):
+        try:
+            target = ep.load()
+        except Exception as exc:  # a broken third-party plug-in must not hide the built-ins
+            raise EvsmapError(f"plug-in entry point {ep.name!r} ({ep.value}) failed to load: {exc}")
+        if callable(target) and not inspect.ismodule(target):
+            target()

@@ -1,0 +1,87 @@
+"""Facts about a sequence, as a plain record (the CLI and reports format it)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
+
+from evsmap.classes import NYU40_CLASSES
+from evsmap.data import Frame, Sequence
+
+
+def summarize_sequence(
+    sequence: Sequence, *, progress: Callable[[Iterable[Frame]], Iterable[Frame]] | None = None,
+    class_names: tuple[str, ...] | None = None,
+) -> dict[str, Any]:
+    """Read every frame once and return frames, resolution, depth statistics, pose span and the
+    label classes present (with pixel fractions of all labelled pixels)."""
+    names = class_names or getattr(sequence, "class_names", None) or NYU40_CLASSES
+    depth_hist = np.zeros(65536, dtype=np.int64)  # 1/5000 m bins, exact for TUM-scaled depth
+    valid = total = 0
+    label_counts = np.zeros(256, dtype=np.int64)
+    has_labels = False
+    positions, stamps = [], []
+    frames = iter(sequence) if progress is None else progress(sequence)
+    for frame in frames:
+        d = frame.depth[frame.depth > 0]
+        valid += d.size
+        total += frame.depth.size
+        idx = np.clip(np.round(d.astype(np.float64) * 5000.0), 0, 65535).astype(np.int64)
+        depth_hist += np.bincount(idx, minlength=65536)
+        if frame.labels is not None:
+            has_labels = True
+            label_counts += np.bincount(frame.labels.ravel(), minlength=256)
+        positions.append(frame.pose[:3, 3])
+        stamps.append(frame.timestamp)
+    pos = np.asarray(positions)
+    record: dict[str, Any] = {
+        "name": sequence.name,
+        "layout": sequence.meta.get("layout", "unknown"),
+        "frames": len(stamps),
+        "width": sequence.intrinsics.width,
+        "height": sequence.intrinsics.height,
+        "intrinsics": sequence.intrinsics.as_dict(),
+        "intrinsics_source": sequence.meta.get("intrinsics_source", "reader"),
+    }
+    if valid:
+        cdf = np.cumsum(depth_hist) / valid
+
+        def q(p: float) -> float:
+            return float(np.searchsorted(cdf, p) / 5000.0)
+
+        nz = np.nonzero(depth_hist)[0]
+        record["depth"] = {
+            "min_m": float(nz[0] / 5000.0), "max_m": float(nz[-1] / 5000.0),
+            "p01_m": q(0.01), "median_m": q(0.5), "p99_m": q(0.99),
+            "valid_fraction": valid / total,
+        }
+    else:
+        record["depth"] = {"valid_fraction": 0.0}
+    if len(pos):
+        steps = np.linalg.norm(np.diff(pos, axis=0), axis=1) if len(pos) > 1 else np.zeros(0)
+        record["poses"] = {
+            "duration_s": float(stamps[-1] - stamps[0]),
+            "path_length_m": float(steps.sum()),
+            "extent_m": (pos.max(axis=0) - pos.min(axis=0)).tolist(),
+            "start": pos[0].tolist(), "end": pos[-1].tolist(),
+        }
+    if has_labels:
+        labelled = label_counts[:255].sum()
+        present = np.nonzero(label_counts[:255])[0]
+        record["labels"] = {
+            "classes_present": len(present),
+            "void_fraction": float(label_counts[255] / max(label_counts.sum(), 1)),
+            "classes": [
+                {"id": int(c), "name": names[c] if c < len(names) else f"class {c}",
+                 "fraction": float(label_counts[c] / max(labelled, 1))}
+                for c in present
+            ],
+        }
+    else:
+        record["labels"] = None
+    for key in ("dropped", "synthetic", "scene", "seed"):
+        if key in sequence.meta:
+            record[key] = sequence.meta[key]
+    return record
