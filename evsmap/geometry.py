@@ -48,10 +48,12 @@ def matrix_to_quat(r: np.ndarray) -> np.ndarray:
                    (flat[:, 1, 0] - flat[:, 0, 1]) / s, 0.25 * s], axis=1)
     s = np.sqrt(np.maximum(1.0 + m00 - m11 - m22, 1e-300)) * 2
     q1 = np.stack([0.25 * s, (flat[:, 0, 1] + flat[:, 1, 0]) / s,
-                   (flat[:, 0, 2] + flat[:, 2, 0]) / s, (flat[:, 2, 1] - flat[:, 1, 2]) / s], axis=1)
+                   (flat[:, 0, 2] + flat[:, 2, 0]) / s,
+                   (flat[:, 2, 1] - flat[:, 1, 2]) / s], axis=1)
     s = np.sqrt(np.maximum(1.0 + m11 - m00 - m22, 1e-300)) * 2
     q2 = np.stack([(flat[:, 0, 1] + flat[:, 1, 0]) / s, 0.25 * s,
-                   (flat[:, 1, 2] + flat[:, 2, 1]) / s, (flat[:, 0, 2] - flat[:, 2, 0]) / s], axis=1)
+                   (flat[:, 1, 2] + flat[:, 2, 1]) / s,
+                   (flat[:, 0, 2] - flat[:, 2, 0]) / s], axis=1)
     s = np.sqrt(np.maximum(1.0 + m22 - m00 - m11, 1e-300)) * 2
     q3 = np.stack([(flat[:, 0, 2] + flat[:, 2, 0]) / s, (flat[:, 1, 2] + flat[:, 2, 1]) / s,
                    0.25 * s, (flat[:, 1, 0] - flat[:, 0, 1]) / s], axis=1)

@@ -90,7 +90,8 @@ class Registry(Generic[T]):
                 f"(by {_qualname(self._entries[name].factory)})"
             )
         for pname, param in inspect.signature(factory).parameters.items():
-            if param.kind in (param.POSITIONAL_ONLY, param.POSITIONAL_OR_KEYWORD, param.VAR_POSITIONAL):
+            if param.kind in (param.POSITIONAL_ONLY, param.POSITIONAL_OR_KEYWORD,
+                              param.VAR_POSITIONAL):
                 raise TypeError(
                     f"{self.kind} factory {_qualname(factory)} must take keyword-only arguments; "
                     f"parameter {pname!r} is positional"
@@ -202,6 +203,7 @@ def _ensure_builtins() -> None:
         try:
             target = ep.load()
         except Exception as exc:  # a broken third-party plug-in must not hide the built-ins
-            raise EvsmapError(f"plug-in entry point {ep.name!r} ({ep.value}) failed to load: {exc}")
+            raise EvsmapError(
+                f"plug-in entry point {ep.name!r} ({ep.value}) failed to load: {exc}") from exc
         if callable(target) and not inspect.ismodule(target):
             target()

@@ -8,7 +8,7 @@ import argparse
 import json
 import platform
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +54,7 @@ def _timed(seq, times: list[float]):
 
 
 def run(args: argparse.Namespace) -> int:
-    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("reports") / stamp
     if out.exists() and any(out.iterdir()):
         raise EvsmapError(f"--out {out}: folder exists and is not empty")

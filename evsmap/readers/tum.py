@@ -74,8 +74,8 @@ def _candidates(a: np.ndarray, b: np.ndarray, max_difference: float):
     lo = np.searchsorted(bs, a - max_difference, side="left")
     hi = np.searchsorted(bs, a + max_difference, side="right")
     cands = []
-    for i, (l, h) in enumerate(zip(lo, hi, strict=True)):
-        js = np.arange(l, h)
+    for i, (first, last) in enumerate(zip(lo, hi, strict=True)):
+        js = np.arange(first, last)
         d = np.abs(a[i] - bs[js])
         keep = d < max_difference
         cands.append(list(zip(js[keep].tolist(), d[keep].tolist(), strict=True)))

@@ -90,7 +90,8 @@ def ground_truth_voxels(room: Room, resolution: float, *, hidden_tol: float = 1e
     labels = np.concatenate(all_labels)
     off = keys.min(axis=0)
     span = keys.max(axis=0) - off + 1
-    code = ((keys[:, 0] - off[0]) * span[1] + (keys[:, 1] - off[1])) * span[2] + (keys[:, 2] - off[2])
+    rel = keys - off
+    code = (rel[:, 0] * span[1] + rel[:, 1]) * span[2] + rel[:, 2]
     pair, counts = np.unique(code * 256 + labels, return_counts=True)
     vox, lab = pair // 256, pair % 256
     # for each voxel keep the label with most samples (ties: lower class id)

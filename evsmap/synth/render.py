@@ -130,7 +130,7 @@ def _hash01(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, seed: np.ndarray) ->
 
 
 def _value_noise(pts: np.ndarray, cell: float, seed: np.ndarray) -> np.ndarray:
-    """Trilinear value noise on a lattice of ``cell`` metres, fixed to the world (view-consistent)."""
+    """Trilinear value noise on a world-fixed lattice of ``cell`` metres (view-consistent)."""
     g = pts / cell
     base = np.floor(g)
     f = g - base

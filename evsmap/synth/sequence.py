@@ -39,9 +39,11 @@ class SyntheticSequence(Sequence):
                  width: int = 640, height: int = 480, noise: bool = False) -> None:
         for name, value, lo in (("frames", frames, 1), ("width", width, 8), ("height", height, 8)):
             if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-                raise EvsmapError(f"synthetic option {name} must be an integer >= {lo}, got {value!r}")
+                raise EvsmapError(
+                    f"synthetic option {name} must be an integer >= {lo}, got {value!r}")
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise EvsmapError(f"synthetic option seed must be a non-negative integer, got {seed!r}")
+            raise EvsmapError(
+                f"synthetic option seed must be a non-negative integer, got {seed!r}")
         self.room = build_room(scene, seed=seed)
         super().__init__(
             f"synthetic-{scene}-s{seed}", default_intrinsics(width, height),
