@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -16,6 +15,7 @@ import numpy as np
 from evsmap.classes import NYU40_CLASSES, colorize
 from evsmap.cli.main import _version
 from evsmap.cli.options import nonnegative_int, positive_int
+from evsmap.environment import describe
 from evsmap.errors import EvsmapError
 from evsmap.paths import default_data_root
 from evsmap.progress import progress
@@ -85,8 +85,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     _contact_sheet(seq, out / "frames.png")
     record = {
-        "run": stamp, "evsmap_version": _version(), "python": platform.python_version(),
-        "machine": platform.machine(), "processor": platform.processor() or "unknown",
+        "run": stamp, "evsmap_version": _version(), **describe(),
         "synthetic": synth, "tum_fr1_xyz": real,
         "data_root": str(root) if root else None,
     }
@@ -125,10 +124,10 @@ def _markdown(r: dict) -> str:
     d = s["depth"]
     lines = [
         f"# evsmap reproduce - run {r['run']}", "",
-        f"evsmap {r['evsmap_version']}, Python {r['python']}, {r['machine']} "
-        f"({r['processor']}). Every number below was measured in this run.", "",
+        f"evsmap {r['evsmap_version']}, Python {r['python']}, {r['cpu']} ({r['cpus']} CPUs). "
+        "Every number below was measured in this run.", "",
         "## Built-in synthetic sequence", "",
-        f"Scene `{s.get('synthetic', {}).get('scene', s['name'])}`, {s['frames']} frames at "
+        f"Scene `{s['scene']}`, seed {s['seed']}, {s['frames']} frames at "
         f"{s['width']}x{s['height']}, Kinect-like depth noise.", "",
         "| quantity | value |", "|---|---|",
         f"| render time per frame (median, IQR) | {s['render_ms_median']:.1f} ms "
