@@ -269,7 +269,7 @@ class SemanticObservation:
 class Sequence(abc.ABC):
     """A named series of frames seen by one camera.
 
-    Subclasses implement :meth:`__len__` and :meth:`frame`; iteration, indexing and slicing come
+    Subclasses implement :meth:`__len__` and :meth:`frame`; iteration and (negative) indexing come
     from them. ``meta`` holds reader-specific facts (layout, source, dropped frames).
     """
 

@@ -15,6 +15,7 @@ import numpy as np
 from evsmap.classes import NYU40_CLASSES, colorize
 from evsmap.cli.main import _version
 from evsmap.cli.options import nonnegative_int, positive_int
+from evsmap.data import Frame
 from evsmap.environment import describe
 from evsmap.errors import EvsmapError
 from evsmap.paths import default_data_root
@@ -45,11 +46,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def _timed(seq, times: list[float]):
+def _timed(seq, times: list[float], keep: dict[int, Frame]):
+    """Render every frame once, recording its time and keeping the frames listed in ``keep``."""
     for i in range(len(seq)):
         t0 = time.perf_counter()
         frame = seq[i]
         times.append(time.perf_counter() - t0)
+        if i in keep:
+            keep[i] = frame
         yield frame
 
 
@@ -62,8 +66,9 @@ def run(args: argparse.Namespace) -> int:
     seq = SyntheticSequence(scene=args.scene, seed=args.seed, frames=frames, width=width,
                             height=height, noise=True)
     times: list[float] = []
-    synth = summarize_sequence(
-        seq, progress=lambda f: progress(_timed(seq, times), total=len(seq), desc="rendering"))
+    shown: dict[int, Frame] = dict.fromkeys(sorted({0, len(seq) // 3, (2 * len(seq)) // 3}))
+    synth = summarize_sequence(seq, progress=lambda f: progress(
+        _timed(seq, times, shown), total=len(seq), desc="rendering"))
     synth["render_ms_median"] = float(np.median(times) * 1e3)
     synth["render_ms_iqr"] = float(np.subtract(*np.percentile(times, [75, 25])) * 1e3)
     gt = {}
@@ -83,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         real = summarize_sequence(tum, progress=lambda f: progress(f, total=len(tum), desc="TUM"))
 
     out.mkdir(parents=True, exist_ok=True)
-    _contact_sheet(seq, out / "frames.png")
+    _contact_sheet(shown, out / "frames.png")
     record = {
         "run": stamp, "evsmap_version": _version(), **describe(),
         "synthetic": synth, "tum_fr1_xyz": real,
@@ -95,16 +100,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _contact_sheet(seq: SyntheticSequence, path: Path) -> None:
+def _contact_sheet(frames: dict[int, Frame], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    picks = sorted({0, len(seq) // 3, (2 * len(seq)) // 3})
-    fig, axes = plt.subplots(len(picks), 3, figsize=(12, 3.1 * len(picks)), squeeze=False)
-    for row, i in enumerate(picks):
-        f = seq[i]
+    fig, axes = plt.subplots(len(frames), 3, figsize=(12, 3.1 * len(frames)), squeeze=False)
+    for row, (i, f) in enumerate(sorted(frames.items())):
         for ax, img, title in zip(
             axes[row], (f.rgb, f.depth, colorize(f.labels)),
             (f"RGB frame {i}", "depth (m)", "labels (NYUv2-40)"), strict=True,

@@ -24,7 +24,7 @@ def room_trajectory(
         room_size: interior (length, width, height) in metres.
         num_frames: number of poses.
         seed: varies the phase, direction and wobble of the path.
-        turns: how many side-to-side sweeps of the gaze per lap, halved.
+        turns: scales the gaze sweep rate: 2 x ``turns`` side-to-side sweeps per lap.
         speed: walking speed in m/s that sets the timestamps (one lap per sequence, so longer
             sequences are denser in time, not longer in space).
 
