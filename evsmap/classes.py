@@ -47,3 +47,23 @@ def colorize(labels: np.ndarray, num_classes: int = len(NYU40_CLASSES)) -> np.nd
     lut = np.zeros((256, 3), dtype=np.uint8)
     lut[:num_classes] = palette(num_classes)
     return lut[labels]
+
+
+SUNRGBD37_CLASSES: tuple[str, ...] = NYU40_CLASSES[:37]
+"""SUN RGB-D's 37 classes (Song et al. 2015): the first 37 of the NYUv2-40 set, same order."""
+
+CITYSCAPES19_CLASSES: tuple[str, ...] = (
+    "road", "sidewalk", "building", "wall", "fence", "pole", "traffic light", "traffic sign",
+    "vegetation", "terrain", "sky", "person", "rider", "car", "truck", "bus", "train",
+    "motorcycle", "bicycle",
+)
+"""Cityscapes' 19 evaluation classes by train id (Cordts et al. 2016)."""
+
+
+def class_names_for(num_classes: int, *, outdoor: bool = False) -> tuple[str, ...]:
+    """The standard label set of that size (40 NYUv2, 37 SUN RGB-D, 19 Cityscapes), else
+    ``class_0 ... class_{n-1}``. ``outdoor`` prefers Cityscapes when sizes could clash."""
+    known = {40: NYU40_CLASSES, 37: SUNRGBD37_CLASSES, 19: CITYSCAPES19_CLASSES}
+    if num_classes in known and (num_classes == 19 or not outdoor):
+        return known[num_classes]
+    return tuple(f"class_{i}" for i in range(num_classes))

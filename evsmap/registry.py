@@ -29,6 +29,7 @@ T = TypeVar("T")
 _BUILTIN_MODULES = (
     "evsmap.readers.tum",
     "evsmap.readers.synthetic",
+    "evsmap.segmenters.zoo",
     "baselines",
 )
 _loaded = False

@@ -22,7 +22,14 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from evsmap.cli import info_cmd, list_cmd, reproduce_cmd, synth_cmd
+    from evsmap.cli import (
+        complexity_cmd,
+        info_cmd,
+        list_cmd,
+        reproduce_cmd,
+        speed_cmd,
+        synth_cmd,
+    )
 
     parser = _Parser(
         prog="evsmap",
@@ -31,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd):
+    for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd):
         module.add_parser(sub)
     return parser
 

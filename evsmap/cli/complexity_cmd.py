@@ -1,0 +1,71 @@
+"""``evsmap complexity``: parameters and FLOPs of a segmentation network."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from evsmap.cli.options import positive_int
+from evsmap.errors import EvsmapError
+from evsmap.registry import SEGMENTERS
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "complexity", help="count a segmentation network's parameters and FLOPs",
+        description="Count the parameters and the FLOPs of one forward pass of MODEL with fvcore "
+                    "(one multiply-accumulate counts as one flop, as in the paper). Operators "
+                    "fvcore cannot count are listed, not dropped.")
+    add_model_options(p)
+    p.add_argument("--json", action="store_true", help="print the record as JSON")
+    p.set_defaults(run=run)
+
+
+def add_model_options(p: argparse.ArgumentParser) -> None:
+    """MODEL, --height, --width and --classes (shared with ``evsmap speed``)."""
+    p.add_argument("model", metavar="MODEL", help="registered segmenter (see `evsmap list`)")
+    p.add_argument("--height", type=positive_int, metavar="H",
+                   help="input height (default: the model's paper resolution)")
+    p.add_argument("--width", type=positive_int, metavar="W",
+                   help="input width (default: the model's paper resolution)")
+    p.add_argument("--classes", type=positive_int, metavar="C",
+                   help="number of classes (default: the model's)")
+
+
+def build_network(args: argparse.Namespace) -> tuple[Any, int, int]:
+    """The segmenter named by ``args.model`` and the input size to measure it at."""
+    config = {} if args.classes is None else {"num_classes": args.classes}
+    segmenter = SEGMENTERS.create(args.model, **config)
+    if getattr(segmenter, "module", None) is None:
+        raise EvsmapError(f"segmenter {args.model!r} is not a network; nothing to measure")
+    default_h, default_w = segmenter.default_size
+    return segmenter, args.height or default_h, args.width or default_w
+
+
+def run(args: argparse.Namespace) -> int:
+    segmenter, height, width = build_network(args)
+    from evsmap.measure.complexity import measure_complexity
+
+    inputs = segmenter.example_inputs(height, width)
+    record = measure_complexity(segmenter.module, inputs)
+    result = {"model": args.model, "num_classes": segmenter.num_classes,
+              "inputs": list(segmenter.input_names), **record.as_dict()}
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(format_complexity(result))
+    return 0
+
+
+def format_complexity(r: dict[str, Any]) -> str:
+    uncounted = ", ".join(f"{op} x{n}" for op, n in r["uncounted_ops"].items()) or "none"
+    return "\n".join([
+        f"model          {r['model']}  ({r['num_classes']} classes, "
+        f"inputs {', '.join(r['inputs'])})",
+        f"input          {r['width']}x{r['height']}",
+        f"params         {r['params'] / 1e6:.2f} M  ({r['params']:,})",
+        f"FLOPs          {r['flops'] / 1e9:.2f} G  (fvcore: 1 MAC = 1 flop)",
+        f"conv MACs      {r['conv_macs'] / 1e9:.2f} G",
+        f"uncounted ops  {uncounted}",
+    ])

@@ -1,0 +1,73 @@
+"""``evsmap speed``: inference speed (FPS) of a segmentation network on the CPU."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from evsmap.cli.complexity_cmd import add_model_options, build_network
+from evsmap.cli.options import nonnegative_int, positive_int
+
+# evsmap.measure.speed.BACKENDS, spelled out so that building the parser does not import torch
+BACKENDS = ("onnxruntime", "torch")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "speed", help="time a segmentation network on the CPU (FPS, roofline)",
+        description="Time single forward passes of MODEL on the CPU with torch or onnxruntime "
+                    "and report the median FPS with its inter-quartile range, next to an fp32 "
+                    "matmul roofline measured in the same call.")
+    add_model_options(p)
+    p.add_argument("--backend", choices=BACKENDS, default="torch",
+                   help="torch (eager, inference mode) or onnxruntime (CPU, cached ONNX export); "
+                        "default torch")
+    p.add_argument("--runs", type=positive_int, default=20, metavar="N",
+                   help="timed forward passes (default 20)")
+    p.add_argument("--warmup", type=nonnegative_int, default=3, metavar="N",
+                   help="untimed forward passes first (default 3)")
+    p.add_argument("--threads", type=positive_int, metavar="N",
+                   help="intra-op threads (default: torch's current count)")
+    p.add_argument("--cache-dir", type=Path, metavar="DIR",
+                   help="ONNX export cache (default $EVSMAP_CACHE_DIR/onnx or "
+                        "~/.cache/evsmap/onnx)")
+    p.add_argument("--json", action="store_true", help="print the record as JSON")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    segmenter, height, width = build_network(args)
+    from evsmap.measure.complexity import measure_complexity
+    from evsmap.measure.speed import measure_speed
+
+    inputs = segmenter.example_inputs(height, width)
+    macs = measure_complexity(segmenter.module, inputs).flops
+    record = measure_speed(
+        segmenter.module, inputs, backend=args.backend, runs=args.runs, warmup=args.warmup,
+        threads=args.threads, macs=macs, input_names=segmenter.input_names, key=args.model,
+        cache_dir=args.cache_dir)
+    result = {"model": args.model, "num_classes": segmenter.num_classes,
+              "inputs": list(segmenter.input_names), **record.as_dict()}
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(format_speed(result))
+    return 0
+
+
+def format_speed(r: dict[str, Any]) -> str:
+    versions = ", ".join(f"{k} {v}" for k, v in r["versions"].items())
+    return "\n".join([
+        f"model     {r['model']}  ({r['width']}x{r['height']}, backend {r['backend']}, "
+        f"{r['threads']} thread{'s' if r['threads'] != 1 else ''})",
+        f"fps       {r['fps_median']:.2f}  (IQR {r['fps_iqr']:.2f})",
+        f"latency   {r['ms_median']:.2f} ms median  (IQR {r['ms_iqr']:.2f} ms; {r['runs']} runs "
+        f"after {r['warmup']} warm-up)",
+        f"roofline  {100 * r['roofline_fraction']:.1f} % of {r['roofline_gmacs']:.1f} G MAC/s "
+        f"fp32 matmul  (achieved {r['achieved_gmacs']:.2f} G MAC/s, "
+        f"{r['macs'] / 1e9:.2f} G MAC per frame)",
+        f"cpu       {r['cpu']}",
+        f"versions  {versions}",
+    ])

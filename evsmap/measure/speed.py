@@ -1,0 +1,218 @@
+"""Inference speed of a network on the CPU (the paper's "FPS"), with an fp32 matmul roofline."""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from importlib import metadata
+from typing import Any
+
+import numpy as np
+import torch
+
+from evsmap.environment import cpu_model
+from evsmap.errors import UnknownNameError
+from evsmap.measure._util import as_inputs, eval_mode, image_size
+
+BACKENDS = ("onnxruntime", "torch")
+ROOFLINE_SIZE = 2048
+_VERSIONED = ("torch", "onnxruntime", "numpy", "fvcore")
+
+
+@dataclass(frozen=True)
+class SpeedRecord:
+    """Timing of ``runs`` single forward passes (batch as given, usually 1).
+
+    Attributes:
+        backend: ``"torch"`` (eager, ``inference_mode``) or ``"onnxruntime"`` (CPU provider,
+            all graph optimisations).
+        height, width: input image size.
+        runs, warmup: timed forward passes, and untimed ones before them.
+        threads: intra-op threads used (torch's after setting; onnxruntime's is set the same).
+        ms_median, ms_iqr: median latency and its inter-quartile range (q75 - q25), ms.
+        fps_median: ``1000 / ms_median``.
+        fps_iqr: frames per second at the 25th latency percentile minus those at the 75th.
+        times_ms: every timed forward pass, in order, ms.
+        macs: multiply-accumulates of one forward pass (fvcore's total).
+        roofline_gmacs: fp32 matmul throughput measured in the same call, G MAC/s.
+        achieved_gmacs: ``macs`` per median forward pass, G MAC/s.
+        roofline_fraction: ``achieved_gmacs / roofline_gmacs``.
+        versions: python and library versions.
+        cpu: CPU model name.
+    """
+
+    backend: str
+    height: int
+    width: int
+    runs: int
+    warmup: int
+    threads: int
+    ms_median: float
+    ms_iqr: float
+    fps_median: float
+    fps_iqr: float
+    times_ms: list[float]
+    macs: int
+    roofline_gmacs: float
+    achieved_gmacs: float
+    roofline_fraction: float
+    versions: dict[str, str] = field(default_factory=dict)
+    cpu: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of python, torch, onnxruntime, numpy and fvcore ("not installed" if absent)."""
+    versions = {"python": platform.python_version()}
+    for name in _VERSIONED:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
+def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int = 1) -> float:
+    """fp32 matmul throughput of this machine with torch's current thread count, G MAC/s.
+
+    Times ``torch.matmul`` of two ``size`` x ``size`` float32 matrices (``size**3`` MACs):
+    ``warmup`` untimed products, then the median of ``repeats`` timed ones.
+    """
+    if size < 1 or repeats < 1 or warmup < 0:
+        raise ValueError("size and repeats must be >= 1, warmup >= 0")
+    gen = torch.Generator().manual_seed(0)
+    a = torch.rand(size, size, generator=gen, dtype=torch.float32)
+    b = torch.rand(size, size, generator=gen, dtype=torch.float32)
+    out = torch.empty(size, size, dtype=torch.float32)
+    with torch.inference_mode():
+        for _ in range(warmup):
+            torch.matmul(a, b, out=out)
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            torch.matmul(a, b, out=out)
+            times.append(time.perf_counter() - t0)
+    return float(size) ** 3 / float(np.median(times)) / 1e9
+
+
+def measure_speed(
+    module: torch.nn.Module,
+    inputs: torch.Tensor | Sequence[torch.Tensor],
+    *,
+    backend: str = "torch",
+    runs: int = 20,
+    warmup: int = 3,
+    threads: int | None = None,
+    macs: int | None = None,
+    input_names: Sequence[str] | None = None,
+    key: str | None = None,
+    cache_dir: str | os.PathLike[str] | None = None,
+    roofline_size: int = ROOFLINE_SIZE,
+) -> SpeedRecord:
+    """Time ``runs`` forward passes of ``module(*inputs)`` after ``warmup`` untimed ones.
+
+    Args:
+        backend: ``"torch"`` (eval mode, ``torch.inference_mode``) or ``"onnxruntime"`` (the
+            module exported with :func:`~evsmap.measure.onnx_export.cached_onnx`, run on the
+            CPU execution provider with all graph optimisations, inputs as numpy arrays).
+        threads: intra-op threads for torch and onnxruntime; ``None`` keeps torch's current
+            count. torch's count is restored on return.
+        macs: MACs of one forward pass; measured with
+            :func:`~evsmap.measure.complexity.measure_complexity` when not given.
+        input_names: ONNX input names (default ``input0``, ``input1``, ...).
+        key: name of the ONNX cache entry (default: the module's class name).
+        cache_dir: ONNX cache folder (default
+            :func:`~evsmap.measure.onnx_export.default_cache_dir`).
+        roofline_size: matrix size of the fp32 matmul roofline (measured in this call).
+
+    Each sample is one forward pass timed with ``time.perf_counter``.
+
+    Raises:
+        UnknownNameError: ``backend`` is not one of :data:`BACKENDS`.
+        OnnxExportError: the onnxruntime backend could not export the module.
+    """
+    if backend not in BACKENDS:
+        raise UnknownNameError(f"unknown backend {backend!r} (known: {', '.join(BACKENDS)})")
+    if runs < 1 or warmup < 0 or (threads is not None and threads < 1):
+        raise ValueError(f"need runs >= 1, warmup >= 0, threads >= 1 (got runs={runs}, "
+                         f"warmup={warmup}, threads={threads})")
+    inputs = as_inputs(inputs)
+    height, width = image_size(inputs)
+    if input_names is None:
+        input_names = [f"input{i}" for i in range(len(inputs))]
+    if macs is None:
+        from evsmap.measure.complexity import measure_complexity
+
+        macs = measure_complexity(module, inputs).flops
+
+    previous_threads = torch.get_num_threads()
+    try:
+        if threads is not None:
+            torch.set_num_threads(threads)
+        used_threads = torch.get_num_threads()
+        if backend == "torch":
+            times = _time_torch(module, inputs, runs, warmup)
+        else:
+            forward = _onnxruntime_forward(module, inputs, input_names, used_threads,
+                                           key or type(module).__name__, cache_dir)
+            times = _time_calls(forward, runs, warmup)
+        roofline = roofline_gmacs(roofline_size)
+    finally:
+        torch.set_num_threads(previous_threads)
+
+    times_ms = [t * 1000.0 for t in times]
+    q25, median, q75 = (float(v) for v in np.percentile(times_ms, [25, 50, 75]))
+    achieved = macs / (median / 1000.0) / 1e9
+    return SpeedRecord(
+        backend=backend, height=height, width=width, runs=runs, warmup=warmup,
+        threads=used_threads,
+        ms_median=median, ms_iqr=q75 - q25,
+        fps_median=1000.0 / median, fps_iqr=1000.0 / q25 - 1000.0 / q75,
+        times_ms=times_ms, macs=int(macs),
+        roofline_gmacs=roofline, achieved_gmacs=achieved,
+        roofline_fraction=achieved / roofline,
+        versions=library_versions(), cpu=cpu_model(),
+    )
+
+
+def _time_calls(forward: Callable[[], object], runs: int, warmup: int) -> list[float]:
+    for _ in range(warmup):
+        forward()
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        forward()
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def _time_torch(module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], runs: int,
+                warmup: int) -> list[float]:
+    with eval_mode(module), torch.inference_mode():
+        return _time_calls(lambda: module(*inputs), runs, warmup)
+
+
+def _onnxruntime_forward(
+    module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], input_names: Sequence[str],
+    threads: int, key: str, cache_dir: str | os.PathLike[str] | None,
+) -> Callable[[], object]:
+    import onnxruntime as ort
+
+    from evsmap.measure.onnx_export import cached_onnx
+
+    path = cached_onnx(module, inputs, input_names, key=key, cache_dir=cache_dir)
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.log_severity_level = 3  # errors only
+    session = ort.InferenceSession(str(path), sess_options=options,
+                                   providers=["CPUExecutionProvider"])
+    arrays = dict(zip(input_names, (t.detach().cpu().numpy() for t in inputs), strict=True))
+    # the exporter drops inputs the graph does not use; feed only those it kept
+    feeds = {i.name: arrays[i.name] for i in session.get_inputs()}
+    return lambda: session.run(None, feeds)

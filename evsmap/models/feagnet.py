@@ -1,0 +1,373 @@
+"""FEAGNet, the RGB-D segmentation network of "EVSMaP: An Efficient Volumetric-Semantic Mapping
+Approach for Embedded Systems" (Section III-A, Fig. 2-5, Tables I-III).
+
+Two symmetric FC-HarDNet-70 encoders (RGB and depth) of five stages - the init layer and four
+HarDBlocks, as FASSD-Net keeps them - exchange information through a Cross-Modal Feature
+Interaction Module (CFIM) after every stage. A Dilated Asymmetric Pooling Pyramid Fusion module
+(DAPPF) aggregates context on the last encoder output, and a Lightweight Attention Decoder (LAD)
+of three stages (upsample x2, merge the encoder skip, three Lightweight Bottleneck Units, height-
+and width-direction attention) returns to 1/4 resolution, where a 1x1 convolution and bilinear
+upsampling restore the input size. Training adds multi-scale supervision heads.
+
+The paper leaves most module internals open; every choice made here, with the sentence it serves
+and the lineage it follows, is written down in ``docs/feagnet.md``.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from evsmap.models.hardnet import HarDNetEncoder
+from evsmap.models.layers import ConvBNReLU, resize_to
+
+# ---------------------------------------------------------------------------------------------
+# blocks
+
+
+class CFIM(nn.Module):
+    """Cross-Modal Feature Interaction Module (Fig. 3).
+
+    Global average pooling of both modalities; two fully connected layers (``C -> C/v -> C``) on
+    the RGB descriptor and a 1-D convolution of width 5 across the channels of the depth
+    descriptor; sigmoid gates; each gate re-weights the *other* modality ("cross-multiplied");
+    the two re-weighted maps are concatenated and reintegrated by a 1x1 conv-BN-ReLU into the RGB
+    stream. The depth stream continues with its own features.
+
+    Args:
+        channels: channels ``C`` of both inputs.
+        reduction: ``v``, the FC bottleneck ratio (16 in the paper).
+        kernel_size: width of the 1-D channel convolution (5 in the paper).
+    """
+
+    def __init__(self, channels: int, *, reduction: int = 16, kernel_size: int = 5) -> None:
+        super().__init__()
+        hidden = max(channels // reduction, 1)
+        self.fc = nn.Sequential(
+            nn.Linear(channels, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, channels))
+        self.conv1d = nn.Conv1d(1, 1, kernel_size, padding=kernel_size // 2, bias=False)
+        self.merge = ConvBNReLU(2 * channels, channels, 1)
+
+    def forward(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        b, c = rgb.shape[:2]
+        w_rgb = torch.sigmoid(self.fc(rgb.mean(dim=(2, 3)))).view(b, c, 1, 1)
+        w_depth = torch.sigmoid(self.conv1d(depth.mean(dim=(2, 3)).unsqueeze(1))).view(b, c, 1, 1)
+        return self.merge(torch.cat([rgb * w_depth, depth * w_rgb], dim=1))
+
+
+class AsymmetricSeparableConv(nn.Sequential):
+    """Depthwise 3x1 then depthwise 1x3 convolution (both with ``dilation``), then a pointwise
+    1x1 conv-BN-ReLU: an asymmetric depthwise separable convolution."""
+
+    def __init__(self, channels: int, *, dilation: int = 1) -> None:
+        super().__init__(
+            nn.Conv2d(channels, channels, (3, 1), padding=(dilation, 0), dilation=(dilation, 1),
+                      groups=channels, bias=False),
+            nn.Conv2d(channels, channels, (1, 3), padding=(0, dilation), dilation=(1, dilation),
+                      groups=channels, bias=False),
+            ConvBNReLU(channels, channels, 1),
+        )
+
+
+class DAPPF(nn.Module):
+    """Dilated Asymmetric Pooling Pyramid Fusion module (Fig. 4).
+
+    (a) three pyramid levels, each pooling with a pair of asymmetric (vertical and horizontal
+    strip) average pools of growing size; (b) on every level two asymmetric depthwise separable
+    convolutions, the second dilated with that level's rate (4, 8, 12); (c) every branch carries
+    ``C / q`` channels. As in DAPPM/PAPPM, each level also receives the previous level's output,
+    a 1x1 branch keeps the unpooled map, the branches are concatenated and fused back to ``C``
+    channels by a 1x1 conv, and the input is added back, so the output has the input's size.
+
+    Args:
+        channels: input and output channels ``C``.
+        compression: ``q``, the branch compression (2 in the paper).
+        pools: (kernel, stride) of each level's strip pools.
+        dilations: dilation of each level's second separable convolution.
+    """
+
+    def __init__(
+        self,
+        channels: int,
+        *,
+        compression: int = 2,
+        pools: tuple[tuple[int, int], ...] = ((5, 2), (9, 4), (17, 8)),
+        dilations: tuple[int, ...] = (4, 8, 12),
+    ) -> None:
+        super().__init__()
+        if len(pools) != len(dilations):
+            raise ValueError("DAPPF needs one dilation per pyramid level")
+        mid = channels // compression
+        self.pools = tuple(pools)
+        self.base = ConvBNReLU(channels, mid, 1)
+        self.reduce = nn.ModuleList(ConvBNReLU(channels, mid, 1) for _ in pools)
+        self.process = nn.ModuleList(
+            nn.Sequential(AsymmetricSeparableConv(mid), AsymmetricSeparableConv(mid, dilation=d))
+            for d in dilations)
+        self.fuse = ConvBNReLU(mid * (len(pools) + 1), channels, 1, relu=False)
+        self.relu = nn.ReLU(inplace=True)
+
+    @staticmethod
+    def _strip_pools(x: torch.Tensor, kernel: int, stride: int) -> torch.Tensor:
+        pad = kernel // 2
+        vertical = F.avg_pool2d(x, (kernel, 1), (stride, 1), (pad, 0), count_include_pad=False)
+        horizontal = F.avg_pool2d(x, (1, kernel), (1, stride), (0, pad), count_include_pad=False)
+        size = x.shape[-2:]
+        return resize_to(vertical, size) + resize_to(horizontal, size)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        outs = [self.base(x)]
+        prev = outs[0]
+        for (kernel, stride), reduce, process in zip(self.pools, self.reduce, self.process,
+                                                     strict=True):
+            prev = process(reduce(self._strip_pools(x, kernel, stride)) + prev)
+            outs.append(prev)
+        return self.relu(self.fuse(torch.cat(outs, dim=1)) + x)
+
+
+class LBU(nn.Module):
+    """Lightweight Bottleneck Unit (Fig. 5), after DABNet's DAB / FASSD-Net's MDA module.
+
+    BN-PReLU, a 3x3 conv halving the channels, two parallel depthwise asymmetric branches
+    (3x1 + 1x3, and the same dilated), summed, BN-PReLU, a 1x1 conv restoring the channels
+    (the cross-channel step), and a residual connection.
+
+    Args:
+        channels: input and output channels.
+        dilation: dilation of the second branch.
+    """
+
+    def __init__(self, channels: int, *, dilation: int = 2) -> None:
+        super().__init__()
+        half = channels // 2
+        self.pre = nn.Sequential(nn.BatchNorm2d(channels), nn.PReLU(channels))
+        self.reduce = nn.Conv2d(channels, half, 3, padding=1, bias=False)
+
+        def branch(d: int) -> nn.Sequential:
+            return nn.Sequential(
+                nn.Conv2d(half, half, (3, 1), padding=(d, 0), dilation=(d, 1), groups=half,
+                          bias=False),
+                nn.Conv2d(half, half, (1, 3), padding=(0, d), dilation=(1, d), groups=half,
+                          bias=False),
+            )
+
+        self.local = branch(1)
+        self.context = branch(dilation)
+        self.post = nn.Sequential(nn.BatchNorm2d(half), nn.PReLU(half))
+        self.expand = nn.Conv2d(half, channels, 1, bias=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.reduce(self.pre(x))
+        y = self.post(self.local(y) + self.context(y))
+        return x + self.expand(y)
+
+
+class AxisAttention(nn.Module):
+    """Height-direction (HA) and width-direction (WA) attention (Fig. 5).
+
+    Shared 1x1 query/key projections (``C -> C/4``) give, for every column, an ``H x H`` affinity
+    matrix (HA) and, for every row, a ``W x W`` one (WA): the co-attention affinities of the two
+    directions. Each direction aggregates its own 1x1 value projection; the two results are summed
+    and added to the input with a learned scale (initialised to 0), as in CCNet/DANet.
+
+    Args:
+        channels: feature channels ``C``.
+        key_reduction: ``C`` divided by the query/key width.
+    """
+
+    def __init__(self, channels: int, *, key_reduction: int = 4) -> None:
+        super().__init__()
+        keys = max(channels // key_reduction, 1)
+        self.query = nn.Conv2d(channels, keys, 1)
+        self.key = nn.Conv2d(channels, keys, 1)
+        self.value_h = nn.Conv2d(channels, channels, 1)
+        self.value_w = nn.Conv2d(channels, channels, 1)
+        self.gamma = nn.Parameter(torch.zeros(1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        q, k = self.query(x), self.key(x)
+        # height direction: one H x H affinity per column
+        aff_h = torch.softmax(torch.einsum("bchw,bcgw->bwhg", q, k), dim=-1)
+        out_h = torch.einsum("bwhg,bcgw->bchw", aff_h, self.value_h(x))
+        # width direction: one W x W affinity per row
+        aff_w = torch.softmax(torch.einsum("bchw,bchv->bhwv", q, k), dim=-1)
+        out_w = torch.einsum("bhwv,bchv->bchw", aff_w, self.value_w(x))
+        return x + self.gamma * (out_h + out_w)
+
+
+class LADStage(nn.Module):
+    """One stage of the Lightweight Attention Decoder: three LBUs and HA/WA attention at the
+    stage's resolution, then x2 upsampling to the skip's size and the skip merged in
+    (concatenation, 1x1 conv-BN-ReLU); the result feeds the next stage.
+
+    Args:
+        in_channels: channels coming from the deeper stage.
+        skip_channels: channels of the encoder skip.
+        out_channels: channels of this stage.
+        units: number of LBUs (three in the paper).
+        dilations: dilation of each LBU's context branch.
+        attention: whether HA and WA are used (Table III's "WA&HA").
+    """
+
+    def __init__(self, in_channels: int, skip_channels: int, out_channels: int, *,
+                 units: int = 3, dilations: tuple[int, ...] = (2, 4, 8),
+                 attention: bool = True) -> None:
+        super().__init__()
+        if len(dilations) != units:
+            raise ValueError("LADStage needs one dilation per LBU")
+        self.units = nn.Sequential(*(LBU(in_channels, dilation=d) for d in dilations))
+        self.attention = AxisAttention(in_channels) if attention else nn.Identity()
+        self.merge = ConvBNReLU(in_channels + skip_channels, out_channels, 1)
+
+    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Returns (stage features before upsampling, merged output for the next stage)."""
+        x = self.attention(self.units(x))
+        return x, self.merge(torch.cat([resize_to(x, skip.shape[-2:]), skip], dim=1))
+
+
+# ---------------------------------------------------------------------------------------------
+# model
+
+
+class FEAGNet(nn.Module):
+    """FEAGNet: RGB-D (or RGB-only) semantic segmentation.
+
+    In eval mode ``forward`` returns logits at the input resolution; in training mode with
+    ``multiscale=True`` it returns ``(main, side_1/8, side_1/16)`` for multi-scale supervision.
+
+    Args:
+        num_classes: number of output classes.
+        use_depth: two encoders (RGB-D, V1/V2) or the RGB encoder only (S/L).
+        init_strides: strides of the four init-layer convs; V2 uses FC-HarDNet's (2, 1, 2, 1),
+            V1 strides the second conv too, (2, 2, 2, 1), so every later layer sees a quarter of
+            the pixels.
+        growth: HarDBlock growth rate per encoder stage.
+        layers: HarDBlock layer count per encoder stage.
+        transitions: encoder transition widths (stage output channels).
+        decoder_channels: channels of the three LAD stages, deepest first.
+        cfim: fuse the modalities with CFIM (``False``: element-wise addition, the baseline).
+        dappf: apply DAPPF to the last encoder output.
+        attention: HA and WA in every decoder stage.
+        multiscale: add the training-only supervision heads at 1/8 and 1/16 of the init
+            layer's resolution.
+    """
+
+    def __init__(
+        self,
+        *,
+        num_classes: int = 40,
+        use_depth: bool = True,
+        init_strides: tuple[int, int, int, int] = (2, 1, 2, 1),
+        growth: tuple[int, ...] = (10, 16, 18, 24),
+        layers: tuple[int, ...] = (4, 4, 8, 8),
+        transitions: tuple[int, ...] = (64, 96, 160, 224),
+        decoder_channels: tuple[int, int, int] = (128, 112, 64),
+        cfim: bool = True,
+        dappf: bool = True,
+        attention: bool = True,
+        multiscale: bool = True,
+    ) -> None:
+        super().__init__()
+        if num_classes < 1:
+            raise ValueError(f"num_classes must be positive, got {num_classes}")
+        self.num_classes = num_classes
+        self.use_depth = use_depth
+        enc = dict(stem_strides=init_strides, growth=growth, layers=layers,
+                   transitions=transitions)
+        self.rgb_encoder = HarDNetEncoder(in_channels=3, **enc)
+        self.depth_encoder = HarDNetEncoder(in_channels=1, **enc) if use_depth else None
+        stage_channels = [self.rgb_encoder.stem_channels, *transitions]
+        if use_depth and cfim:
+            self.fusion = nn.ModuleList(CFIM(c) for c in stage_channels)
+        else:
+            self.fusion = None
+        deepest = transitions[-1]
+        self.context = DAPPF(deepest) if dappf else nn.Identity()
+        skips = list(reversed(transitions[:-1]))[:3]
+        if len(skips) != 3:
+            raise ValueError("FEAGNet needs at least four encoder stages after the init layer")
+        self.decoder = nn.ModuleList()
+        ch = deepest
+        for skip, out in zip(skips, decoder_channels, strict=True):
+            self.decoder.append(LADStage(ch, skip, out, attention=attention))
+            ch = out
+        self.head = nn.Conv2d(ch, num_classes, 1)
+        stage_inputs = [deepest, *decoder_channels[:2]]
+        self.side_heads = (nn.ModuleList(nn.Conv2d(c, num_classes, 1) for c in stage_inputs[1:])
+                           if multiscale else None)
+
+    def _fuse(self, index: int, rgb: torch.Tensor, depth: torch.Tensor | None) -> torch.Tensor:
+        if depth is None:
+            return rgb
+        if self.fusion is None:
+            return rgb + depth
+        return self.fusion[index](rgb, depth)
+
+    def forward(self, rgb: torch.Tensor, depth: torch.Tensor | None = None
+                ) -> torch.Tensor | tuple[torch.Tensor, ...]:
+        if self.use_depth and depth is None:
+            raise ValueError("this FEAGNet is RGB-D: forward(rgb, depth) needs the depth image")
+        size = rgb.shape[-2:]
+        r = self.rgb_encoder.run_stem(rgb)
+        d = self.depth_encoder.run_stem(depth) if self.use_depth else None
+        r = self._fuse(0, r, d)
+        features = []
+        for i in range(len(self.rgb_encoder.blocks)):
+            _, r = self.rgb_encoder.run_block(i, r)
+            if d is not None:
+                _, d = self.depth_encoder.run_block(i, d)
+            r = self._fuse(i + 1, r, d)
+            features.append(r)
+        x = self.context(features[-1])
+        stage_outputs = []
+        for stage, skip in zip(self.decoder, reversed(features[-4:-1]), strict=True):
+            inner, x = stage(x, skip)
+            stage_outputs.append(inner)
+        main = resize_to(self.head(x), size)
+        if self.training and self.side_heads is not None:
+            sides = [head(out) for head, out in zip(self.side_heads, stage_outputs[1:],
+                                                    strict=True)]
+            return (main, *reversed(sides))
+        return main
+
+
+# ---------------------------------------------------------------------------------------------
+# variants
+
+V2_INIT_STRIDES = (2, 1, 2, 1)
+"""FC-HarDNet-70's init layer: the encoders start at 1/4 resolution."""
+V1_INIT_STRIDES = (2, 2, 2, 1)
+"""V1 strides the init layer's second conv too: the encoders start at 1/8 resolution."""
+
+ABLATIONS: dict[str, dict[str, bool]] = {
+    "basel": dict(cfim=False, dappf=False, attention=False, multiscale=False),
+    "basel+cfim": dict(cfim=True, dappf=False, attention=False, multiscale=False),
+    "basel+dappf": dict(cfim=False, dappf=True, attention=False, multiscale=False),
+    "basel+cfim+dappf": dict(cfim=True, dappf=True, attention=False, multiscale=False),
+    "basel+cfim+dappf+waha": dict(cfim=True, dappf=True, attention=True, multiscale=False),
+    "full": dict(cfim=True, dappf=True, attention=True, multiscale=True),
+}
+"""The six rows of Table III (ablation on NYUv2, FEAGNet-V2), top to bottom."""
+
+
+def feagnet_v1(*, num_classes: int = 40, **switches: bool) -> FEAGNet:
+    """FEAGNet-V1: RGB-D, strided init layer (Table I: 4.5 M, 1.9 G at 480x640)."""
+    return FEAGNet(num_classes=num_classes, init_strides=V1_INIT_STRIDES, **switches)
+
+
+def feagnet_v2(*, num_classes: int = 40, **switches: bool) -> FEAGNet:
+    """FEAGNet-V2: RGB-D, FC-HarDNet's init layer (Table I: 4.5 M, 7.8 G at 480x640)."""
+    return FEAGNet(num_classes=num_classes, init_strides=V2_INIT_STRIDES, **switches)
+
+
+def feagnet_s(*, num_classes: int = 19, **switches: bool) -> FEAGNet:
+    """FEAGNet-S: RGB only, strided init layer (Table II: 2.8 M, Cityscapes)."""
+    return FEAGNet(num_classes=num_classes, use_depth=False, init_strides=V1_INIT_STRIDES,
+                   **switches)
+
+
+def feagnet_l(*, num_classes: int = 19, **switches: bool) -> FEAGNet:
+    """FEAGNet-L: RGB only, FC-HarDNet's init layer (Table II: 2.8 M, Cityscapes)."""
+    return FEAGNet(num_classes=num_classes, use_depth=False, init_strides=V2_INIT_STRIDES,
+                   **switches)

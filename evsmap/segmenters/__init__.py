@@ -1,0 +1,1 @@
+"""Segmenter plug-ins: neural networks wrapped as :class:`evsmap.interfaces.Segmenter`."""

@@ -1,0 +1,189 @@
+"""A torch segmentation network wrapped as a :class:`~evsmap.interfaces.Segmenter`.
+
+Every registered network (FEAGNet variants, ESANet, FC-HarDNet) is a :class:`NetworkSegmenter`:
+it normalises a :class:`~evsmap.data.Frame` the way the network was trained, resizes it to the
+network's input size, runs the network with torch (eval, inference mode) or ONNX Runtime (CPU,
+through a cached single-file export), and returns the per-pixel top-k classes and probabilities
+at the frame's resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from os import PathLike
+from typing import ClassVar
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from evsmap.data import Frame, SemanticObservation
+from evsmap.errors import InvalidDataError, UnknownNameError
+from evsmap.interfaces import Segmenter
+from evsmap.segmenters.weights import load_weights
+
+BACKENDS = ("torch", "onnxruntime")
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+
+@dataclass(frozen=True)
+class Normalization:
+    """How a network expects its inputs.
+
+    RGB is scaled to [0, 1], then ``(x - rgb_mean) / rgb_std`` per channel. Depth (metres) is
+    standardised as ``(d - depth_mean) / depth_std``; invalid pixels (depth 0) are set to 0 after
+    standardisation, i.e. to the mean depth, as ESANet's preprocessing does.
+    """
+
+    rgb_mean: tuple[float, float, float] = IMAGENET_MEAN
+    rgb_std: tuple[float, float, float] = IMAGENET_STD
+    depth_mean: float = 2.8419494
+    depth_std: float = 1.4172594
+
+    def as_dict(self) -> dict:
+        return {"rgb_mean": list(self.rgb_mean), "rgb_std": list(self.rgb_std),
+                "depth_mean": self.depth_mean, "depth_std": self.depth_std}
+
+
+INDOOR = Normalization()
+"""ImageNet RGB statistics; NYUv2 training-set depth statistics (ESANet's, converted to metres)."""
+
+
+class NetworkSegmenter(Segmenter):
+    """A segmentation network as a segmenter plug-in.
+
+    Args:
+        name: registered name (used in messages and as the ONNX cache key).
+        module: the network; ``module(rgb)`` or ``module(rgb, depth)`` returns logits
+            (B, C, H, W) in eval mode.
+        num_classes: number of classes the network predicts.
+        class_names: one name per class.
+        uses_depth: whether the network reads depth.
+        default_size: (H, W) the paper measures the network at; also the input size when
+            ``input_size`` is not given.
+        normalization: input normalisation.
+        backend: ``"torch"`` or ``"onnxruntime"``.
+        weights: optional state-dict file to load.
+        input_size: (H, W) frames are resized to before the network (default ``default_size``).
+        config: the factory's options (recorded, and part of the ONNX cache key).
+    """
+
+    uses_depth: ClassVar[bool] = True  # overridden per instance
+
+    def __init__(
+        self,
+        *,
+        name: str,
+        module: nn.Module,
+        num_classes: int,
+        class_names: tuple[str, ...],
+        uses_depth: bool,
+        default_size: tuple[int, int],
+        normalization: Normalization = INDOOR,
+        backend: str = "torch",
+        weights: str | PathLike[str] | None = None,
+        input_size: tuple[int, int] | None = None,
+        config: dict | None = None,
+    ) -> None:
+        if backend not in BACKENDS:
+            raise UnknownNameError(
+                f"unknown backend {backend!r} (known: {', '.join(BACKENDS)})")
+        if len(class_names) != num_classes:
+            raise InvalidDataError(
+                f"{name}: {len(class_names)} class names for {num_classes} classes")
+        self.name = name
+        self._module = module.eval()
+        self.num_classes = num_classes
+        self.class_names = tuple(class_names)
+        self.uses_depth = uses_depth  # type: ignore[misc]
+        self.default_size = tuple(default_size)
+        self.normalization = normalization
+        self.backend = backend
+        self.input_size = tuple(input_size) if input_size is not None else self.default_size
+        self.config = dict(config or {})
+        self.weights = str(weights) if weights is not None else None
+        if weights is not None:
+            load_weights(self._module, weights)
+        self._session = None
+
+    @property
+    def module(self) -> nn.Module:
+        return self._module
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return ("rgb", "depth") if self.uses_depth else ("rgb",)
+
+    def example_inputs(self, height: int, width: int) -> tuple[torch.Tensor, ...]:
+        """Deterministic random inputs of the network's shapes (batch 1)."""
+        gen = torch.Generator().manual_seed(0)
+        rgb = torch.randn(1, 3, height, width, generator=gen)
+        if not self.uses_depth:
+            return (rgb,)
+        return rgb, torch.randn(1, 1, height, width, generator=gen)
+
+    # -- preprocessing ---------------------------------------------------------------------
+
+    def preprocess(self, frame: Frame) -> tuple[torch.Tensor, ...]:
+        """Normalised, resized network inputs (batch 1, float32) for ``frame``."""
+        n = self.normalization
+        size = self.input_size
+        rgb = torch.from_numpy(np.ascontiguousarray(frame.rgb)).permute(2, 0, 1)[None].float()
+        rgb = rgb / 255.0
+        if tuple(rgb.shape[-2:]) != size:
+            rgb = F.interpolate(rgb, size=size, mode="bilinear", align_corners=False)
+        mean = torch.tensor(n.rgb_mean).view(1, 3, 1, 1)
+        std = torch.tensor(n.rgb_std).view(1, 3, 1, 1)
+        rgb = (rgb - mean) / std
+        if not self.uses_depth:
+            return (rgb,)
+        depth = torch.from_numpy(np.ascontiguousarray(frame.depth))[None, None]
+        if tuple(depth.shape[-2:]) != size:
+            depth = F.interpolate(depth, size=size, mode="nearest")
+        valid = depth > 0
+        depth = torch.where(valid, (depth - n.depth_mean) / n.depth_std, torch.zeros(()))
+        return rgb, depth
+
+    # -- inference -------------------------------------------------------------------------
+
+    def logits(self, inputs: tuple[torch.Tensor, ...]) -> torch.Tensor:
+        """Raw network output for preprocessed ``inputs`` with the configured backend."""
+        if self.backend == "torch":
+            with torch.inference_mode():
+                return self._module(*inputs)
+        session = self._ort_session(inputs)
+        feed = {name: t.numpy() for name, t in zip(self.input_names, inputs, strict=True)}
+        return torch.from_numpy(session.run(None, feed)[0])
+
+    def _ort_session(self, inputs: tuple[torch.Tensor, ...]):
+        if self._session is None:
+            import onnxruntime as ort
+
+            from evsmap.measure.onnx_export import cached_onnx
+
+            key = f"{self.name}:{sorted(self.config.items())}"
+            path = cached_onnx(self._module, inputs, self.input_names, key=key)
+            options = ort.SessionOptions()
+            options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+            options.intra_op_num_threads = torch.get_num_threads()
+            self._session = ort.InferenceSession(str(path), options,
+                                                 providers=["CPUExecutionProvider"])
+        return self._session
+
+    def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
+        if not 1 <= k <= self.num_classes:
+            raise InvalidDataError(f"k must lie in [1, {self.num_classes}], got {k}")
+        logits = self.logits(self.preprocess(frame))
+        h, w = frame.rgb.shape[:2]
+        if tuple(logits.shape[-2:]) != (h, w):
+            logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
+        probs = torch.softmax(logits.float(), dim=1)[0]
+        top_p, top_c = probs.topk(k, dim=0)
+        return SemanticObservation(
+            classes=top_c.permute(1, 2, 0).to(torch.int16).numpy(),
+            probs=np.clip(top_p.permute(1, 2, 0).numpy(), 0.0, 1.0).astype(np.float32),
+            num_classes=self.num_classes,
+        )

@@ -1,0 +1,145 @@
+import json
+
+import pytest
+import torch
+from torch import nn
+
+import evsmap.measure.speed as speed_module
+from evsmap.cli.main import main
+from evsmap.registry import SEGMENTERS
+
+NAME = "tiny-measure-test-net"
+
+
+class _Net(nn.Module):
+    def __init__(self, classes: int) -> None:
+        super().__init__()
+        self.rgb = nn.Conv2d(3, 4, 3, padding=1)
+        self.depth = nn.Conv2d(1, 4, 3, padding=1)
+        self.head = nn.Conv2d(4, classes, 1)
+
+    def forward(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        return self.head(torch.sigmoid(self.rgb(rgb) + self.depth(depth)))
+
+
+class TinySegmenter:
+    """The attributes of a NetworkSegmenter that the measuring commands use."""
+
+    input_names = ("rgb", "depth")
+    default_size = (6, 10)
+
+    def __init__(self, num_classes: int) -> None:
+        self.name = NAME
+        self.num_classes = num_classes
+        self.module = _Net(num_classes).eval()
+
+    def example_inputs(self, height: int, width: int) -> tuple[torch.Tensor, ...]:
+        return torch.zeros(1, 3, height, width), torch.zeros(1, 1, height, width)
+
+
+def params(classes: int) -> int:
+    return (3 * 4 * 9 + 4) + (1 * 4 * 9 + 4) + (4 * classes + classes)
+
+
+@pytest.fixture
+def tiny_segmenter(monkeypatch, tmp_path):
+    def factory(*, num_classes: int = 3) -> TinySegmenter:
+        """Tiny two-input test network."""
+        return TinySegmenter(num_classes)
+
+    SEGMENTERS.add(NAME, factory)
+    monkeypatch.setenv("EVSMAP_CACHE_DIR", str(tmp_path / "cache"))
+    real = speed_module.roofline_gmacs  # a small matmul keeps the test fast
+    monkeypatch.setattr(speed_module, "roofline_gmacs", lambda size=0, **kw: real(64, **kw))
+    yield NAME
+    SEGMENTERS.unregister(NAME)
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_complexity_json(capsys, tiny_segmenter):
+    code, out, err = run(capsys, "complexity", tiny_segmenter, "--json")
+    assert code == 0 and err == ""
+    data = json.loads(out)
+    assert {"model", "params", "flops", "conv_macs", "uncounted_ops", "height", "width",
+            "num_classes"} <= set(data)
+    assert data["model"] == tiny_segmenter and data["num_classes"] == 3
+    assert (data["height"], data["width"]) == (6, 10)  # the segmenter's default size
+    assert data["params"] == params(3)
+    assert data["conv_macs"] == (3 * 4 * 9 + 4 * 9 + 4 * 3) * 60
+    assert data["uncounted_ops"]["aten::sigmoid"] == 1
+
+    code, out, _ = run(capsys, "complexity", tiny_segmenter, "--json", "--classes", "7",
+                       "--height", "8", "--width", "4")
+    data = json.loads(out)
+    assert code == 0 and data["num_classes"] == 7 and data["params"] == params(7)
+    assert (data["height"], data["width"]) == (8, 4)
+    assert data["conv_macs"] == (3 * 4 * 9 + 4 * 9 + 4 * 7) * 32
+
+
+def test_complexity_text(capsys, tiny_segmenter):
+    code, out, _ = run(capsys, "complexity", tiny_segmenter)
+    assert code == 0
+    lines = out.splitlines()
+    assert [line.split()[0] for line in lines] == ["model", "input", "params", "FLOPs", "conv",
+                                                   "uncounted"]
+    assert f"({params(3)})" in out and "10x6" in out and "aten::sigmoid x1" in out
+
+
+SPEED_KEYS = {"model", "fps_median", "fps_iqr", "ms_median", "ms_iqr", "backend", "threads",
+              "roofline_fraction", "roofline_gmacs", "achieved_gmacs", "height", "width", "runs",
+              "versions"}
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnxruntime"])
+def test_speed_json(capsys, tiny_segmenter, tmp_path, backend):
+    code, out, err = run(capsys, "speed", tiny_segmenter, "--json", "--backend", backend,
+                         "--runs", "2", "--warmup", "0", "--threads", "1", "--height", "8",
+                         "--width", "8")
+    assert code == 0 and err == ""
+    data = json.loads(out)
+    assert SPEED_KEYS <= set(data)
+    assert data["model"] == tiny_segmenter and data["backend"] == backend
+    assert (data["runs"], data["threads"], data["height"], data["width"]) == (2, 1, 8, 8)
+    assert len(data["times_ms"]) == 2
+    assert data["fps_median"] == pytest.approx(1000 / data["ms_median"])
+    exported = list((tmp_path / "cache" / "onnx").glob("*.onnx"))
+    assert len(exported) == (1 if backend == "onnxruntime" else 0)
+    if exported:
+        assert exported[0].name.startswith(tiny_segmenter)
+
+
+def test_speed_text(capsys, tiny_segmenter):
+    code, out, _ = run(capsys, "speed", tiny_segmenter, "--runs", "2", "--warmup", "1")
+    assert code == 0
+    assert [line.split()[0] for line in out.splitlines()] == [
+        "model", "fps", "latency", "roofline", "cpu", "versions"]
+    assert "10x6" in out and "backend torch" in out
+
+
+@pytest.mark.parametrize("command", ["complexity", "speed"])
+def test_unknown_model_is_one_line(capsys, command):
+    code, out, err = run(capsys, command, "feagnet-v9000", "--json")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith(f"evsmap {command}: error: unknown segmenter 'feagnet-v9000'")
+
+
+@pytest.mark.parametrize("argv", [["--backend", "tensorrt"], ["--runs", "0"],
+                                  ["--threads", "-1"], ["--height", "x"]])
+def test_bad_options(capsys, tiny_segmenter, argv):
+    with pytest.raises(SystemExit) as info:
+        main(["speed", tiny_segmenter, *argv])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_backends_match_measure_module():
+    from evsmap.cli.speed_cmd import BACKENDS
+
+    assert sorted(BACKENDS) == sorted(speed_module.BACKENDS)

@@ -1,0 +1,82 @@
+import math
+
+import pytest
+import torch
+from torch import nn
+
+from evsmap.errors import EvsmapError, UnknownNameError
+from evsmap.measure import SpeedRecord, measure_complexity, measure_speed, roofline_gmacs
+
+
+class TwoInputNet(nn.Module):
+    def __init__(self) -> None:
+        super().__init__()
+        self.rgb = nn.Conv2d(3, 4, 3, padding=1)
+        self.depth = nn.Conv2d(1, 4, 3, padding=1)
+        self.head = nn.Conv2d(4, 3, 1)
+
+    def forward(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        return self.head(torch.relu(self.rgb(rgb) + self.depth(depth)))
+
+
+def inputs() -> tuple[torch.Tensor, torch.Tensor]:
+    return torch.rand(1, 3, 8, 12), torch.rand(1, 1, 8, 12)
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnxruntime"])
+def test_record_is_consistent(backend, tmp_path):
+    net, x = TwoInputNet().train(), inputs()
+    before = torch.get_num_threads()
+    rec = measure_speed(net, x, backend=backend, runs=3, warmup=1, threads=1,
+                        input_names=("rgb", "depth"), key="tiny", cache_dir=tmp_path,
+                        roofline_size=64)
+    assert isinstance(rec, SpeedRecord)
+    assert torch.get_num_threads() == before and net.training
+    assert (rec.backend, rec.height, rec.width) == (backend, 8, 12)
+    assert (rec.runs, rec.warmup, rec.threads) == (3, 1, 1)
+    assert len(rec.times_ms) == rec.runs and all(t > 0 for t in rec.times_ms)
+    assert rec.ms_median == pytest.approx(sorted(rec.times_ms)[1])
+    assert rec.fps_median == pytest.approx(1000 / rec.ms_median)
+    assert rec.ms_iqr >= 0 and rec.fps_iqr >= 0
+    assert rec.macs == measure_complexity(net, x).flops
+    assert rec.achieved_gmacs == pytest.approx(rec.macs / rec.ms_median * 1e3 / 1e9)
+    assert rec.roofline_gmacs > 0
+    assert rec.roofline_fraction == pytest.approx(rec.achieved_gmacs / rec.roofline_gmacs)
+    assert set(rec.versions) == {"python", "torch", "onnxruntime", "numpy", "fvcore"}
+    assert rec.cpu
+    d = rec.as_dict()
+    assert d["times_ms"] == rec.times_ms and d["backend"] == backend
+    if backend == "onnxruntime":
+        assert [p.suffix for p in tmp_path.iterdir()] == [".onnx"]
+
+
+def test_iqr_from_quartiles(monkeypatch):
+    import evsmap.measure.speed as speed
+
+    monkeypatch.setattr(speed, "_time_torch", lambda *a: [0.004, 0.001, 0.002, 0.003, 0.005])
+    rec = measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), runs=5, warmup=0,
+                        macs=2_000_000, roofline_size=32)
+    assert rec.ms_median == pytest.approx(3.0)
+    assert rec.ms_iqr == pytest.approx(4.0 - 2.0)
+    assert rec.fps_iqr == pytest.approx(1000 / 2.0 - 1000 / 4.0)
+    assert rec.achieved_gmacs == pytest.approx(2e6 / 3e-3 / 1e9)
+    assert rec.macs == 2_000_000
+
+
+def test_unknown_backend_lists_valid_ones():
+    with pytest.raises(UnknownNameError) as info:
+        measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), backend="tensorrt")
+    assert isinstance(info.value, EvsmapError)
+    message = str(info.value)
+    assert "tensorrt" in message and "torch" in message and "onnxruntime" in message
+
+
+@pytest.mark.parametrize("kwargs", [{"runs": 0}, {"warmup": -1}, {"threads": 0}])
+def test_bad_counts(kwargs):
+    with pytest.raises(ValueError):
+        measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), **kwargs)
+
+
+def test_roofline_is_finite():
+    value = roofline_gmacs(32, repeats=2)
+    assert value > 0 and math.isfinite(value)
