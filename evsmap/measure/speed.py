@@ -18,7 +18,7 @@ from evsmap.errors import UnknownNameError
 from evsmap.measure._util import as_inputs, eval_mode, image_size
 
 BACKENDS = ("onnxruntime", "torch")
-ROOFLINE_SIZE = 2048
+ROOFLINE_SIZE = 4096
 _VERSIONED = ("torch", "onnxruntime", "numpy", "fvcore")
 
 
@@ -77,27 +77,56 @@ def library_versions() -> dict[str, str]:
     return versions
 
 
-def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int = 1) -> float:
-    """fp32 matmul throughput of this machine with torch's current thread count, G MAC/s.
+def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int = 1,
+                   backend: str = "torch") -> float:
+    """fp32 matmul throughput of this machine, G MAC/s, with the given backend.
 
-    Times ``torch.matmul`` of two ``size`` x ``size`` float32 matrices (``size**3`` MACs):
-    ``warmup`` untimed products, then the median of ``repeats`` timed ones.
+    Times the product of two ``size`` x ``size`` float32 matrices (``size**3`` MACs):
+    ``warmup`` untimed products, then the median of ``repeats`` timed ones. ``"torch"`` uses
+    ``torch.matmul`` with torch's current thread count; ``"onnxruntime"`` runs a one-node
+    ``MatMul`` graph on the CPU execution provider with the same number of intra-op threads,
+    so a network is compared with the best its own runtime does on dense fp32 arithmetic.
     """
     if size < 1 or repeats < 1 or warmup < 0:
         raise ValueError("size and repeats must be >= 1, warmup >= 0")
+    if backend not in BACKENDS:
+        raise UnknownNameError(f"unknown backend {backend!r} (known: {', '.join(BACKENDS)})")
     gen = torch.Generator().manual_seed(0)
     a = torch.rand(size, size, generator=gen, dtype=torch.float32)
     b = torch.rand(size, size, generator=gen, dtype=torch.float32)
-    out = torch.empty(size, size, dtype=torch.float32)
+    if backend == "torch":
+        out = torch.empty(size, size, dtype=torch.float32)
+
+        def product() -> None:
+            torch.matmul(a, b, out=out)
+    else:
+        session = _matmul_session(size, torch.get_num_threads())
+        feed = {"a": a.numpy(), "b": b.numpy()}
+
+        def product() -> None:
+            session.run(None, feed)
     with torch.inference_mode():
-        for _ in range(warmup):
-            torch.matmul(a, b, out=out)
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            torch.matmul(a, b, out=out)
-            times.append(time.perf_counter() - t0)
+        times = _time_calls(product, repeats, warmup)
     return float(size) ** 3 / float(np.median(times)) / 1e9
+
+
+def _matmul_session(size: int, threads: int):
+    import onnx
+    import onnxruntime as ort
+    from onnx import TensorProto, helper
+
+    def tensor(name: str) -> onnx.ValueInfoProto:
+        return helper.make_tensor_value_info(name, TensorProto.FLOAT, [size, size])
+
+    graph = helper.make_graph([helper.make_node("MatMul", ["a", "b"], ["y"])], "roofline",
+                              [tensor("a"), tensor("b")], [tensor("y")])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(model.SerializeToString(), options,
+                                providers=["CPUExecutionProvider"])
 
 
 def measure_speed(
@@ -128,7 +157,9 @@ def measure_speed(
         key: name of the ONNX cache entry (default: the module's class name).
         cache_dir: ONNX cache folder (default
             :func:`~evsmap.measure.onnx_export.default_cache_dir`).
-        roofline_size: matrix size of the fp32 matmul roofline (measured in this call).
+        roofline_size: matrix size of the fp32 matmul roofline, measured in this call with
+            torch and the same thread count for either backend (one machine-level ceiling;
+            ONNX Runtime's own MatMul reaches about the same or less here).
 
     Each sample is one forward pass timed with ``time.perf_counter``.
 

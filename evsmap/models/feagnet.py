@@ -187,13 +187,15 @@ class AxisAttention(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         q, k = self.query(x), self.key(x)
-        # height direction: one H x H affinity per column
-        aff_h = torch.softmax(torch.einsum("bchw,bcgw->bwhg", q, k), dim=-1)
-        out_h = torch.einsum("bwhg,bcgw->bchw", aff_h, self.value_h(x))
-        # width direction: one W x W affinity per row
-        aff_w = torch.softmax(torch.einsum("bchw,bchv->bhwv", q, k), dim=-1)
-        out_w = torch.einsum("bhwv,bchv->bchw", aff_w, self.value_w(x))
-        return x + self.gamma * (out_h + out_w)
+        # height direction: one H x H affinity per column (batched over b, w)
+        q_h, k_h = q.permute(0, 3, 2, 1), k.permute(0, 3, 1, 2)  # (b, w, h, c'), (b, w, c', h)
+        aff_h = torch.softmax(torch.matmul(q_h, k_h), dim=-1)  # (b, w, h, h)
+        out_h = torch.matmul(aff_h, self.value_h(x).permute(0, 3, 2, 1))  # (b, w, h, c)
+        # width direction: one W x W affinity per row (batched over b, h)
+        q_w, k_w = q.permute(0, 2, 3, 1), k.permute(0, 2, 1, 3)  # (b, h, w, c'), (b, h, c', w)
+        aff_w = torch.softmax(torch.matmul(q_w, k_w), dim=-1)  # (b, h, w, w)
+        out_w = torch.matmul(aff_w, self.value_w(x).permute(0, 2, 3, 1))  # (b, h, w, c)
+        return x + self.gamma * (out_h.permute(0, 3, 2, 1) + out_w.permute(0, 3, 1, 2))
 
 
 class LADStage(nn.Module):
