@@ -236,7 +236,9 @@ class FEAGNet(nn.Module):
     """FEAGNet: RGB-D (or RGB-only) semantic segmentation.
 
     In eval mode ``forward`` returns logits at the input resolution; in training mode with
-    ``multiscale=True`` it returns ``(main, side_1/8, side_1/16)`` for multi-scale supervision.
+    ``multiscale=True`` it returns ``(main, side, side)``: the main logits, then the side heads
+    of the second and first decoder stages (1/8 and 1/16 of the input for V2, 1/16 and 1/32 for
+    V1), for multi-scale supervision.
 
     Args:
         num_classes: number of output classes.
@@ -251,8 +253,8 @@ class FEAGNet(nn.Module):
         cfim: fuse the modalities with CFIM (``False``: element-wise addition, the baseline).
         dappf: apply DAPPF to the last encoder output.
         attention: HA and WA in every decoder stage.
-        multiscale: add the training-only supervision heads at 1/8 and 1/16 of the init
-            layer's resolution.
+        multiscale: add the training-only 1x1 supervision heads on the first two decoder
+            stages.
     """
 
     def __init__(
