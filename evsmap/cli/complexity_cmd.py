@@ -6,7 +6,7 @@ import argparse
 import json
 from typing import Any
 
-from evsmap.cli.options import positive_int
+from evsmap.cli.options import key_value, positive_int
 from evsmap.errors import EvsmapError
 from evsmap.registry import SEGMENTERS
 
@@ -31,11 +31,18 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
                    help="input width (default: the model's paper resolution)")
     p.add_argument("--classes", type=positive_int, metavar="C",
                    help="number of classes (default: the model's)")
+    p.add_argument("-o", "--option", type=key_value, action="append", default=[],
+                   metavar="KEY=VALUE",
+                   help="a segmenter option, repeatable; e.g. -o cfim=false -o dappf=false for "
+                        "a Table III ablation row, -o dataset=cityscapes for a baseline "
+                        "(`evsmap list --json` shows each plug-in's options)")
 
 
 def build_network(args: argparse.Namespace) -> tuple[Any, int, int]:
     """The segmenter named by ``args.model`` and the input size to measure it at."""
-    config = {} if args.classes is None else {"num_classes": args.classes}
+    config = dict(args.option)
+    if args.classes is not None:
+        config["num_classes"] = args.classes
     segmenter = SEGMENTERS.create(args.model, **config)
     if getattr(segmenter, "module", None) is None:
         raise EvsmapError(f"segmenter {args.model!r} is not a network; nothing to measure")
