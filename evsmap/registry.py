@@ -30,6 +30,7 @@ _BUILTIN_MODULES = (
     "evsmap.readers.tum",
     "evsmap.readers.synthetic",
     "evsmap.segmenters.zoo",
+    "evsmap.segmenters.oracle",
     "baselines",
 )
 _loaded = False
