@@ -70,4 +70,5 @@ def morton(keys: np.ndarray) -> np.ndarray:
     """``uint64`` Morton codes with x in the lowest bit of each triple (OctoMap child order:
     child index = x bit + 2 * y bit + 4 * z bit), most significant level first."""
     k = np.asarray(keys)
-    return _spread(k[:, 0]) | (_spread(k[:, 1]) << np.uint64(1)) | (_spread(k[:, 2]) << np.uint64(2))
+    y, z = _spread(k[:, 1]) << np.uint64(1), _spread(k[:, 2]) << np.uint64(2)
+    return _spread(k[:, 0]) | y | z
