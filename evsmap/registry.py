@@ -30,6 +30,8 @@ _BUILTIN_MODULES = (
     "evsmap.readers.tum",
     "evsmap.readers.synthetic",
     "evsmap.segmenters.zoo",
+    "evsmap.updaters.orgb",
+    "evsmap.updaters.multiclass_bayes",
     "evsmap.segmenters.oracle",
     "baselines",
 )

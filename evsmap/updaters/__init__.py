@@ -1,0 +1,1 @@
+"""Map updaters (plug-ins): ``orgb`` (colour OctoMap) and ``multiclass-bayes`` (EVSMaP)."""

@@ -1,0 +1,197 @@
+"""Shared machinery of the octree map updaters: frame -> scan -> occupancy update, per-leaf
+payloads, pruned-tree statistics and files.
+
+An updater keeps its map as OctoMap's tree expanded to the finest level
+(:class:`~evsmap.mapping.occupancy.OccupancyMap`: sorted leaf codes, log-odds and named payload
+arrays). The pruned tree, which OctoMap keeps in memory and writes to its files, is built from the
+leaves when it is needed (:meth:`OctreeUpdater.tree`): the two hold the same information because
+OctoMap only prunes 8 identical children and expands them again before changing one.
+"""
+
+from __future__ import annotations
+
+import math
+from os import PathLike
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from evsmap.data import Frame, SemanticObservation
+from evsmap.errors import InvalidDataError
+from evsmap.geometry import backproject
+from evsmap.interfaces import MapStats, MapUpdater, PointQuery
+from evsmap.mapping.keys import coord_to_key, pack
+from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate
+from evsmap.mapping.raycast import scan_keys
+from evsmap.mapping.tree import Tree
+
+OCTOMAP_BASE_BYTES = 320
+"""``sizeof(OcTreeBaseImpl)`` that OctoMap's ``memoryUsage`` adds once per tree (x86-64)."""
+
+
+class FramePoints:
+    """A frame's valid depth pixels as world points, with the pixel attributes the updaters
+    fuse (colour, semantics) in the same order, and the endpoint voxel of each point.
+
+    Attributes:
+        points: (N, 3) float64 world coordinates.
+        origin: (3,) camera centre.
+        pixels: (N,) flat pixel index of each point.
+        endpoint: (N,) bool, the point lies within the max range (its voxel is a hit).
+        codes: (N,) int64 voxel code of each point (meaningful where ``endpoint``).
+    """
+
+    def __init__(self, frame: Frame, resolution: float, max_range: float) -> None:
+        valid = frame.depth > 0
+        self.pixels = np.flatnonzero(valid)
+        self.points = backproject(frame.depth, frame.intrinsics, frame.pose, mask=valid)
+        self.origin = frame.pose[:3, 3].astype(np.float64)
+        if max_range > 0:
+            dist = np.linalg.norm(self.points - self.origin, axis=1)
+            self.endpoint = dist <= max_range
+        else:
+            self.endpoint = np.ones(len(self.points), dtype=bool)
+        self.codes = pack(coord_to_key(self.points, resolution))
+
+
+def check_observation(frame: Frame, observation: SemanticObservation | None,
+                      updater: str) -> SemanticObservation:
+    if observation is None:
+        raise InvalidDataError(
+            f"updater {updater!r} fuses semantics: give it a segmenter's observation "
+            f"(e.g. --segmenter oracle)")
+    if observation.shape != frame.depth.shape:
+        raise InvalidDataError(
+            f"frame {frame.name!r}: observation is {observation.shape}, depth is "
+            f"{frame.depth.shape}")
+    return observation
+
+
+class OctreeUpdater(MapUpdater):
+    """Base of the octree updaters: OctoMap occupancy plus per-leaf payloads.
+
+    Args:
+        resolution: leaf edge length, metres.
+        max_range: sensor max range, metres (``<= 0``: unlimited); points beyond it only clear
+            free space up to it, as OctoMap's ``insertPointCloud``.
+        discretize: reduce the end points to unique voxel centres before ray casting (OctoMap's
+            ``discretize`` flag).
+        prob_hit, prob_miss, clamp_min, clamp_max, occupancy_threshold: OctoMap's sensor model.
+    """
+
+    name: ClassVar[str] = ""
+    tree_type: ClassVar[str] = "OcTree"
+
+    def __init__(self, *, resolution: float = 0.05, max_range: float = 5.0,
+                 discretize: bool = True, prob_hit: float = 0.7, prob_miss: float = 0.4,
+                 clamp_min: float = 0.1192, clamp_max: float = 0.971,
+                 occupancy_threshold: float = 0.5) -> None:
+        if not (isinstance(max_range, (int, float)) and math.isfinite(max_range)):
+            raise InvalidDataError(f"max_range must be a finite number, got {max_range!r}")
+        try:
+            params = OccupancyParams(prob_hit=prob_hit, prob_miss=prob_miss,
+                                     clamp_min=clamp_min, clamp_max=clamp_max,
+                                     occupancy_threshold=occupancy_threshold)
+            self.map = OccupancyMap(resolution, params)
+        except ValueError as exc:
+            raise InvalidDataError(str(exc)) from None
+        self.resolution = float(resolution)
+        self.params = params
+        self.max_range = float(max_range)
+        self.discretize = bool(discretize)
+        self.frames = 0
+        self._init_payloads()
+
+    # -- hooks -----------------------------------------------------------------------------
+    def _init_payloads(self) -> None:
+        """Register the per-leaf payload arrays."""
+
+    def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
+                         observation: SemanticObservation | None) -> None:
+        """Fuse the frame's attributes into the payloads after the occupancy update."""
+
+    def _equal_columns(self) -> list[np.ndarray]:
+        """Arrays that must be identical for 8 children to be pruned (occupancy by default)."""
+        return [self.map.logodds]
+
+    def _payload_record(self) -> np.ndarray | None:
+        """Per-leaf payload as one structured array (for trees and files), or None."""
+        return None
+
+    def _inner_payload(self):
+        return None
+
+    def _node_bytes(self) -> int:
+        """In-memory bytes of one node (OctoMap: 16 for OcTree/ColorOcTree nodes)."""
+        return 16
+
+    # -- MapUpdater ------------------------------------------------------------------------
+    def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
+        if self.uses_semantics:
+            observation = check_observation(frame, observation, self.name)
+        points = FramePoints(frame, self.resolution, self.max_range)
+        keys = scan_keys(points.points, points.origin, self.resolution,
+                         max_range=self.max_range, discretize=self.discretize)
+        update = self.map.apply(keys.free, keys.occupied)
+        self._update_payloads(frame, points, update, observation)
+        self.frames += 1
+
+    def endpoint_voxels(self, points: FramePoints) -> tuple[np.ndarray, np.ndarray]:
+        """(indices of the points that end inside the range, map index of their voxel)."""
+        sel = np.flatnonzero(points.endpoint)
+        pos, found = self.map.index(points.codes[sel])
+        if not np.all(found):  # cannot happen: every end point voxel was just inserted
+            raise RuntimeError("end point voxel missing from the map")
+        return sel, pos
+
+    def tree(self) -> Tree:
+        """The pruned octree of the current map."""
+        from evsmap.mapping.tree import build_tree
+
+        return build_tree(self.map.codes, np.asarray(self.map.logodds),
+                          payload=self._payload_record(), equal_columns=self._equal_columns(),
+                          inner_payload=self._inner_payload())
+
+    def stats(self) -> MapStats:
+        tree = self.tree()
+        return MapStats(nodes=int(tree.num_nodes), leaves=int(tree.num_leaves),
+                        memory_bytes=int(tree.memory_bytes(node_bytes=self._node_bytes(),
+                                                           base_bytes=OCTOMAP_BASE_BYTES)))
+
+    def write(self, path: str | PathLike[str]) -> int:
+        from evsmap.mapping.octree_io import write_bt, write_ot
+
+        path = Path(path)
+        tree = self.tree()
+        if path.suffix == ".bt":
+            return write_bt(path, tree, self.resolution)
+        return write_ot(path, tree, self.resolution, tree_type=self.tree_type,
+                        payload_format=self._payload_format())
+
+    def _payload_format(self):
+        return None
+
+    def query(self, points: np.ndarray) -> PointQuery:
+        return self.map.query(points)
+
+
+def strongest_child(field: str):
+    """Inner-node aggregator for semantic payloads: the payload row of the child whose first
+    slot has the highest ``field`` value (ties: the first child in OctoMap's child order)."""
+
+    def aggregate(child_payload: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+        score = np.asarray(child_payload[field])[:, 0].astype(np.float64)
+        order = np.lexsort((-score, group))  # by group, then strongest first
+        first = np.r_[True, group[order][1:] != group[order][:-1]]
+        return child_payload[order[first]]
+
+    return aggregate
+
+
+def mean_per_voxel(voxel: np.ndarray, values: np.ndarray, n_voxels: int) -> np.ndarray:
+    """Mean of ``values`` (P, c) over the points of each voxel (``voxel``: (P,) in [0, n))."""
+    counts = np.bincount(voxel, minlength=n_voxels).astype(np.float64)
+    out = np.stack([np.bincount(voxel, weights=values[:, j], minlength=n_voxels)
+                    for j in range(values.shape[1])], axis=1)
+    return out / np.maximum(counts, 1)[:, None]

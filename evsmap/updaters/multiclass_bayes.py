@@ -1,0 +1,168 @@
+"""``multiclass-bayes`` - EVSMaP's volumetric-semantic map (Section III-B, eqs. 5-10, Alg. 1).
+
+Occupancy follows OctoMap (hit/miss log-odds, clamping), so the geometry is directly comparable
+with every other row of Table IV. Each leaf also holds the multi-class log-odds state of SSMI's
+lineage (:class:`evsmap.mapping.fusion.MCBState`): the 3 most likely classes with log-odds
+against free, plus "others". A frame is first built as a local map (one node per hit voxel,
+:func:`~evsmap.mapping.fusion.build_local`: the mean of its points' top-3 distributions) and
+merged into the global map with Algorithm 1 (:func:`~evsmap.mapping.fusion.merge_algorithm1`,
+punishment theta = 0.6); a voxel seen for the first time takes the local node. Voxels a ray
+passes through have their semantic log-odds lowered by phi (eq. 9's free case, SSMI's
+``fuseObsFree``). A node is pruned when its 8 children hold identical occupancy and identical
+semantics. The ``.ot`` file's node payload is the full state (layout in ``docs/mapping.md``), so
+a saved map reloads into the same state (:func:`load_multiclass_bayes`).
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+
+import numpy as np
+
+from evsmap.data import Frame, SemanticObservation
+from evsmap.mapping import fusion
+from evsmap.mapping.fusion import MCBState
+from evsmap.mapping.occupancy import ScanUpdate
+from evsmap.registry import UPDATERS
+from evsmap.updaters.base import FramePoints, OctreeUpdater, strongest_child
+
+PAYLOAD_FORMAT = np.dtype([("classes", "<i2", (3,)), ("logodds", "<f4", (3,)),
+                           ("others", "<f4")])
+"""Per-node payload after the float32 occupancy log-odds in the ``.ot`` stream (22 bytes)."""
+TREE_TYPE = "MultiClassBayesOcTree"
+
+
+class MultiClassBayesMap(OctreeUpdater):
+    """EVSMaP's multi-class Bayesian semantic octree.
+
+    Args:
+        psi: log-odds added to the observed class (eq. 9, phi+ of the occupied case).
+        phi: log-odds added on a miss (eq. 9, phi-).
+        theta: Algorithm 1's punishment value.
+        (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`)
+    """
+
+    name = "multiclass-bayes"
+    tree_type = TREE_TYPE
+    uses_semantics = True
+
+    def __init__(self, *, psi: float = fusion.PSI, phi: float = fusion.PHI,
+                 theta: float = fusion.THETA, **kwargs) -> None:
+        self.psi, self.phi, self.theta = float(psi), float(phi), float(theta)
+        super().__init__(**kwargs)
+
+    def _init_payloads(self) -> None:
+        self.map.add_payload("classes", np.int16, (3,), fill=fusion.EMPTY)
+        self.map.add_payload("class_logodds", np.float32, (3,), fill=0.0)
+        self.map.add_payload("others", np.float32, (), fill=0.0)
+
+    def state(self, index: np.ndarray | slice = slice(None)) -> MCBState:
+        m = self.map
+        return MCBState(m.payload("classes")[index], m.payload("class_logodds")[index],
+                        m.payload("others")[index])
+
+    def _store(self, index: np.ndarray, state: MCBState) -> None:
+        m = self.map
+        m.payload("classes")[index] = state.classes
+        m.payload("class_logodds")[index] = state.logodds
+        m.payload("others")[index] = state.others
+
+    def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
+                         observation: SemanticObservation | None) -> None:
+        # rays: lower the semantics of traversed voxels that have some
+        free = update.free_index
+        if free.size:
+            has = self.map.payload("classes")[free, 0] >= 0
+            idx = free[has]
+            if idx.size:
+                self._store(idx, fusion.mcb_miss(self.state(idx), phi=self.phi))
+        # end points: local map of this frame, merged with Algorithm 1
+        sel, pos = self.endpoint_voxels(points)
+        if not sel.size:
+            return
+        voxels, local_index = np.unique(pos, return_inverse=True)
+        pixels = points.pixels[sel]
+        classes = observation.classes.reshape(-1, observation.k)[pixels]
+        probs = observation.probs.reshape(-1, observation.k)[pixels]
+        local = fusion.build_local(local_index, classes, probs, len(voxels), hit=self.psi)
+        current = self.state(voxels)
+        known = current.has_semantics
+        merged = fusion.merge_algorithm1(current.take(known), local.take(known), self.theta)
+        self._store(voxels[known], merged)
+        self._store(voxels[~known], local.take(~known))
+
+    def _payload_record(self) -> np.ndarray:
+        rec = np.empty(self.map.num_leaves, dtype=PAYLOAD_FORMAT.newbyteorder("="))
+        rec["classes"] = self.map.payload("classes")
+        rec["logodds"] = self.map.payload("class_logodds")
+        rec["others"] = self.map.payload("others")
+        return rec
+
+    def _equal_columns(self) -> list[np.ndarray]:
+        m = self.map
+        return [m.logodds, m.payload("classes"), m.payload("class_logodds"), m.payload("others")]
+
+    def _inner_payload(self):
+        return strongest_child("logodds")
+
+    def _payload_format(self):
+        return PAYLOAD_FORMAT
+
+    def _node_bytes(self) -> int:
+        # OctoMap node: 4 B log-odds + children pointer (8 B) + this payload, 8-byte aligned
+        return -(-(4 + 8 + PAYLOAD_FORMAT.itemsize) // 8) * 8
+
+    def query(self, points: np.ndarray):
+        q = self.map.query(points)
+        pos, found = self.map.index(_codes(points, self.resolution))
+        occupied = found & (q.state == 1)
+        label = q.label.copy()
+        label[occupied] = self.map.payload("classes")[pos[occupied], 0]
+        return type(q)(state=q.state, probability=q.probability, label=label)
+
+
+def _codes(points: np.ndarray, resolution: float) -> np.ndarray:
+    from evsmap.mapping.keys import pack
+    from evsmap.mapping.raycast import octomap_keys
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    finite = np.all(np.isfinite(pts), axis=1)
+    keys, ok = octomap_keys(np.where(finite[:, None], pts, 0.0), resolution)
+    codes = pack(keys)
+    codes[~(ok & finite)] = -1
+    return codes
+
+
+def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBayesMap:
+    """A :class:`MultiClassBayesMap` restored from its ``.ot`` file (mapping can continue)."""
+    from evsmap.mapping.occupancy import OccupancyMap
+    from evsmap.mapping.octree_io import read_ot
+
+    tree_type, resolution, tree = read_ot(path, payload_format={TREE_TYPE: PAYLOAD_FORMAT})
+    if tree_type != TREE_TYPE:
+        from evsmap.errors import DataFormatError
+
+        raise DataFormatError(f"{path}: a {tree_type} file, not a {TREE_TYPE} map")
+    updater = MultiClassBayesMap(resolution=resolution, **kwargs)
+    codes, values, payload = tree.expand()
+    order = np.argsort(codes, kind="stable")
+    codes, values, payload = codes[order], values[order], payload[order]
+    old = updater.map
+    updater.map = OccupancyMap.from_leaves(resolution, codes, values, params=old.params)
+    updater._init_payloads()
+    updater.map.payload("classes")[:] = payload["classes"]
+    updater.map.payload("class_logodds")[:] = payload["logodds"]
+    updater.map.payload("others")[:] = payload["others"]
+    return updater
+
+
+@UPDATERS.register("multiclass-bayes",
+                   description="EVSMaP: multi-class Bayesian semantic octree, local maps merged "
+                               "with Algorithm 1 (theta 0.6)")
+def multiclass_bayes(*, resolution: float = 0.05, max_range: float = 5.0,
+                     discretize: bool = True, psi: float = fusion.PSI, phi: float = fusion.PHI,
+                     theta: float = fusion.THETA, prob_hit: float = 0.7, prob_miss: float = 0.4,
+                     clamp_min: float = 0.1192, clamp_max: float = 0.971) -> MultiClassBayesMap:
+    return MultiClassBayesMap(resolution=resolution, max_range=max_range, discretize=discretize,
+                              psi=psi, phi=phi, theta=theta, prob_hit=prob_hit,
+                              prob_miss=prob_miss, clamp_min=clamp_min, clamp_max=clamp_max)
