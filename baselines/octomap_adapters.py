@@ -51,7 +51,7 @@ class OctoMapAdapter(MapUpdater):
         self.frames = 0
 
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
-        points = FramePoints(frame, self.resolution, self.max_range)
+        points = FramePoints(frame, self.resolution, self.max_range, self.discretize)
         self.tree.insertPointCloud(points.points, points.origin, maxrange=self.max_range,
                                    lazy_eval=False, discretize=self.discretize)
         if self.color:

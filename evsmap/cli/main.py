@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
         complexity_cmd,
         info_cmd,
         list_cmd,
+        map_cmd,
         reproduce_cmd,
         speed_cmd,
         synth_cmd,
@@ -38,7 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd):
+    for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd,
+                   map_cmd):
         module.add_parser(sub)
     return parser
 

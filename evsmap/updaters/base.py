@@ -21,7 +21,7 @@ from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import InvalidDataError
 from evsmap.geometry import backproject
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
-from evsmap.mapping.keys import coord_to_key, pack
+from evsmap.mapping.keys import KEY_OFFSET, pack
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate
 from evsmap.mapping.raycast import scan_keys
 from evsmap.mapping.tree import Tree
@@ -42,17 +42,24 @@ class FramePoints:
         codes: (N,) int64 voxel code of each point (meaningful where ``endpoint``).
     """
 
-    def __init__(self, frame: Frame, resolution: float, max_range: float) -> None:
+    def __init__(self, frame: Frame, resolution: float, max_range: float,
+                 discretize: bool = False) -> None:
+        from evsmap.mapping.raycast import _norm, octomap_keys
+
         valid = frame.depth > 0
         self.pixels = np.flatnonzero(valid)
         self.points = backproject(frame.depth, frame.intrinsics, frame.pose, mask=valid)
         self.origin = frame.pose[:3, 3].astype(np.float64)
-        if max_range > 0:
-            dist = np.linalg.norm(self.points - self.origin, axis=1)
-            self.endpoint = dist <= max_range
+        # the same float32 arithmetic as the ray casting (OctoMap's point3d)
+        pts = self.points.astype(np.float32)
+        keys, ok = octomap_keys(pts, resolution)
+        if discretize:  # the range test applies to the voxel centre the point is reduced to
+            pts = ((keys - KEY_OFFSET + 0.5) * resolution).astype(np.float32)
+        if max_range >= 0:
+            self.endpoint = ok & (_norm(pts - self.origin.astype(np.float32)) <= max_range)
         else:
-            self.endpoint = np.ones(len(self.points), dtype=bool)
-        self.codes = pack(coord_to_key(self.points, resolution))
+            self.endpoint = ok
+        self.codes = pack(keys)
 
 
 def check_observation(frame: Frame, observation: SemanticObservation | None,
@@ -73,7 +80,7 @@ class OctreeUpdater(MapUpdater):
 
     Args:
         resolution: leaf edge length, metres.
-        max_range: sensor max range, metres (``<= 0``: unlimited); points beyond it only clear
+        max_range: sensor max range, metres (negative: unlimited); points beyond it only clear
             free space up to it, as OctoMap's ``insertPointCloud``.
         discretize: reduce the end points to unique voxel centres before ray casting (OctoMap's
             ``discretize`` flag).
@@ -130,7 +137,7 @@ class OctreeUpdater(MapUpdater):
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
         if self.uses_semantics:
             observation = check_observation(frame, observation, self.name)
-        points = FramePoints(frame, self.resolution, self.max_range)
+        points = FramePoints(frame, self.resolution, self.max_range, self.discretize)
         keys = scan_keys(points.points, points.origin, self.resolution,
                          max_range=self.max_range, discretize=self.discretize)
         update = self.map.apply(keys.free, keys.occupied)
