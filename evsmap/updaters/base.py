@@ -171,8 +171,12 @@ class OctreeUpdater(MapUpdater):
 
         path = Path(path)
         tree = self.tree()
-        if path.suffix == ".bt":
-            return write_bt(path, tree, self.resolution)
+        if path.suffix == ".bt":  # occupancy only; OctoMap writes its own tree type's id
+            kind = self.tree_type if self.tree_type in ("OcTree", "ColorOcTree") else "OcTree"
+            p = self.params
+            return write_bt(path, tree, self.resolution, tree_type=kind,
+                            occupancy_thres=p.occupancy_threshold, clamp_min=p.clamp_min,
+                            clamp_max=p.clamp_max)
         return write_ot(path, tree, self.resolution, tree_type=self.tree_type,
                         payload_format=self._payload_format())
 

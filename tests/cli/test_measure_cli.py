@@ -143,3 +143,43 @@ def test_backends_match_measure_module():
     from evsmap.cli.speed_cmd import BACKENDS
 
     assert sorted(BACKENDS) == sorted(speed_module.BACKENDS)
+
+
+# -- evsmap map -------------------------------------------------------------------------------
+
+def _evsmap(*args: str):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "evsmap", *args], capture_output=True,
+                          text=True, timeout=600)
+
+
+def test_map_synthetic_json_has_the_record_keys(tmp_path):
+    import json
+
+    out = tmp_path / "m.ot"
+    r = _evsmap("map", "synthetic", "--updater", "multiclass-bayes", "--frames", "2",
+                "--resolution", "0.1", "--out", str(out), "--json")
+    assert r.returncode == 0, r.stderr
+    rec = json.loads(r.stdout)
+    for key in ("frames", "hz_median", "hz_end_to_end", "map_bytes", "memory_bytes", "nodes",
+                "leaves"):
+        assert key in rec
+    assert rec["frames"] == 2 and rec["segmenter"] == "oracle"
+    assert rec["map_bytes"] == out.stat().st_size
+    assert rec["hz_end_to_end"] <= rec["hz_median"]
+
+
+def test_map_user_errors_are_one_line(tmp_path, tum_dir):
+    cases = [
+        ("map", "synthetic", "--updater", "nope"),
+        ("map", str(tmp_path / "missing"), "--updater", "orgb"),
+        ("map", "synthetic", "--updater", "orgb", "--out", str(tmp_path / "m.txt")),
+        ("map", str(tum_dir), "--updater", "multiclass-bayes", "--frames", "1"),
+    ]
+    for args in cases:
+        r = _evsmap(*args)
+        assert r.returncode == 2, (args, r.stderr)
+        assert "Traceback" not in r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1, r.stderr

@@ -1,0 +1,87 @@
+"""Map updaters end to end: OctoMap agreement, semantics on the synthetic scene, files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evsmap.errors import InvalidDataError
+from evsmap.mapping.octree_io import read_ot
+from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+from evsmap.updaters.multiclass_bayes import PAYLOAD_FORMAT, TREE_TYPE, load_multiclass_bayes
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    seq = READERS.create("synthetic", frames=6, width=160, height=120)
+    oracle = SEGMENTERS.create("oracle", seed=1)
+    frames = [seq.frame(i) for i in range(len(seq))]
+    return seq, frames, [oracle.predict(f) for f in frames]
+
+
+@pytest.fixture(scope="module")
+def tum_frames(tum_dir):
+    seq = READERS.create("tum", path=str(tum_dir))
+    return [seq.frame(i) for i in range(0, len(seq), 6)]
+
+
+def test_orgb_occupancy_equals_octomap_cpp(tum_frames, tmp_path):
+    ours = UPDATERS.create("orgb", resolution=0.05, max_range=4.0)
+    ref = UPDATERS.create("octomap-color", resolution=0.05, max_range=4.0)
+    for frame in tum_frames:
+        ours.integrate(frame)
+        ref.integrate(frame)
+    assert ours.stats().nodes == ref.stats().nodes
+    assert ours.stats().leaves == ref.stats().leaves
+    assert ours.stats().memory_bytes == ref.stats().memory_bytes
+    ours.write(tmp_path / "a.ot")
+    ref.write(tmp_path / "b.ot")
+    a, b = read_ot(tmp_path / "a.ot"), read_ot(tmp_path / "b.ot")
+    assert a.tree_type == b.tree_type == "ColorOcTree"
+    assert np.array_equal(a.tree.code, b.tree.code)
+    assert np.array_equal(a.tree.value, b.tree.value)
+    # .bt (occupancy, maximum likelihood) is byte-identical
+    ours.write(tmp_path / "a.bt")
+    ref.write(tmp_path / "b.bt")
+    assert (tmp_path / "a.bt").read_bytes() == (tmp_path / "b.bt").read_bytes()
+
+
+@pytest.mark.parametrize("name", ["multiclass-bayes", "classic-semantic", "classic-semantic-max"])
+def test_semantic_maps_label_the_scene(synthetic, name):
+    seq, frames, observations = synthetic
+    updater = UPDATERS.create(name, resolution=0.05)
+    for frame, obs in zip(frames, observations, strict=True):
+        updater.integrate(frame, obs)
+    truth = seq.ground_truth(0.05)
+    q = updater.query(truth.centers)
+    seen = q.state == 1
+    assert seen.sum() > 1000
+    accuracy = np.mean(q.label[seen] == np.asarray(truth.labels)[seen])
+    assert accuracy > 0.8, f"{name}: {accuracy:.3f}"
+
+
+def test_semantic_updater_needs_an_observation(synthetic):
+    _, frames, _ = synthetic
+    with pytest.raises(InvalidDataError, match="segmenter"):
+        UPDATERS.create("multiclass-bayes").integrate(frames[0])
+
+
+def test_multiclass_bayes_file_reloads_and_mapping_continues(synthetic, tmp_path):
+    _, frames, observations = synthetic
+    a = UPDATERS.create("multiclass-bayes", resolution=0.05)
+    for frame, obs in zip(frames[:3], observations[:3], strict=True):
+        a.integrate(frame, obs)
+    size = a.write(tmp_path / "m.ot")
+    assert size == (tmp_path / "m.ot").stat().st_size
+    kind, _, tree = read_ot(tmp_path / "m.ot", payload_format={TREE_TYPE: PAYLOAD_FORMAT})
+    assert kind == TREE_TYPE and tree.num_nodes == a.stats().nodes
+    b = load_multiclass_bayes(tmp_path / "m.ot")
+    assert np.array_equal(b.map.codes, a.map.codes)
+    assert np.array_equal(b.map.logodds, a.map.logodds)
+    for name in ("classes", "class_logodds", "others"):
+        assert np.array_equal(b.map.payload(name), a.map.payload(name))
+    for frame, obs in zip(frames[3:], observations[3:], strict=True):
+        a.integrate(frame, obs)
+        b.integrate(frame, obs)
+    assert np.array_equal(b.map.payload("class_logodds"), a.map.payload("class_logodds"))
+    assert a.stats() == b.stats()
