@@ -131,7 +131,7 @@ class NetworkSegmenter(Segmenter):
         """Normalised, resized network inputs (batch 1, float32) for ``frame``."""
         n = self.normalization
         size = self.input_size
-        rgb = torch.from_numpy(np.ascontiguousarray(frame.rgb)).permute(2, 0, 1)[None].float()
+        rgb = torch.from_numpy(np.array(frame.rgb, copy=True)).permute(2, 0, 1)[None].float()
         rgb = rgb / 255.0
         if tuple(rgb.shape[-2:]) != size:
             rgb = F.interpolate(rgb, size=size, mode="bilinear", align_corners=False)
@@ -140,7 +140,7 @@ class NetworkSegmenter(Segmenter):
         rgb = (rgb - mean) / std
         if not self.uses_depth:
             return (rgb,)
-        depth = torch.from_numpy(np.ascontiguousarray(frame.depth))[None, None]
+        depth = torch.from_numpy(np.array(frame.depth, copy=True))[None, None]
         if tuple(depth.shape[-2:]) != size:
             depth = F.interpolate(depth, size=size, mode="nearest")
         valid = depth > 0
