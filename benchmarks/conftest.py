@@ -27,3 +27,42 @@ def shared_data():
     if root is None:
         pytest.skip("real sample data not found (set EVSMAP_DATA_ROOT)")
     return root
+
+
+@pytest.fixture(scope="session")
+def paper_network():
+    """``paper_network(name, **options)``: the registered segmenter with its random initial
+    weights drawn from seed 0, built once per name and options. The weights are the same in
+    every run, so the ONNX exports (keyed by a digest of the weights) are cached across runs."""
+    import torch
+
+    from evsmap.registry import SEGMENTERS
+
+    cache: dict[tuple, object] = {}
+
+    def get(name: str, **options):
+        key = (name, tuple(sorted(options.items())))
+        if key not in cache:
+            torch.manual_seed(0)
+            cache[key] = SEGMENTERS.create(name, **options)
+        return cache[key]
+
+    return get
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "gate: a pass/fail performance goal (a ratio of speeds measured in one run); "
+                   "runs only with --benchmark-only, as in `nox -s bench`")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Skip the gates unless benchmarks run on their own (--benchmark-only): a gate times
+    several networks for tens of seconds and only means something on an otherwise idle run."""
+    if config.getoption("benchmark_only", default=False):
+        return
+    skip = pytest.mark.skip(reason="performance gate: runs only with --benchmark-only "
+                                   "(nox -s bench)")
+    for item in items:
+        if item.get_closest_marker("gate") is not None:
+            item.add_marker(skip)

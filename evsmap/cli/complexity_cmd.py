@@ -43,6 +43,11 @@ def build_network(args: argparse.Namespace) -> tuple[Any, int, int]:
     config = dict(args.option)
     if args.classes is not None:
         config["num_classes"] = args.classes
+    import torch
+
+    # untrained networks get the same random weights every run: results are repeatable and the
+    # ONNX export cache (keyed by the weights) is reused between runs
+    torch.manual_seed(0)
     segmenter = SEGMENTERS.create(args.model, **config)
     if getattr(segmenter, "module", None) is None:
         raise EvsmapError(f"segmenter {args.model!r} is not a network; nothing to measure")
