@@ -25,7 +25,13 @@ from evsmap.mapping import fusion
 from evsmap.mapping.fusion import average_node_color, color_is_set
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, OctreeUpdater, mean_per_voxel, strongest_child
+from evsmap.updaters.base import (
+    FramePoints,
+    OctreeUpdater,
+    compact,
+    mean_per_voxel,
+    strongest_child,
+)
 
 
 def voxel_distributions(voxel: np.ndarray, classes: np.ndarray, probs: np.ndarray,
@@ -71,7 +77,7 @@ class ClassicSemanticMap(OctreeUpdater):
         sel, pos = self.endpoint_voxels(points)
         if not sel.size:
             return
-        voxels, local = np.unique(pos, return_inverse=True)
+        voxels, local = compact(pos, self.map.num_leaves)
         pixels = points.pixels[sel]
         m = self.map
         rgb = frame.rgb.reshape(-1, 3)[pixels].astype(np.float64)

@@ -133,11 +133,14 @@ def backproject(depth: np.ndarray, intrinsics: Intrinsics, pose: np.ndarray | No
     valid = depth > 0 if mask is None else mask & (depth > 0)
     v, u = np.nonzero(valid)
     z = depth[v, u].astype(np.float64)
-    pts = np.stack([(u - intrinsics.cx) / intrinsics.fx * z,
-                    (v - intrinsics.cy) / intrinsics.fy * z, z], axis=1)
-    if pose is not None:
-        pts = pts @ pose[:3, :3].T + pose[:3, 3]
-    return pts
+    x = (u - intrinsics.cx) / intrinsics.fx * z
+    y = (v - intrinsics.cy) / intrinsics.fy * z
+    if pose is None:
+        return np.stack([x, y, z], axis=1)
+    # rotate axis by axis: an (N, 3) @ (3, 3) product goes through BLAS, whose thread start-up
+    # dominates (and stalls under load) for such a thin matrix
+    r, t = pose[:3, :3], pose[:3, 3]
+    return np.stack([r[i, 0] * x + r[i, 1] * y + r[i, 2] * z + t[i] for i in range(3)], axis=1)
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:

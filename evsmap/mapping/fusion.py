@@ -537,6 +537,10 @@ def merge_ssmi(a: MCBState, b: MCBState, *, max_logodds: float = MAX_LOGODDS,
                   np.log1p((n_z - n_b).astype(np.float64)), max_logodds, min_logodds)
 
 
+_DENSE_LIMIT = 1 << 24
+"""Largest voxels x classes table :func:`build_local` sums densely."""
+
+
 def build_local(voxel_index: np.ndarray, classes: np.ndarray, probs: np.ndarray, n_voxels: int,
                 *, hit: float = PSI, max_logodds: float = MAX_LOGODDS,
                 min_logodds: float = MIN_LOGODDS) -> MCBState:
@@ -574,7 +578,18 @@ def build_local(voxel_index: np.ndarray, classes: np.ndarray, probs: np.ndarray,
     flat_p = pr.ravel()
     keep = (flat_c >= 0) & (flat_p > 0)
     flat_v, flat_c, flat_p = flat_v[keep], flat_c[keep], flat_p[keep]
-    if flat_v.size:
+    if flat_v.size and n_voxels * (int(flat_c.max()) + 1) <= _DENSE_LIMIT:
+        # dense (voxel, class) sums: no sort, O(points) - the common case (tens of classes)
+        span = int(flat_c.max()) + 1
+        sums = np.bincount(flat_v * span + flat_c, weights=flat_p,
+                           minlength=n_voxels * span).reshape(n_voxels, span)
+        mean = sums / np.maximum(counts, 1)[:, None]
+        order = np.argsort(-mean, axis=1, kind="stable")[:, :SLOTS]  # ties: smaller class id
+        top = np.take_along_axis(mean, order, axis=1)
+        width = order.shape[1]
+        out_cls[:, :width] = np.where(top > 0, order, EMPTY)
+        out_p[:, :width] = np.where(top > 0, top, 0.0)
+    elif flat_v.size:
         span = int(flat_c.max()) + 1
         key, inverse = np.unique(flat_v * span + flat_c, return_inverse=True)
         mean = np.bincount(inverse.ravel(), weights=flat_p) / counts[key // span]

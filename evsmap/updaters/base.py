@@ -206,3 +206,13 @@ def mean_per_voxel(voxel: np.ndarray, values: np.ndarray, n_voxels: int) -> np.n
     out = np.stack([np.bincount(voxel, weights=values[:, j], minlength=n_voxels)
                     for j in range(values.shape[1])], axis=1)
     return out / np.maximum(counts, 1)[:, None]
+
+
+def compact(index: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(index, return_inverse=True)`` for indices into an array of ``size`` rows,
+    without sorting: (ascending unique indices, position of each input among them)."""
+    present = np.zeros(size, dtype=bool)
+    present[index] = True
+    unique = np.flatnonzero(present)
+    lut = np.cumsum(present, dtype=np.int64) - 1
+    return unique, lut[index]

@@ -24,7 +24,7 @@ from evsmap.mapping import fusion
 from evsmap.mapping.fusion import MCBState
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, OctreeUpdater, strongest_child
+from evsmap.updaters.base import FramePoints, OctreeUpdater, compact, strongest_child
 
 PAYLOAD_FORMAT = np.dtype([("classes", "<i2", (3,)), ("logodds", "<f4", (3,)),
                            ("others", "<f4")])
@@ -80,7 +80,7 @@ class MultiClassBayesMap(OctreeUpdater):
         sel, pos = self.endpoint_voxels(points)
         if not sel.size:
             return
-        voxels, local_index = np.unique(pos, return_inverse=True)
+        voxels, local_index = compact(pos, self.map.num_leaves)
         pixels = points.pixels[sel]
         classes = observation.classes.reshape(-1, observation.k)[pixels]
         probs = observation.probs.reshape(-1, observation.k)[pixels]

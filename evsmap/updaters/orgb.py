@@ -10,7 +10,7 @@ from evsmap.mapping.fusion import average_node_color, color_is_set
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.mapping.tree import Tree, build_color_tree
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, OctreeUpdater, mean_per_voxel
+from evsmap.updaters.base import FramePoints, OctreeUpdater, compact, mean_per_voxel
 
 
 class ORGBMap(OctreeUpdater):
@@ -34,7 +34,7 @@ class ORGBMap(OctreeUpdater):
         sel, pos = self.endpoint_voxels(points)
         if not sel.size:
             return
-        voxels, local = np.unique(pos, return_inverse=True)
+        voxels, local = compact(pos, self.map.num_leaves)
         rgb = frame.rgb.reshape(-1, 3)[points.pixels[sel]].astype(np.float64)
         mean = np.floor(mean_per_voxel(local, rgb, len(voxels))).astype(np.uint8)
         stored = self.map.payload("rgb")
