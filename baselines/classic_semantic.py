@@ -22,14 +22,11 @@ import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
 from evsmap.mapping import fusion
-from evsmap.mapping.fusion import average_node_color, color_is_set
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.registry import UPDATERS
 from evsmap.updaters.base import (
     FramePoints,
     OctreeUpdater,
-    compact,
-    mean_per_voxel,
     strongest_child,
 )
 
@@ -74,16 +71,11 @@ class ClassicSemanticMap(OctreeUpdater):
 
     def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
                          observation: SemanticObservation | None) -> None:
-        sel, pos = self.endpoint_voxels(points)
-        if not sel.size:
+        pixels, voxels, local = self.endpoint_voxels(points)
+        if not voxels.size:
             return
-        voxels, local = compact(pos, self.map.num_leaves)
-        pixels = points.pixels[sel]
         m = self.map
-        rgb = frame.rgb.reshape(-1, 3)[pixels].astype(np.float64)
-        mean = np.floor(mean_per_voxel(local, rgb, len(voxels))).astype(np.uint8)
-        prev = m.payload("rgb")[voxels]
-        m.payload("rgb")[voxels] = average_node_color(prev, color_is_set(prev), mean)
+        self._average_colours(frame, pixels, voxels, local)
 
         cls = observation.classes.reshape(-1, observation.k)[pixels]
         prb = observation.probs.reshape(-1, observation.k)[pixels]
@@ -120,14 +112,7 @@ class ClassicSemanticMap(OctreeUpdater):
         return 48 if self.fusion_rule == "bayes" else 32
 
     def query(self, points: np.ndarray):
-        from evsmap.updaters.multiclass_bayes import _codes
-
-        q = self.map.query(points)
-        pos, found = self.map.index(_codes(points, self.resolution))
-        occupied = found & (q.state == 1)
-        label = q.label.copy()
-        label[occupied] = self.map.payload("sem_classes")[pos[occupied], 0]
-        return type(q)(state=q.state, probability=q.probability, label=label)
+        return self._labelled_query(points, "sem_classes")
 
 
 def _factory(rule: str):

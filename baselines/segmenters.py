@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from os import PathLike
 
-from baselines.esanet import DATASET_CONFIGS, esanet_r34_nbt1d
+from baselines.esanet import esanet_r34_nbt1d
 from baselines.fchardnet import fchardnet70
 from evsmap.classes import class_names_for
 from evsmap.errors import UnknownNameError
@@ -14,6 +14,8 @@ from evsmap.segmenters.network import INDOOR, NetworkSegmenter, Normalization
 
 _SIZES = {"nyuv2": (480, 640), "sunrgbd": (480, 640), "cityscapes": (512, 1024)}
 _CLASSES = {"nyuv2": 40, "sunrgbd": 37, "cityscapes": 19}
+RGB_ONLY = Normalization(depth_mean=0.0, depth_std=1.0)
+"""ImageNet RGB statistics (FC-HarDNet reads no depth)."""
 
 
 def _dataset(name: str, dataset: str) -> str:
@@ -22,6 +24,18 @@ def _dataset(name: str, dataset: str) -> str:
         raise UnknownNameError(
             f"{name}: unknown dataset {dataset!r} (known: {', '.join(sorted(_SIZES))})")
     return key
+
+
+def _network(name: str, dataset: str, num_classes: int | None, build, *, uses_depth: bool,
+             backend: str, weights, input_size) -> NetworkSegmenter:
+    key = _dataset(name, dataset)
+    classes = _CLASSES[key] if num_classes is None else num_classes
+    return NetworkSegmenter(
+        name=name, module=build(classes, key), num_classes=classes,
+        class_names=class_names_for(classes, outdoor=key == "cityscapes"),
+        uses_depth=uses_depth, default_size=_SIZES[key],
+        normalization=INDOOR if uses_depth else RGB_ONLY, backend=backend, weights=weights,
+        input_size=input_size, config={"num_classes": classes, "dataset": key})
 
 
 @SEGMENTERS.register(
@@ -37,15 +51,9 @@ def esanet(
     weights: str | PathLike[str] | None = None,
     input_size: tuple[int, int] | None = None,
 ) -> NetworkSegmenter:
-    key = _dataset("esanet-r34-nbt1d", dataset)
-    assert key in DATASET_CONFIGS
-    classes = _CLASSES[key] if num_classes is None else num_classes
-    return NetworkSegmenter(
-        name="esanet-r34-nbt1d", module=esanet_r34_nbt1d(num_classes=classes, dataset=key),
-        num_classes=classes, class_names=class_names_for(classes, outdoor=key == "cityscapes"),
-        uses_depth=True, default_size=_SIZES[key], normalization=INDOOR, backend=backend,
-        weights=weights, input_size=input_size,
-        config={"num_classes": classes, "dataset": key})
+    return _network("esanet-r34-nbt1d", dataset, num_classes,
+                    lambda c, d: esanet_r34_nbt1d(num_classes=c, dataset=d), uses_depth=True,
+                    backend=backend, weights=weights, input_size=input_size)
 
 
 @SEGMENTERS.register(
@@ -61,11 +69,6 @@ def fchardnet(
     weights: str | PathLike[str] | None = None,
     input_size: tuple[int, int] | None = None,
 ) -> NetworkSegmenter:
-    key = _dataset("fchardnet-70", dataset)
-    classes = _CLASSES[key] if num_classes is None else num_classes
-    return NetworkSegmenter(
-        name="fchardnet-70", module=fchardnet70(num_classes=classes), num_classes=classes,
-        class_names=class_names_for(classes, outdoor=key == "cityscapes"), uses_depth=False,
-        default_size=_SIZES[key], normalization=Normalization(depth_mean=0.0, depth_std=1.0),
-        backend=backend, weights=weights, input_size=input_size,
-        config={"num_classes": classes, "dataset": key})
+    return _network("fchardnet-70", dataset, num_classes,
+                    lambda c, d: fchardnet70(num_classes=c), uses_depth=False,
+                    backend=backend, weights=weights, input_size=input_size)

@@ -144,13 +144,17 @@ class OctreeUpdater(MapUpdater):
         self._update_payloads(frame, points, update, observation)
         self.frames += 1
 
-    def endpoint_voxels(self, points: FramePoints) -> tuple[np.ndarray, np.ndarray]:
-        """(indices of the points that end inside the range, map index of their voxel)."""
+    def endpoint_voxels(self, points: FramePoints
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The frame's hits grouped by voxel: (flat pixel index of every point that ends inside
+        the range, the map indices of the distinct hit voxels, and each point's position among
+        them)."""
         sel = np.flatnonzero(points.endpoint)
         pos, found = self.map.index(points.codes[sel])
         if not np.all(found):  # cannot happen: every end point voxel was just inserted
             raise RuntimeError("end point voxel missing from the map")
-        return sel, pos
+        voxels, local = compact(pos, self.map.num_leaves)
+        return points.pixels[sel], voxels, local
 
     def tree(self) -> Tree:
         """The pruned octree of the current map."""
@@ -185,6 +189,41 @@ class OctreeUpdater(MapUpdater):
 
     def query(self, points: np.ndarray) -> PointQuery:
         return self.map.query(points)
+
+    def _labelled_query(self, points: np.ndarray, classes: str) -> PointQuery:
+        """:meth:`query` with the label of occupied voxels read from payload ``classes``
+        (its first slot: the most likely class)."""
+        q = self.map.query(points)
+        pos, found = self.map.index(point_codes(points, self.resolution))
+        occupied = found & (q.state == 1)
+        label = q.label.copy()
+        label[occupied] = self.map.payload(classes)[pos[occupied], 0]
+        return PointQuery(state=q.state, probability=q.probability, label=label)
+
+    def _average_colours(self, frame: Frame, pixels: np.ndarray, voxels: np.ndarray,
+                         local: np.ndarray, payload: str = "rgb") -> None:
+        """``averageNodeColor`` of each voxel's stored colour and the mean colour of the frame's
+        points in it (``pixels``: the points' flat pixel indices, ``local``: their voxel among
+        ``voxels``)."""
+        from evsmap.mapping.fusion import average_node_color, color_is_set
+
+        rgb = frame.rgb.reshape(-1, 3)[pixels].astype(np.float64)
+        mean = np.floor(mean_per_voxel(local, rgb, len(voxels))).astype(np.uint8)
+        stored = self.map.payload(payload)
+        prev = stored[voxels]
+        stored[voxels] = average_node_color(prev, color_is_set(prev), mean)
+
+
+def point_codes(points: np.ndarray, resolution: float) -> np.ndarray:
+    """Voxel codes of world points as OctoMap's ``search`` finds them; -1 outside the map."""
+    from evsmap.mapping.raycast import octomap_keys
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    finite = np.all(np.isfinite(pts), axis=1)
+    keys, ok = octomap_keys(np.where(finite[:, None], pts, 0.0), resolution)
+    codes = pack(keys)
+    codes[~(ok & finite)] = -1
+    return codes
 
 
 def strongest_child(field: str):

@@ -24,7 +24,7 @@ from evsmap.mapping import fusion
 from evsmap.mapping.fusion import MCBState
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, OctreeUpdater, compact, strongest_child
+from evsmap.updaters.base import FramePoints, OctreeUpdater, strongest_child
 
 PAYLOAD_FORMAT = np.dtype([("classes", "<i2", (3,)), ("logodds", "<f4", (3,)),
                            ("others", "<f4")])
@@ -77,11 +77,9 @@ class MultiClassBayesMap(OctreeUpdater):
             if idx.size:
                 self._store(idx, fusion.mcb_miss(self.state(idx), phi=self.phi))
         # end points: local map of this frame, merged with Algorithm 1
-        sel, pos = self.endpoint_voxels(points)
-        if not sel.size:
+        pixels, voxels, local_index = self.endpoint_voxels(points)
+        if not voxels.size:
             return
-        voxels, local_index = compact(pos, self.map.num_leaves)
-        pixels = points.pixels[sel]
         classes = observation.classes.reshape(-1, observation.k)[pixels]
         probs = observation.probs.reshape(-1, observation.k)[pixels]
         local = fusion.build_local(local_index, classes, probs, len(voxels), hit=self.psi)
@@ -113,24 +111,7 @@ class MultiClassBayesMap(OctreeUpdater):
         return -(-(4 + 8 + PAYLOAD_FORMAT.itemsize) // 8) * 8
 
     def query(self, points: np.ndarray):
-        q = self.map.query(points)
-        pos, found = self.map.index(_codes(points, self.resolution))
-        occupied = found & (q.state == 1)
-        label = q.label.copy()
-        label[occupied] = self.map.payload("classes")[pos[occupied], 0]
-        return type(q)(state=q.state, probability=q.probability, label=label)
-
-
-def _codes(points: np.ndarray, resolution: float) -> np.ndarray:
-    from evsmap.mapping.keys import pack
-    from evsmap.mapping.raycast import octomap_keys
-
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    finite = np.all(np.isfinite(pts), axis=1)
-    keys, ok = octomap_keys(np.where(finite[:, None], pts, 0.0), resolution)
-    codes = pack(keys)
-    codes[~(ok & finite)] = -1
-    return codes
+        return self._labelled_query(points, "classes")
 
 
 def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBayesMap:

@@ -6,11 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
-from evsmap.mapping.fusion import average_node_color, color_is_set
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.mapping.tree import Tree, build_color_tree
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, OctreeUpdater, compact, mean_per_voxel
+from evsmap.updaters.base import FramePoints, OctreeUpdater
 
 
 class ORGBMap(OctreeUpdater):
@@ -31,15 +30,9 @@ class ORGBMap(OctreeUpdater):
 
     def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
                          observation: SemanticObservation | None) -> None:
-        sel, pos = self.endpoint_voxels(points)
-        if not sel.size:
-            return
-        voxels, local = compact(pos, self.map.num_leaves)
-        rgb = frame.rgb.reshape(-1, 3)[points.pixels[sel]].astype(np.float64)
-        mean = np.floor(mean_per_voxel(local, rgb, len(voxels))).astype(np.uint8)
-        stored = self.map.payload("rgb")
-        prev = stored[voxels]
-        stored[voxels] = average_node_color(prev, color_is_set(prev), mean)
+        pixels, voxels, local = self.endpoint_voxels(points)
+        if voxels.size:
+            self._average_colours(frame, pixels, voxels, local)
 
     def tree(self) -> Tree:
         return build_color_tree(self.map.codes, np.asarray(self.map.logodds),
