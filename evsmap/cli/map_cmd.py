@@ -52,6 +52,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=positive_int, metavar="N", help="first N frames only")
     p.add_argument("--out", type=Path, metavar="FILE",
                    help="write the map here (.ot full state; .bt occupancy only)")
+    p.add_argument("--ply", type=Path, metavar="FILE",
+                   help="also write the occupied voxel centres as a binary PLY point cloud")
+    p.add_argument("--ply-color", choices=("rgb", "class"), metavar="rgb|class",
+                   help="colour the PLY points by stored colour or by class (default: class for "
+                        "semantic updaters, rgb otherwise)")
     p.add_argument("-o", "--option", type=key_value, action="append", default=[],
                    metavar="KEY=VALUE", help="an updater option, repeatable (e.g. theta=0.6)")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
@@ -80,9 +85,16 @@ def run(args: argparse.Namespace) -> int:
             raise EvsmapError(f"--out {args.out}: the map file must end in .ot or .bt")
         if not args.out.parent.exists():
             raise EvsmapError(f"--out {args.out}: folder {args.out.parent} does not exist")
+    if args.ply is not None and not args.ply.parent.exists():
+        raise EvsmapError(f"--ply {args.ply}: folder {args.ply.parent} does not exist")
     config = dict(args.option)
     config.update(resolution=args.resolution, max_range=args.max_range)
     updater = UPDATERS.create(args.updater, **config)
+    ply_color = None
+    if args.ply is not None:
+        from evsmap.mapping.export import check_color_by
+
+        ply_color = check_color_by(updater, args.ply_color)
     sequence = open_sequence(args.sequence)
     segmenter = None
     seg_name = args.segmenter
@@ -98,6 +110,10 @@ def run(args: argparse.Namespace) -> int:
         segmenter_name=seg_name, frames=args.frames, out=args.out,
         progress=lambda it: progress(it, total=len(it), desc=f"mapping {args.updater}"))
     result = record.as_dict()
+    if args.ply is not None:
+        from evsmap.mapping.export import export_ply
+
+        result["ply_points"] = export_ply(updater, args.ply, color_by=ply_color)
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -107,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
 
 def format_record(r: dict[str, Any]) -> str:
     seg = r["segmenter"] or "none"
+    ply = [f"point cloud  {r['ply_points']:,} points"] if "ply_points" in r else []
     return "\n".join([
         f"updater      {r['updater']}  (segmenter {seg}, {r['frames']} frames of "
         f"{r['sequence']}, {r['resolution']} m)",
@@ -116,4 +133,4 @@ def format_record(r: dict[str, Any]) -> str:
                                                         if r["map_file"] else ""),
         f"in memory    {r['memory_bytes'] / 1e6:.3f} MB, {r['nodes']:,} nodes, "
         f"{r['leaves']:,} leaves",
-    ])
+    ] + ply)

@@ -26,9 +26,10 @@ from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.registry import UPDATERS
 from evsmap.updaters.base import FramePoints, OctreeUpdater, strongest_child
 
-PAYLOAD_FORMAT = np.dtype([("classes", "<i2", (3,)), ("logodds", "<f4", (3,)),
-                           ("others", "<f4")])
-"""Per-node payload after the float32 occupancy log-odds in the ``.ot`` stream (22 bytes)."""
+PAYLOAD_FORMAT = np.dtype([("classes", "u1", (3,)), ("logodds", "i1", (3,)), ("others", "i1")])
+"""Per-node payload after the float32 occupancy log-odds in the ``.ot`` stream (7 bytes): class
+ids (255 = empty slot) and the class and "others" log-odds in units of ``quantum``."""
+EMPTY_ID = 255
 TREE_TYPE = "MultiClassBayesOcTree"
 
 
@@ -39,6 +40,11 @@ class MultiClassBayesMap(OctreeUpdater):
         psi: log-odds added to the observed class (eq. 9, phi+ of the occupied case).
         phi: log-odds added on a miss (eq. 9, phi-).
         theta: Algorithm 1's punishment value.
+        quantum: step of the stored log-odds. The state lives on the lattice of the update
+            constants ("log-odds piecewise constants", Section III-B): every value is rounded
+            to a multiple of ``quantum`` (default ``|phi|`` = 0.1) after each update and stored
+            as an ``int8`` count (the clamps +-9.21 are +-92 steps), so equal histories give
+            exactly equal nodes, which prune, and a node's semantics take 7 bytes.
         (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`)
     """
 
@@ -47,25 +53,38 @@ class MultiClassBayesMap(OctreeUpdater):
     uses_semantics = True
 
     def __init__(self, *, psi: float = fusion.PSI, phi: float = fusion.PHI,
-                 theta: float = fusion.THETA, **kwargs) -> None:
+                 theta: float = fusion.THETA, quantum: float | None = None, **kwargs) -> None:
+        from evsmap.errors import InvalidDataError
+
         self.psi, self.phi, self.theta = float(psi), float(phi), float(theta)
+        self.quantum = abs(self.phi) if quantum is None else float(quantum)
+        if not self.quantum > 0 or fusion.MAX_LOGODDS / self.quantum > 127:
+            raise InvalidDataError(
+                f"quantum must be at least {fusion.MAX_LOGODDS / 127:.3f} (int8 steps up to the "
+                f"+-{fusion.MAX_LOGODDS:.2f} clamp), got {quantum!r}")
+        self._steps = int(np.floor(fusion.MAX_LOGODDS / self.quantum))
         super().__init__(**kwargs)
 
     def _init_payloads(self) -> None:
         self.map.add_payload("classes", np.int16, (3,), fill=fusion.EMPTY)
-        self.map.add_payload("class_logodds", np.float32, (3,), fill=0.0)
-        self.map.add_payload("others", np.float32, (), fill=0.0)
+        self.map.add_payload("class_logodds", np.int8, (3,), fill=0)
+        self.map.add_payload("others", np.int8, (), fill=0)
 
     def state(self, index: np.ndarray | slice = slice(None)) -> MCBState:
-        m = self.map
-        return MCBState(m.payload("classes")[index], m.payload("class_logodds")[index],
-                        m.payload("others")[index])
+        m, q = self.map, self.quantum
+        return MCBState(m.payload("classes")[index],
+                        m.payload("class_logodds")[index].astype(np.float32) * q,
+                        m.payload("others")[index].astype(np.float32) * q)
+
+    def _quantize(self, values: np.ndarray) -> np.ndarray:
+        steps = np.rint(np.asarray(values, dtype=np.float64) / self.quantum)
+        return np.clip(steps, -self._steps, self._steps).astype(np.int8)
 
     def _store(self, index: np.ndarray, state: MCBState) -> None:
         m = self.map
         m.payload("classes")[index] = state.classes
-        m.payload("class_logodds")[index] = state.logodds
-        m.payload("others")[index] = state.others
+        m.payload("class_logodds")[index] = self._quantize(state.logodds)
+        m.payload("others")[index] = self._quantize(state.others)
 
     def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
                          observation: SemanticObservation | None) -> None:
@@ -77,6 +96,7 @@ class MultiClassBayesMap(OctreeUpdater):
             if idx.size:
                 self._store(idx, fusion.mcb_miss(self.state(idx), phi=self.phi))
         # end points: local map of this frame, merged with Algorithm 1
+        self._check_classes(observation)
         pixels, voxels, local_index = self.endpoint_voxels(points)
         if not voxels.size:
             return
@@ -90,8 +110,9 @@ class MultiClassBayesMap(OctreeUpdater):
         self._store(voxels[~known], local.take(~known))
 
     def _payload_record(self) -> np.ndarray:
-        rec = np.empty(self.map.num_leaves, dtype=PAYLOAD_FORMAT.newbyteorder("="))
-        rec["classes"] = self.map.payload("classes")
+        rec = np.empty(self.map.num_leaves, dtype=PAYLOAD_FORMAT)
+        classes = self.map.payload("classes")
+        rec["classes"] = np.where(classes < 0, EMPTY_ID, classes)
         rec["logodds"] = self.map.payload("class_logodds")
         rec["others"] = self.map.payload("others")
         return rec
@@ -109,6 +130,13 @@ class MultiClassBayesMap(OctreeUpdater):
     def _node_bytes(self) -> int:
         # OctoMap node: 4 B log-odds + children pointer (8 B) + this payload, 8-byte aligned
         return -(-(4 + 8 + PAYLOAD_FORMAT.itemsize) // 8) * 8
+
+    def _check_classes(self, observation: SemanticObservation) -> None:
+        if observation.num_classes > EMPTY_ID:
+            from evsmap.errors import InvalidDataError
+
+            raise InvalidDataError(f"multiclass-bayes stores class ids in one byte: at most "
+                                   f"{EMPTY_ID} classes, got {observation.num_classes}")
 
     def query(self, points: np.ndarray):
         return self._labelled_query(points, "classes")
@@ -131,7 +159,8 @@ def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBaye
     old = updater.map
     updater.map = OccupancyMap.from_leaves(resolution, codes, values, params=old.params)
     updater._init_payloads()
-    updater.map.payload("classes")[:] = payload["classes"]
+    ids = payload["classes"].astype(np.int16)
+    updater.map.payload("classes")[:] = np.where(ids == EMPTY_ID, fusion.EMPTY, ids)
     updater.map.payload("class_logodds")[:] = payload["logodds"]
     updater.map.payload("others")[:] = payload["others"]
     return updater
@@ -142,8 +171,9 @@ def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBaye
                                "with Algorithm 1 (theta 0.6)")
 def multiclass_bayes(*, resolution: float = 0.05, max_range: float = 5.0,
                      discretize: bool = True, psi: float = fusion.PSI, phi: float = fusion.PHI,
-                     theta: float = fusion.THETA, prob_hit: float = 0.7, prob_miss: float = 0.4,
-                     clamp_min: float = 0.1192, clamp_max: float = 0.971) -> MultiClassBayesMap:
+                     theta: float = fusion.THETA, quantum: float | None = None,
+                     prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float = 0.1192,
+                     clamp_max: float = 0.971) -> MultiClassBayesMap:
     return MultiClassBayesMap(resolution=resolution, max_range=max_range, discretize=discretize,
-                              psi=psi, phi=phi, theta=theta, prob_hit=prob_hit,
+                              psi=psi, phi=phi, theta=theta, quantum=quantum, prob_hit=prob_hit,
                               prob_miss=prob_miss, clamp_min=clamp_min, clamp_max=clamp_max)
