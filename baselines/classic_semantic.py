@@ -97,6 +97,11 @@ class ClassicSemanticMap(OctreeUpdater):
         rec["conf"] = self.map.payload("sem_conf")
         return rec
 
+    def _set_payload_record(self, record: np.ndarray | None) -> None:
+        self.map.payload("rgb")[:] = record["rgb"]
+        self.map.payload("sem_classes")[:] = record["classes"]
+        self.map.payload("sem_conf")[:] = record["conf"]
+
     def _equal_columns(self) -> list[np.ndarray]:
         m = self.map
         return [m.logodds, m.payload("sem_classes"), m.payload("sem_conf")]

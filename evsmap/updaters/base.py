@@ -187,6 +187,35 @@ class OctreeUpdater(MapUpdater):
     def _payload_format(self):
         return None
 
+    def _set_payload_record(self, record: np.ndarray | None) -> None:
+        """Inverse of :meth:`_payload_record`: fill the payload arrays from file records."""
+
+    def restore(self, path: str | PathLike[str]) -> OctreeUpdater:
+        """Replace this map by the one saved in ``path`` (an ``.ot`` this updater wrote), so
+        mapping continues from it; returns ``self``.
+
+        Raises:
+            DataFormatError: unreadable file, another tree type or another resolution.
+        """
+        from evsmap.errors import DataFormatError
+        from evsmap.mapping.octree_io import read_ot
+
+        fmt = self._payload_format()
+        kind, resolution, tree = read_ot(path, payload_format=None if fmt is None
+                                         else {self.tree_type: fmt})
+        if kind != self.tree_type:
+            raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
+        if not math.isclose(resolution, self.resolution, rel_tol=1e-9):
+            raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "
+                                  f"{self.resolution} m")
+        codes, values, payload = tree.expand()
+        order = np.argsort(codes, kind="stable")
+        self.map = OccupancyMap.from_leaves(self.resolution, codes[order], values[order],
+                                            params=self.params)
+        self._init_payloads()
+        self._set_payload_record(None if payload is None else payload[order])
+        return self
+
     def query(self, points: np.ndarray) -> PointQuery:
         return self.map.query(points)
 

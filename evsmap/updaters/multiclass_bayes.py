@@ -117,6 +117,12 @@ class MultiClassBayesMap(OctreeUpdater):
         rec["others"] = self.map.payload("others")
         return rec
 
+    def _set_payload_record(self, record: np.ndarray | None) -> None:
+        ids = record["classes"].astype(np.int16)
+        self.map.payload("classes")[:] = np.where(ids == EMPTY_ID, fusion.EMPTY, ids)
+        self.map.payload("class_logodds")[:] = record["logodds"]
+        self.map.payload("others")[:] = record["others"]
+
     def _equal_columns(self) -> list[np.ndarray]:
         m = self.map
         return [m.logodds, m.payload("classes"), m.payload("class_logodds"), m.payload("others")]
@@ -143,27 +149,13 @@ class MultiClassBayesMap(OctreeUpdater):
 
 
 def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBayesMap:
-    """A :class:`MultiClassBayesMap` restored from its ``.ot`` file (mapping can continue)."""
-    from evsmap.mapping.occupancy import OccupancyMap
+    """A :class:`MultiClassBayesMap` restored from its ``.ot`` file (mapping can continue);
+    ``kwargs`` are the map's options (give the ``quantum`` it was built with, if not the
+    default)."""
     from evsmap.mapping.octree_io import read_ot
 
-    tree_type, resolution, tree = read_ot(path, payload_format={TREE_TYPE: PAYLOAD_FORMAT})
-    if tree_type != TREE_TYPE:
-        from evsmap.errors import DataFormatError
-
-        raise DataFormatError(f"{path}: a {tree_type} file, not a {TREE_TYPE} map")
-    updater = MultiClassBayesMap(resolution=resolution, **kwargs)
-    codes, values, payload = tree.expand()
-    order = np.argsort(codes, kind="stable")
-    codes, values, payload = codes[order], values[order], payload[order]
-    old = updater.map
-    updater.map = OccupancyMap.from_leaves(resolution, codes, values, params=old.params)
-    updater._init_payloads()
-    ids = payload["classes"].astype(np.int16)
-    updater.map.payload("classes")[:] = np.where(ids == EMPTY_ID, fusion.EMPTY, ids)
-    updater.map.payload("class_logodds")[:] = payload["logodds"]
-    updater.map.payload("others")[:] = payload["others"]
-    return updater
+    resolution = read_ot(path, payload_format={TREE_TYPE: PAYLOAD_FORMAT}).resolution
+    return MultiClassBayesMap(resolution=resolution, **kwargs).restore(path)
 
 
 @UPDATERS.register("multiclass-bayes",

@@ -34,6 +34,10 @@ class ORGBMap(OctreeUpdater):
         if voxels.size:
             self._average_colours(frame, pixels, voxels, local)
 
+    def _set_payload_record(self, record: np.ndarray | None) -> None:
+        if record is not None:
+            self.map.payload("rgb")[:] = record
+
     def tree(self) -> Tree:
         return build_color_tree(self.map.codes, np.asarray(self.map.logodds),
                                 self.map.payload("rgb"))

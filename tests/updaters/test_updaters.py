@@ -85,3 +85,48 @@ def test_multiclass_bayes_file_reloads_and_mapping_continues(synthetic, tmp_path
         b.integrate(frame, obs)
     assert np.array_equal(b.map.payload("class_logodds"), a.map.payload("class_logodds"))
     assert a.stats() == b.stats()
+
+
+@pytest.mark.parametrize("name", ["classic-semantic", "classic-semantic-max"])
+def test_saved_maps_restore_and_continue(synthetic, tmp_path, name):
+    _, frames, observations = synthetic
+    a = UPDATERS.create(name, resolution=0.05)
+    for frame, obs in zip(frames[:3], observations[:3], strict=True):
+        a.integrate(frame, obs)
+    a.write(tmp_path / "m.ot")
+    b = UPDATERS.create(name, resolution=0.05).restore(tmp_path / "m.ot")
+    for frame, obs in zip(frames[3:], observations[3:], strict=True):
+        a.integrate(frame, obs)
+        b.integrate(frame, obs)
+    assert np.array_equal(a.map.codes, b.map.codes)
+    assert np.array_equal(a.map.logodds, b.map.logodds)
+    for payload in a.map.payload_names:
+        assert np.array_equal(a.map.payload(payload), b.map.payload(payload)), payload
+
+
+def test_orgb_restores_what_a_colour_octree_file_holds(synthetic, tmp_path):
+    # a ColorOcTree file keeps one (averaged) colour per pruned block, as OctoMap's does:
+    # occupancy comes back exactly and writing the restored map gives the same bytes
+    _, frames, _ = synthetic
+    a = UPDATERS.create("orgb", resolution=0.05)
+    for frame in frames[:3]:
+        a.integrate(frame)
+    a.write(tmp_path / "a.ot")
+    b = UPDATERS.create("orgb", resolution=0.05).restore(tmp_path / "a.ot")
+    assert np.array_equal(a.map.codes, b.map.codes)
+    assert np.array_equal(a.map.logodds, b.map.logodds)
+    b.write(tmp_path / "b.ot")
+    assert (tmp_path / "a.ot").read_bytes() == (tmp_path / "b.ot").read_bytes()
+
+
+def test_restore_refuses_another_map(synthetic, tmp_path):
+    from evsmap.errors import DataFormatError
+
+    _, frames, observations = synthetic
+    a = UPDATERS.create("orgb", resolution=0.05)
+    a.integrate(frames[0])
+    a.write(tmp_path / "c.ot")
+    with pytest.raises(DataFormatError, match="ColorOcTree"):
+        UPDATERS.create("multiclass-bayes", resolution=0.05).restore(tmp_path / "c.ot")
+    with pytest.raises(DataFormatError, match="resolution"):
+        UPDATERS.create("orgb", resolution=0.1).restore(tmp_path / "c.ot")
