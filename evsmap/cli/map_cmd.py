@@ -45,6 +45,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="segmenter for semantic updaters (default: oracle when the sequence has "
                         "labels)")
     p.add_argument("--weights", type=Path, metavar="FILE", help="segmenter weights (state dict)")
+    p.add_argument("--backend", choices=("torch", "onnxruntime"),
+                   help="inference backend of a network segmenter (default torch)")
     p.add_argument("--resolution", type=_positive_float, default=0.05, metavar="R",
                    help="leaf size in metres (default 0.05)")
     p.add_argument("--max-range", type=_range, default=5.0, metavar="M",
@@ -100,10 +102,17 @@ def run(args: argparse.Namespace) -> int:
     seg_name = args.segmenter
     if getattr(updater, "uses_semantics", False) or seg_name:
         if seg_name is None:
+            if len(sequence) and sequence.frame(0).labels is None:
+                raise EvsmapError(
+                    f"updater {args.updater!r} needs semantics and {sequence.name!r} has no "
+                    f"ground-truth labels for the oracle: pass --segmenter NAME (a network, "
+                    f"see `evsmap list`)")
             seg_name = "oracle"
         seg_config: dict[str, Any] = {}
         if args.weights is not None:
             seg_config["weights"] = args.weights
+        if args.backend is not None:
+            seg_config["backend"] = args.backend
         segmenter = SEGMENTERS.create(seg_name, **seg_config)
     record = map_sequence(
         sequence, updater, updater_name=args.updater, segmenter=segmenter,

@@ -180,10 +180,12 @@ class NetworkSegmenter(Segmenter):
         h, w = frame.rgb.shape[:2]
         if tuple(logits.shape[-2:]) != (h, w):
             logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
-        probs = torch.softmax(logits.float(), dim=1)[0]
-        top_p, top_c = probs.topk(k, dim=0)
+        # classes last and contiguous: softmax and top-k then run along memory (several times
+        # faster than along the strided channel axis of NCHW)
+        scores = logits[0].float().permute(1, 2, 0).contiguous()
+        top_p, top_c = torch.softmax(scores, dim=-1).topk(k, dim=-1)
         return SemanticObservation(
-            classes=top_c.permute(1, 2, 0).to(torch.int16).numpy(),
-            probs=np.clip(top_p.permute(1, 2, 0).numpy(), 0.0, 1.0).astype(np.float32),
+            classes=top_c.to(torch.int16).numpy(),
+            probs=np.clip(top_p.numpy(), 0.0, 1.0).astype(np.float32),
             num_classes=self.num_classes,
         )
