@@ -19,8 +19,9 @@ import numpy as np
 from evsmap.data import Frame, SemanticObservation
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
 from evsmap.mapping.keys import key_to_coord
+from evsmap.mapping.raycast import frame_points
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, mean_per_voxel
+from evsmap.updaters.base import FramePoints, compact, mean_per_voxel
 
 
 class OctoMapAdapter(MapUpdater):
@@ -51,12 +52,19 @@ class OctoMapAdapter(MapUpdater):
         self.frames = 0
 
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
+        if not self.color:  # only the points: OctoMap does all the rest itself
+            cloud, origin = frame_points(frame)
+            self.tree.insertPointCloud(cloud, origin, maxrange=self.max_range,
+                                       lazy_eval=False, discretize=self.discretize)
+            self.frames += 1
+            return
         points = FramePoints(frame, self.resolution, self.max_range, self.discretize)
         self.tree.insertPointCloud(points.points, points.origin, maxrange=self.max_range,
                                    lazy_eval=False, discretize=self.discretize)
         if self.color:
             sel = np.flatnonzero(points.endpoint)
-            codes, local = np.unique(points.codes[sel], return_inverse=True)
+            used, local = compact(points.point_voxel[sel], len(points.voxel_codes))
+            codes = points.voxel_codes[used]
             rgb = frame.rgb.reshape(-1, 3)[points.pixels[sel]].astype(np.float64)
             mean = np.floor(mean_per_voxel(local, rgb, len(codes))).astype(int)
             from evsmap.mapping.keys import unpack

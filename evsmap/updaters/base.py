@@ -21,7 +21,7 @@ from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import InvalidDataError
 from evsmap.geometry import backproject
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
-from evsmap.mapping.keys import KEY_OFFSET, pack
+from evsmap.mapping.keys import KEY_OFFSET, pack, unpack
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate
 from evsmap.mapping.raycast import scan_keys
 from evsmap.mapping.tree import Tree
@@ -39,7 +39,10 @@ class FramePoints:
         origin: (3,) camera centre.
         pixels: (N,) flat pixel index of each point.
         endpoint: (N,) bool, the point lies within the max range (its voxel is a hit).
-        codes: (N,) int64 voxel code of each point (meaningful where ``endpoint``).
+        voxel_codes: sorted unique int64 codes of the voxels holding the points.
+        point_voxel: (N,) index of each point's voxel in ``voxel_codes`` (-1: outside the map).
+        rays: end points of the scan's rays (float32): the points, or with ``discretize`` the
+            centres of their voxels (OctoMap's ``computeDiscreteUpdate``), computed here once.
     """
 
     def __init__(self, frame: Frame, resolution: float, max_range: float,
@@ -53,13 +56,21 @@ class FramePoints:
         # the same float32 arithmetic as the ray casting (OctoMap's point3d)
         pts = self.points.astype(np.float32)
         keys, ok = octomap_keys(pts, resolution)
+        codes = pack(keys[ok])
+        self.voxel_codes, inverse = np.unique(codes, return_inverse=True)
+        self.point_voxel = np.full(len(pts), -1, dtype=np.int64)
+        self.point_voxel[ok] = inverse.ravel()
+        origin32 = self.origin.astype(np.float32)
         if discretize:  # the range test applies to the voxel centre the point is reduced to
-            pts = ((keys - KEY_OFFSET + 0.5) * resolution).astype(np.float32)
-        if max_range >= 0:
-            self.endpoint = ok & (_norm(pts - self.origin.astype(np.float32)) <= max_range)
+            self.rays = ((unpack(self.voxel_codes) - KEY_OFFSET + 0.5) * resolution
+                         ).astype(np.float32)
+            inside = (_norm(self.rays - origin32) <= max_range if max_range >= 0
+                      else np.ones(len(self.rays), dtype=bool))
+            self.endpoint = ok.copy()
+            self.endpoint[ok] = inside[self.point_voxel[ok]]
         else:
-            self.endpoint = ok
-        self.codes = pack(keys)
+            self.rays = pts
+            self.endpoint = ok & (_norm(pts - origin32) <= max_range) if max_range >= 0 else ok
 
 
 def check_observation(frame: Frame, observation: SemanticObservation | None,
@@ -138,8 +149,9 @@ class OctreeUpdater(MapUpdater):
         if self.uses_semantics:
             observation = check_observation(frame, observation, self.name)
         points = FramePoints(frame, self.resolution, self.max_range, self.discretize)
-        keys = scan_keys(points.points, points.origin, self.resolution,
-                         max_range=self.max_range, discretize=self.discretize)
+        # the rays are already discretized (once, in FramePoints) when that option is on
+        keys = scan_keys(points.rays, points.origin, self.resolution, max_range=self.max_range,
+                         discretize=False)
         update = self.map.apply(keys.free, keys.occupied)
         self._update_payloads(frame, points, update, observation)
         self.frames += 1
@@ -150,10 +162,10 @@ class OctreeUpdater(MapUpdater):
         the range, the map indices of the distinct hit voxels, and each point's position among
         them)."""
         sel = np.flatnonzero(points.endpoint)
-        pos, found = self.map.index(points.codes[sel])
+        used, local = compact(points.point_voxel[sel], len(points.voxel_codes))
+        voxels, found = self.map.index(points.voxel_codes[used])
         if not np.all(found):  # cannot happen: every end point voxel was just inserted
             raise RuntimeError("end point voxel missing from the map")
-        voxels, local = compact(pos, self.map.num_leaves)
         return points.pixels[sel], voxels, local
 
     def tree(self) -> Tree:
