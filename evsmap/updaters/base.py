@@ -56,10 +56,9 @@ class FramePoints:
         # the same float32 arithmetic as the ray casting (OctoMap's point3d)
         pts = self.points.astype(np.float32)
         keys, ok = octomap_keys(pts, resolution)
-        codes = pack(keys[ok])
-        self.voxel_codes, inverse = np.unique(codes, return_inverse=True)
+        self.voxel_codes, inverse = group_keys(keys[ok])
         self.point_voxel = np.full(len(pts), -1, dtype=np.int64)
-        self.point_voxel[ok] = inverse.ravel()
+        self.point_voxel[ok] = inverse
         origin32 = self.origin.astype(np.float32)
         if discretize:  # the range test applies to the voxel centre the point is reduced to
             self.rays = ((unpack(self.voxel_codes) - KEY_OFFSET + 0.5) * resolution
@@ -71,6 +70,36 @@ class FramePoints:
         else:
             self.rays = pts
             self.endpoint = ok & (_norm(pts - origin32) <= max_range) if max_range >= 0 else ok
+
+
+_DENSE_BOX = 1 << 24
+"""Largest key box (cells) :func:`group_keys` indexes densely instead of sorting."""
+
+
+def group_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique`` of (N, 3) keys as packed codes, with the inverse: (sorted unique codes,
+    position of each key among them). Inside a small box of keys (one frame's) it marks a dense
+    grid instead of sorting, O(N + box)."""
+    keys = np.asarray(keys, dtype=np.int64)
+    if not len(keys):
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    lo = keys.min(axis=0)
+    shape = keys.max(axis=0) - lo + 1
+    size = int(np.prod(shape))
+    if size > _DENSE_BOX:
+        codes, inverse = np.unique(pack(keys), return_inverse=True)
+        return codes, inverse.ravel()
+    rel = keys - lo
+    cell = (rel[:, 0] * shape[1] + rel[:, 1]) * shape[2] + rel[:, 2]  # same order as pack()
+    mark = np.zeros(size, dtype=bool)
+    mark[cell] = True
+    cells = np.flatnonzero(mark)
+    lut = np.empty(size, dtype=np.int64)
+    lut[cells] = np.arange(len(cells))
+    kz = cells % shape[2]
+    kxy = cells // shape[2]
+    unique = np.stack([kxy // shape[1], kxy % shape[1], kz], axis=1) + lo
+    return pack(unique), lut[cell]
 
 
 def check_observation(frame: Frame, observation: SemanticObservation | None,
