@@ -573,24 +573,31 @@ def build_local(voxel_index: np.ndarray, classes: np.ndarray, probs: np.ndarray,
     out_p = np.zeros((n_voxels, SLOTS))
     counts = np.bincount(vi, minlength=n_voxels)
     k = cl.shape[1]
-    flat_v = np.repeat(vi, k)
-    flat_c = cl.ravel()
-    flat_p = pr.ravel()
-    keep = (flat_c >= 0) & (flat_p > 0)
-    flat_v, flat_c, flat_p = flat_v[keep], flat_c[keep], flat_p[keep]
-    if flat_v.size and n_voxels * (int(flat_c.max()) + 1) <= _DENSE_LIMIT:
-        # dense (voxel, class) sums: no sort, O(points) - the common case (tens of classes)
-        span = int(flat_c.max()) + 1
-        sums = np.bincount(flat_v * span + flat_c, weights=flat_p,
-                           minlength=n_voxels * span).reshape(n_voxels, span)
+    span = int(cl.max()) + 1 if cl.size else 0
+    if span > 0 and n_voxels * span <= _DENSE_LIMIT:
+        # dense (voxel, class) sums, one slot at a time: no sort, O(points) - the common case
+        # (tens of classes); entries with class -1 or probability 0 add nothing
+        sums = np.zeros(n_voxels * span)
+        base = vi * span
+        for j in range(k):
+            c, w = cl[:, j], pr[:, j]
+            ok = (c >= 0) & (w > 0)
+            if not ok.all():
+                c, w = np.where(ok, c, 0), np.where(ok, w, 0.0)
+            sums += np.bincount(base + c, weights=w, minlength=n_voxels * span)
+        sums = sums.reshape(n_voxels, span)
         mean = sums / np.maximum(counts, 1)[:, None]
         order = np.argsort(-mean, axis=1, kind="stable")[:, :SLOTS]  # ties: smaller class id
         top = np.take_along_axis(mean, order, axis=1)
         width = order.shape[1]
         out_cls[:, :width] = np.where(top > 0, order, EMPTY)
         out_p[:, :width] = np.where(top > 0, top, 0.0)
-    elif flat_v.size:
-        span = int(flat_c.max()) + 1
+    elif span > 0:
+        flat_v = np.repeat(vi, k)
+        flat_c = cl.ravel()
+        flat_p = pr.ravel()
+        keep = (flat_c >= 0) & (flat_p > 0)
+        flat_v, flat_c, flat_p = flat_v[keep], flat_c[keep], flat_p[keep]
         key, inverse = np.unique(flat_v * span + flat_c, return_inverse=True)
         mean = np.bincount(inverse.ravel(), weights=flat_p) / counts[key // span]
         kv, kc = key // span, key % span
