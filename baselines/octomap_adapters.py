@@ -18,7 +18,7 @@ import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
-from evsmap.mapping.keys import key_to_coord
+from evsmap.mapping.keys import key_to_coord, unpack
 from evsmap.mapping.raycast import frame_points
 from evsmap.registry import UPDATERS
 from evsmap.updaters.base import FramePoints, compact, mean_per_voxel
@@ -61,17 +61,14 @@ class OctoMapAdapter(MapUpdater):
         points = FramePoints(frame, self.resolution, self.max_range, self.discretize)
         self.tree.insertPointCloud(points.points, points.origin, maxrange=self.max_range,
                                    lazy_eval=False, discretize=self.discretize)
-        if self.color:
-            sel = np.flatnonzero(points.endpoint)
-            used, local = compact(points.point_voxel[sel], len(points.voxel_codes))
-            codes = points.voxel_codes[used]
-            rgb = frame.rgb.reshape(-1, 3)[points.pixels[sel]].astype(np.float64)
-            mean = np.floor(mean_per_voxel(local, rgb, len(codes))).astype(int)
-            from evsmap.mapping.keys import unpack
-
-            centres = key_to_coord(unpack(codes), self.resolution)
-            for c, (r, g, b) in zip(centres, mean, strict=True):
-                self.tree.averageNodeColor(c, int(r), int(g), int(b))
+        sel = np.flatnonzero(points.endpoint)
+        used, local = compact(points.point_voxel[sel], len(points.voxel_codes))
+        codes = points.voxel_codes[used]
+        rgb = frame.rgb.reshape(-1, 3)[points.pixels[sel]].astype(np.float64)
+        mean = np.floor(mean_per_voxel(local, rgb, len(codes))).astype(int)
+        centres = key_to_coord(unpack(codes), self.resolution)
+        for c, (r, g, b) in zip(centres, mean, strict=True):
+            self.tree.averageNodeColor(c, int(r), int(g), int(b))
         self.frames += 1
 
     def stats(self) -> MapStats:

@@ -30,6 +30,18 @@ def shared_data():
 
 
 @pytest.fixture(scope="session")
+def tum_frames(shared_data):
+    """All 37 real TUM fr1_xyz frames (0.021 s association tolerance keeps the 37th)."""
+    from evsmap.registry import READERS
+
+    path = shared_data / "tum_fr1_xyz"
+    if not path.is_dir():
+        pytest.skip(f"{path} not present")
+    seq = READERS.create("tum", path=str(path), max_time_difference=0.021)
+    return [seq[i] for i in range(len(seq))]
+
+
+@pytest.fixture(scope="session")
 def paper_network():
     """``paper_network(name, **options)``: the registered segmenter with its random initial
     weights drawn from seed 0, built once per name and options. The weights are the same in

@@ -12,24 +12,19 @@ from __future__ import annotations
 
 import pytest
 
-from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+from evsmap.registry import SEGMENTERS, UPDATERS
 
 MAX_RANGE = 4.0
 UPDATER_NAMES = ["octomap-cpp", "orgb", "classic-semantic", "multiclass-bayes"]
 
 
 @pytest.fixture(scope="module")
-def tum_observed(shared_data):
+def tum_observed(tum_frames):
     import torch
 
-    path = shared_data / "tum_fr1_xyz"
-    if not path.is_dir():
-        pytest.skip(f"{path} not present")
-    seq = READERS.create("tum", path=str(path), max_time_difference=0.021)  # all 37 frames
     torch.manual_seed(0)
     segmenter = SEGMENTERS.create("feagnet-v1")
-    frames = [seq[i] for i in range(len(seq))]
-    return [(frame, segmenter.predict(frame)) for frame in frames]
+    return [(frame, segmenter.predict(frame)) for frame in tum_frames]
 
 
 @pytest.mark.parametrize("resolution", [0.05, 0.02], ids=["5cm", "2cm"])

@@ -17,17 +17,6 @@ from evsmap.mapping.raycast import frame_points
 MAX_RANGE = 4.0
 
 
-@pytest.fixture(scope="module")
-def tum_frames(shared_data):
-    from evsmap.registry import READERS
-
-    path = shared_data / "tum_fr1_xyz"
-    if not path.is_dir():
-        pytest.skip(f"{path} not present")
-    seq = READERS.create("tum", path=str(path), max_time_difference=0.021)  # all 37 frames
-    return [seq[i] for i in range(len(seq))]
-
-
 @pytest.mark.parametrize("resolution", [0.05, 0.02], ids=["5cm", "2cm"])
 @pytest.mark.parametrize("impl", ["evsmap", "octomap-cpp"])
 def test_insert_frame(benchmark, tum_frames, impl, resolution):

@@ -1,9 +1,10 @@
 """OctoMap voxel keys: 16 bits per axis, centred at 2**15, and their packing into one int64.
 
-A coordinate ``x`` (metres) falls in the voxel with key ``floor(x / resolution) + 32768``
-(OctoMap's ``coordToKey``); the voxel's centre is ``(key - 32768 + 0.5) * resolution``. Keys at
-tree depth ``d < 16`` keep their high ``d`` bits (the low ``16 - d`` bits are zero), as OctoMap's
-``adjustKeyAtDepth`` does for the node's first corner.
+A coordinate ``x`` (metres) falls in the voxel with key ``floor(x * (1 / resolution)) + 32768``
+(OctoMap's ``coordToKey``, computed by :func:`evsmap.mapping.raycast.octomap_keys`); the voxel's
+centre is ``(key - 32768 + 0.5) * resolution``. Keys at tree depth ``d < 16`` keep their high
+``d`` bits (the low ``16 - d`` bits are zero), as OctoMap's ``adjustKeyAtDepth`` does for the
+node's first corner.
 
 A key triple is packed as ``(kx << 32) | (ky << 16) | kz`` ("code"); sorting codes sorts by x,
 then y, then z. :func:`morton` interleaves the bits instead, which orders nodes depth-first in
@@ -17,21 +18,6 @@ import numpy as np
 TREE_DEPTH = 16
 KEY_OFFSET = 1 << 15
 KEY_MAX = (1 << 16) - 1
-
-
-def coord_to_key(points: np.ndarray, resolution: float) -> np.ndarray:
-    """``int64`` (N, 3) keys of the voxels holding ``points`` (N x 3 metres).
-
-    Raises:
-        ValueError: a point lies outside the 16-bit key range of this resolution.
-    """
-    keys = np.floor(np.asarray(points, dtype=np.float64) / resolution).astype(np.int64)
-    keys += KEY_OFFSET
-    if keys.size and (keys.min() < 0 or keys.max() > KEY_MAX):
-        span = KEY_OFFSET * resolution
-        raise ValueError(f"points beyond +-{span:.1f} m are outside the map at resolution "
-                         f"{resolution} m")
-    return keys
 
 
 def key_to_coord(keys: np.ndarray, resolution: float, depth: int | np.ndarray = TREE_DEPTH

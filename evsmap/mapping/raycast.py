@@ -6,10 +6,10 @@ including OctoMap's float/double mix:
 
 * Points and the origin are rounded to ``float32`` first (OctoMap's ``point3d`` is float; the
   Python bindings cast with ``<float>``). A coordinate ``x`` lies in the voxel with key
-  ``floor(x * (1 / resolution)) + 2**15`` (``coordToKeyChecked``; note the multiplication by the
-  reciprocal, which rounds differently from :func:`evsmap.mapping.keys.coord_to_key`'s division
-  at exact voxel borders). Points or origins outside the 16-bit key range are skipped as OctoMap
-  skips them (it only prints a warning); non-finite points are dropped.
+  ``floor(x * (1 / resolution)) + 2**15`` (``coordToKeyChecked``; the multiplication by the
+  reciprocal rounds differently from a division at exact voxel borders). Points or origins
+  outside the 16-bit key range are skipped as OctoMap skips them (it only prints a warning);
+  non-finite points are dropped.
 * ``discretize=True``: endpoints are first reduced to the (float) centres of their unique voxels.
 * Per point, with ``d = p - origin`` in float and ``|d|`` the double square root of the float sum
   of squares: if ``max_range < 0`` or ``|d| <= max_range`` the ray ``origin -> p`` frees its voxels
