@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
+from evsmap.geometry import transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
 from evsmap.mapping.keys import key_to_coord, unpack
 from evsmap.mapping.raycast import frame_points
@@ -53,7 +54,11 @@ class OctoMapAdapter(MapUpdater):
 
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
         if not self.color:  # only the points: OctoMap does all the rest itself
-            cloud, origin = frame_points(frame)
+            if frame.is_cloud:
+                cloud = transform_points(frame.points, frame.pose)
+                origin = frame.pose[:3, 3].copy()
+            else:
+                cloud, origin = frame_points(frame)
             self.tree.insertPointCloud(cloud, origin, maxrange=self.max_range,
                                        lazy_eval=False, discretize=self.discretize)
             self.frames += 1
@@ -64,7 +69,11 @@ class OctoMapAdapter(MapUpdater):
         sel = np.flatnonzero(points.endpoint)
         used, local = compact(points.point_voxel[sel], len(points.voxel_codes))
         codes = points.voxel_codes[used]
-        rgb = frame.rgb.reshape(-1, 3)[points.pixels[sel]].astype(np.float64)
+        colors = frame.colors()
+        if colors is None:  # a point cloud without colours: no colour to average
+            self.frames += 1
+            return
+        rgb = colors[points.pixels[sel]].astype(np.float64)
         mean = np.floor(mean_per_voxel(local, rgb, len(codes))).astype(int)
         centres = key_to_coord(unpack(codes), self.resolution)
         for c, (r, g, b) in zip(centres, mean, strict=True):

@@ -4,6 +4,9 @@
 * :class:`Frame` - one RGB-D observation: RGB ``uint8`` HxWx3, metric depth ``float32`` HxW with 0
   for invalid, the camera's intrinsics, camera-to-world pose ``float64`` 4x4 (OpenCV camera axes:
   x right, y down, z forward), a timestamp in seconds and optional ``uint8`` labels (255 = void).
+  Its point-cloud form (:meth:`Frame.from_points`: a LiDAR or PointCloud2 scan) holds ``float32``
+  Nx3 points in the sensor frame, optional ``uint8`` Nx3 colours, the sensor-to-world pose and no
+  images.
 * :class:`SemanticObservation` - a segmenter's per-pixel top-k class ids and probabilities.
 * :class:`Sequence` - a named, sized, iterable series of frames with one set of intrinsics.
 
@@ -110,27 +113,72 @@ def _check_pose(name: str, pose: object) -> np.ndarray:
 class Frame:
     """One RGB-D observation with its camera-to-world pose.
 
+    A frame is either an image frame (``rgb``, ``depth`` and ``intrinsics`` given, ``points``
+    None) or a point-cloud frame (``points`` given, the three image fields None; build it with
+    :meth:`from_points`). Updaters take either; segmenters need images.
+
     Args (fields):
-        rgb: ``uint8`` array HxWx3.
-        depth: ``float32`` array HxW in metres, 0 where invalid; no NaN, no inf, no negatives.
-        intrinsics: the camera that took the frame; its size must match the images.
-        pose: ``float64`` 4x4 camera-to-world transform (OpenCV camera axes).
+        rgb: ``uint8`` array HxWx3 (None for a point-cloud frame).
+        depth: ``float32`` array HxW in metres, 0 where invalid; no NaN, no inf, no negatives
+            (None for a point-cloud frame).
+        intrinsics: the camera that took the frame; its size must match the images (None for a
+            point-cloud frame).
+        pose: ``float64`` 4x4 camera-to-world (or sensor-to-world) transform (OpenCV camera axes
+            for cameras; a point cloud's own sensor axes otherwise).
         timestamp: seconds (any epoch), finite.
-        labels: optional ``uint8`` HxW class ids, 255 for void.
+        labels: optional ``uint8`` HxW class ids, 255 for void (image frames only).
         name: optional identifier for messages (a file name, an index).
+        points: ``float32`` Nx3 points in the sensor frame, finite (point-cloud frames only).
+        point_colors: optional ``uint8`` Nx3 colours of ``points``.
     """
 
-    rgb: np.ndarray
-    depth: np.ndarray
-    intrinsics: Intrinsics
+    rgb: np.ndarray | None
+    depth: np.ndarray | None
+    intrinsics: Intrinsics | None
     pose: np.ndarray
     timestamp: float
     labels: np.ndarray | None = None
     name: str = ""
+    points: np.ndarray | None = None
+    point_colors: np.ndarray | None = None
+
+    @classmethod
+    def from_points(cls, points: np.ndarray, pose: np.ndarray, timestamp: float, *,
+                    colors: np.ndarray | None = None, name: str = "") -> Frame:
+        """A point-cloud frame: ``points`` (Nx3, sensor frame) seen from ``pose``."""
+        if isinstance(points, np.ndarray) and points.dtype != np.float32 and \
+                np.issubdtype(points.dtype, np.floating):
+            points = points.astype(np.float32)
+        return cls(rgb=None, depth=None, intrinsics=None, pose=pose, timestamp=timestamp,
+                   name=name, points=points, point_colors=colors)
+
+    def _check_points(self) -> None:
+        for field in ("rgb", "depth", "intrinsics", "labels"):
+            if getattr(self, field) is not None:
+                raise InvalidDataError(f"a point-cloud frame has no {field} (got one)")
+        pts = _array("points", self.points, np.float32, 2)
+        if pts.shape[1] != 3:
+            raise InvalidDataError(f"points must be Nx3, got shape {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise InvalidDataError("points have NaN or inf values (drop them)")
+        if self.point_colors is not None:
+            col = _array("point_colors", self.point_colors, np.uint8, 2)
+            if col.shape != pts.shape:
+                raise InvalidDataError(
+                    f"point_colors shape {col.shape} does not match points shape {pts.shape}")
 
     def __post_init__(self) -> None:
         where = f"frame {self.name!r}: " if self.name else "frame: "
         try:
+            if self.points is not None:
+                self._check_points()
+                self._check_pose_and_time()
+                return
+            if self.point_colors is not None:
+                raise InvalidDataError("point_colors given without points")
+            if self.rgb is None or self.depth is None or self.intrinsics is None:
+                raise InvalidDataError(
+                    "an image frame needs rgb, depth and intrinsics (or give points)")
             rgb = _array("rgb", self.rgb, np.uint8, 3)
             if rgb.shape[2] != 3:
                 raise InvalidDataError(f"rgb must be HxWx3, got shape {rgb.shape}")
@@ -152,13 +200,7 @@ class Frame:
                     f"intrinsics are for {self.intrinsics.width}x{self.intrinsics.height} but the "
                     f"images are {rgb.shape[1]}x{rgb.shape[0]}"
                 )
-            _check_pose("pose", self.pose)
-            ts = self.timestamp
-            if isinstance(ts, bool) or not isinstance(ts, (int, float, np.floating, np.integer)):
-                raise InvalidDataError(f"timestamp must be a number, got {ts!r}")
-            if not np.isfinite(ts):
-                raise InvalidDataError(f"timestamp must be finite, got {ts!r}")
-            object.__setattr__(self, "timestamp", float(ts))
+            self._check_pose_and_time()
             if self.labels is not None:
                 labels = _array("labels", self.labels, np.uint8, 2)
                 if labels.shape != rgb.shape[:2]:
@@ -167,6 +209,45 @@ class Frame:
                     )
         except InvalidDataError as exc:
             raise InvalidDataError(where + str(exc)) from None
+
+    def _check_pose_and_time(self) -> None:
+        _check_pose("pose", self.pose)
+        ts = self.timestamp
+        if isinstance(ts, bool) or not isinstance(ts, (int, float, np.floating, np.integer)):
+            raise InvalidDataError(f"timestamp must be a number, got {ts!r}")
+        if not np.isfinite(ts):
+            raise InvalidDataError(f"timestamp must be finite, got {ts!r}")
+        object.__setattr__(self, "timestamp", float(ts))
+
+    @property
+    def is_cloud(self) -> bool:
+        """True for a point-cloud frame (no images)."""
+        return self.points is not None
+
+    def require_images(self, user: str) -> None:
+        """Raise a clear error when ``user`` (a segmenter, a command) needs images and this is a
+        point-cloud frame."""
+        if self.is_cloud:
+            raise InvalidDataError(
+                f"frame {self.name!r} is a point cloud ({len(self.points)} points): {user} needs "
+                f"RGB-D images")
+
+    def sensor_points(self) -> np.ndarray:
+        """(N, 3) float64 points in the sensor frame: the valid depth pixels back-projected in
+        row-major order, or the cloud's points."""
+        if self.is_cloud:
+            return self.points.astype(np.float64)
+        from evsmap.geometry import backproject
+
+        return backproject(self.depth, self.intrinsics)
+
+    def colors(self) -> np.ndarray | None:
+        """Colours indexed as the updaters index a frame's points (``FramePoints.pixels``): the
+        image's pixels flattened (HW, 3), or the cloud's point colours (N, 3); None for a cloud
+        without colours."""
+        if self.is_cloud:
+            return self.point_colors
+        return self.rgb.reshape(-1, 3)
 
     @property
     def height(self) -> int:
@@ -271,10 +352,13 @@ class Sequence(abc.ABC):
 
     Subclasses implement :meth:`__len__` and :meth:`frame`; iteration and (negative) indexing come
     from them. ``meta`` holds reader-specific facts (layout, source, dropped frames).
+    ``intrinsics`` is the camera of the frames (the first frame's where a dataset mixes cameras,
+    each frame then carrying its own), or None for a sequence of point clouds.
     """
 
-    def __init__(self, name: str, intrinsics: Intrinsics, meta: dict | None = None) -> None:
-        if not isinstance(intrinsics, Intrinsics):
+    def __init__(self, name: str, intrinsics: Intrinsics | None, meta: dict | None = None
+                 ) -> None:
+        if intrinsics is not None and not isinstance(intrinsics, Intrinsics):
             raise InvalidDataError(
                 f"sequence {name!r}: intrinsics must be Intrinsics, got {type(intrinsics).__name__}"
             )

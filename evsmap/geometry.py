@@ -137,10 +137,20 @@ def backproject(depth: np.ndarray, intrinsics: Intrinsics, pose: np.ndarray | No
     y = (v - intrinsics.cy) / intrinsics.fy * z
     if pose is None:
         return np.stack([x, y, z], axis=1)
+    return _rigid(pose, x, y, z)
+
+
+def _rigid(pose: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     # rotate axis by axis: an (N, 3) @ (3, 3) product goes through BLAS, whose thread start-up
     # dominates (and stalls under load) for such a thin matrix
     r, t = pose[:3, :3], pose[:3, 3]
     return np.stack([r[i, 0] * x + r[i, 1] * y + r[i, 2] * z + t[i] for i in range(3)], axis=1)
+
+
+def transform_points(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """``pose`` (4x4) applied to (N, 3) points, as float64."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return _rigid(np.asarray(pose, dtype=np.float64), p[:, 0], p[:, 1], p[:, 2])
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:

@@ -24,7 +24,15 @@ def summarize_sequence(
     has_labels = False
     positions, stamps = [], []
     frames = iter(sequence) if progress is None else progress(sequence)
+    cloud_points: list[int] = []
+    ranges: list[np.ndarray] = []
     for frame in frames:
+        if frame.is_cloud:  # a point cloud: its "depth" is each point's range from the sensor
+            ranges.append(np.linalg.norm(frame.points, axis=1))
+            cloud_points.append(len(ranges[-1]))
+            positions.append(frame.pose[:3, 3])
+            stamps.append(frame.timestamp)
+            continue
         d = frame.depth[frame.depth > 0]
         valid += d.size
         total += frame.depth.size
@@ -40,12 +48,21 @@ def summarize_sequence(
         "name": sequence.name,
         "layout": sequence.meta.get("layout", "unknown"),
         "frames": len(stamps),
-        "width": sequence.intrinsics.width,
-        "height": sequence.intrinsics.height,
-        "intrinsics": sequence.intrinsics.as_dict(),
-        "intrinsics_source": sequence.meta.get("intrinsics_source", "reader"),
     }
-    if valid:
+    if sequence.intrinsics is not None:
+        record.update(width=sequence.intrinsics.width, height=sequence.intrinsics.height,
+                      intrinsics=sequence.intrinsics.as_dict(),
+                      intrinsics_source=sequence.meta.get("intrinsics_source", "reader"))
+    if cloud_points:
+        record["points_per_cloud"] = {"min": min(cloud_points), "max": max(cloud_points),
+                                      "median": float(np.median(cloud_points))}
+    if ranges:
+        r = np.concatenate(ranges)
+        p01, median, p99 = np.percentile(r, [1, 50, 99]) if r.size else (0.0, 0.0, 0.0)
+        record["depth"] = {"min_m": float(r.min()), "max_m": float(r.max()), "p01_m": float(p01),
+                           "median_m": float(median), "p99_m": float(p99),
+                           "valid_fraction": 1.0} if r.size else {"valid_fraction": 0.0}
+    elif valid:
         cdf = np.cumsum(depth_hist) / valid
 
         def q(p: float) -> float:

@@ -85,3 +85,20 @@ def test_frame_list_checks_intrinsics_and_indexes():
     other = Intrinsics(90.0, 90.0, 15.5, 11.5, 32, 24)
     with pytest.raises(InvalidDataError, match="intrinsics"):
         FrameList("mem", other, [frame()])
+
+
+def test_point_cloud_frames_validate():
+    from evsmap.data import Frame
+
+    pose = np.eye(4)
+    f = Frame.from_points(np.zeros((5, 3), dtype=np.float64), pose, 1.0, name="c")
+    assert f.is_cloud and f.points.dtype == np.float32 and f.colors() is None
+    with pytest.raises(InvalidDataError, match="Nx3"):
+        Frame.from_points(np.zeros((5, 2), dtype=np.float32), pose, 1.0)
+    with pytest.raises(InvalidDataError, match="NaN"):
+        Frame.from_points(np.full((2, 3), np.nan, dtype=np.float32), pose, 1.0)
+    with pytest.raises(InvalidDataError, match="point_colors"):
+        Frame.from_points(np.zeros((5, 3), dtype=np.float32), pose, 1.0,
+                          colors=np.zeros((4, 3), dtype=np.uint8))
+    with pytest.raises(InvalidDataError, match="needs rgb, depth and intrinsics"):
+        Frame(rgb=None, depth=None, intrinsics=None, pose=pose, timestamp=0.0)

@@ -59,13 +59,19 @@ def format_info(r: dict) -> str:
     lines = [
         f"path        {r.get('name')}  (layout: {r['layout']}, reader: {r['reader']})",
         f"frames      {r['frames']}",
-        f"resolution  {r['width']}x{r['height']}  fx {r['intrinsics']['fx']:.2f} "
-        f"fy {r['intrinsics']['fy']:.2f} cx {r['intrinsics']['cx']:.2f} "
-        f"cy {r['intrinsics']['cy']:.2f}  ({r['intrinsics_source']})",
     ]
+    if "intrinsics" in r:
+        lines.append(
+            f"resolution  {r['width']}x{r['height']}  fx {r['intrinsics']['fx']:.2f} "
+            f"fy {r['intrinsics']['fy']:.2f} cx {r['intrinsics']['cx']:.2f} "
+            f"cy {r['intrinsics']['cy']:.2f}  ({r['intrinsics_source']})")
+    if "points_per_cloud" in r:
+        c = r["points_per_cloud"]
+        lines.append(f"clouds      {c['min']:,} .. {c['max']:,} points (median {c['median']:,.0f})")
     d = r["depth"]
     if "min_m" in d:
-        lines.append(f"depth       {d['min_m']:.3f} .. {d['max_m']:.3f} m  (1-99 %: "
+        what = "range" if "points_per_cloud" in r else "depth"
+        lines.append(f"{what:<12}{d['min_m']:.3f} .. {d['max_m']:.3f} m  (1-99 %: "
                      f"{d['p01_m']:.3f} .. {d['p99_m']:.3f}, median {d['median_m']:.3f}, "
                      f"valid {100 * d['valid_fraction']:.1f} %)")
     else:

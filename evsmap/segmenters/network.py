@@ -129,6 +129,7 @@ class NetworkSegmenter(Segmenter):
 
     def preprocess(self, frame: Frame) -> tuple[torch.Tensor, ...]:
         """Normalised, resized network inputs (batch 1, float32) for ``frame``."""
+        frame.require_images(f"segmenter {self.name!r}")
         n = self.normalization
         size = self.input_size
         rgb = torch.from_numpy(np.array(frame.rgb, copy=True)).permute(2, 0, 1)[None].float()

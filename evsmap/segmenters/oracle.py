@@ -184,6 +184,7 @@ class OracleSegmenter(Segmenter):
         k = self.k if k is None else int(k)
         if not 1 <= k <= self.num_classes:
             raise InvalidDataError(f"oracle: k must lie in [1, {self.num_classes}], got {k}")
+        frame.require_images("the oracle segmenter")
         if frame.labels is None:
             raise InvalidDataError(
                 f"oracle segmenter needs ground-truth labels, but frame {frame.name!r} "

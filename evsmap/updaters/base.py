@@ -19,7 +19,7 @@ import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import InvalidDataError
-from evsmap.geometry import backproject
+from evsmap.geometry import backproject, transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
 from evsmap.mapping.keys import KEY_OFFSET, pack, unpack
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate
@@ -36,8 +36,9 @@ class FramePoints:
 
     Attributes:
         points: (N, 3) float64 world coordinates.
-        origin: (3,) camera centre.
-        pixels: (N,) flat pixel index of each point.
+        origin: (3,) camera centre (sensor origin of a point-cloud frame).
+        pixels: (N,) flat pixel index of each point (its index in a point-cloud frame), the
+            index into :meth:`Frame.colors`.
         endpoint: (N,) bool, the point lies within the max range (its voxel is a hit).
         voxel_codes: sorted unique int64 codes of the voxels holding the points.
         point_voxel: (N,) index of each point's voxel in ``voxel_codes`` (-1: outside the map).
@@ -49,9 +50,13 @@ class FramePoints:
                  discretize: bool = False) -> None:
         from evsmap.mapping.raycast import _norm, octomap_keys
 
-        valid = frame.depth > 0
-        self.pixels = np.flatnonzero(valid)
-        self.points = backproject(frame.depth, frame.intrinsics, frame.pose, mask=valid)
+        if frame.is_cloud:
+            self.pixels = np.arange(len(frame.points))
+            self.points = transform_points(frame.points, frame.pose)
+        else:
+            valid = frame.depth > 0
+            self.pixels = np.flatnonzero(valid)
+            self.points = backproject(frame.depth, frame.intrinsics, frame.pose, mask=valid)
         self.origin = frame.pose[:3, 3].astype(np.float64)
         # the same float32 arithmetic as the ray casting (OctoMap's point3d)
         pts = self.points.astype(np.float32)
@@ -277,11 +282,28 @@ class OctreeUpdater(MapUpdater):
         ``voxels``)."""
         from evsmap.mapping.fusion import average_node_color, color_is_set
 
-        rgb = frame.rgb.reshape(-1, 3)[pixels].astype(np.float64)
+        colors = frame.colors()
+        if colors is None:  # a point cloud without colours: OctoMap leaves the colour unset
+            return
+        rgb = colors[pixels].astype(np.float64)
         mean = np.floor(mean_per_voxel(local, rgb, len(voxels))).astype(np.uint8)
         stored = self.map.payload(payload)
         prev = stored[voxels]
         stored[voxels] = average_node_color(prev, color_is_set(prev), mean)
+
+    def occupied_labels(self) -> tuple[np.ndarray, np.ndarray]:
+        """The occupied leaves and their most likely class: (sorted ``int64`` codes, ``int16``
+        labels), read through :meth:`query` at the leaf centres, so -1 where a leaf has no class
+        (and everywhere for updaters without semantics)."""
+        from evsmap.interfaces import OCCUPIED
+        from evsmap.mapping.keys import key_to_coord
+
+        occupied = self.map.classify_logodds(self.map.logodds) == OCCUPIED
+        codes = np.array(self.map.codes[occupied])
+        if not codes.size:
+            return codes, np.zeros(0, dtype=np.int16)
+        label = self.query(key_to_coord(unpack(codes), self.resolution)).label
+        return codes, np.asarray(label, dtype=np.int16)
 
 
 def point_codes(points: np.ndarray, resolution: float) -> np.ndarray:

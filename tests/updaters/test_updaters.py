@@ -130,3 +130,44 @@ def test_restore_refuses_another_map(synthetic, tmp_path):
         UPDATERS.create("multiclass-bayes", resolution=0.05).restore(tmp_path / "c.ot")
     with pytest.raises(DataFormatError, match="resolution"):
         UPDATERS.create("orgb", resolution=0.1).restore(tmp_path / "c.ot")
+
+
+def _as_cloud(frame, colors: bool = True):
+    from evsmap.data import Frame
+
+    valid = frame.depth > 0
+    return Frame.from_points(frame.sensor_points().astype(np.float32), frame.pose,
+                             frame.timestamp, name=frame.name,
+                             colors=frame.rgb[valid] if colors else None)
+
+
+@pytest.mark.parametrize("name", ["orgb", "octomap-color", "octomap-cpp"])
+def test_point_cloud_frames_map_as_their_depth_images(tum_frames, tmp_path, name):
+    images = UPDATERS.create(name, resolution=0.05, max_range=4.0)
+    clouds = UPDATERS.create(name, resolution=0.05, max_range=4.0)
+    for frame in tum_frames:
+        images.integrate(frame)
+        clouds.integrate(_as_cloud(frame))
+    # the same maps, up to the float32 rounding of the cloud's sensor-frame points
+    a, b = images.stats(), clouds.stats()
+    assert a.leaves > 1000 and abs(a.leaves - b.leaves) <= 0.005 * a.leaves
+    grid = np.stack(np.meshgrid(*[np.arange(-1.5, 1.5, 0.05)] * 3), axis=-1).reshape(-1, 3)
+    grid = grid + tum_frames[0].pose[:3, 3] + 0.025
+    qa, qb = images.query(grid), clouds.query(grid)
+    assert np.mean(qa.state == qb.state) >= 0.995
+    assert len(np.unique(qa.state)) == 3  # free, occupied and unknown all occur
+
+
+def test_point_clouds_without_colour_leave_the_colour_unset(tum_frames):
+    ours = UPDATERS.create("orgb", resolution=0.05, max_range=4.0)
+    ours.integrate(_as_cloud(tum_frames[0], colors=False))
+    assert ours.stats().leaves > 0
+    assert np.all(ours.map.payload("rgb") == 255)  # OctoMap's "no colour" is white
+
+
+def test_segmenters_refuse_point_cloud_frames(tum_frames):
+    cloud = _as_cloud(tum_frames[0])
+    with pytest.raises(InvalidDataError, match="point cloud"):
+        SEGMENTERS.create("oracle").predict(cloud)
+    with pytest.raises(InvalidDataError, match="semantics"):
+        UPDATERS.create("multiclass-bayes").integrate(cloud)
