@@ -8,25 +8,38 @@ from typing import Any
 import numpy as np
 
 from evsmap.classes import NYU40_CLASSES
-from evsmap.data import Frame, Sequence
+from evsmap.data import Sequence
+from evsmap.readers.skipping import SkippedFrames, read_frames
+
+_FAR_FROM_M = 65535.5 / 5000.0  # depth at and beyond this goes to the coarse histogram
+_FAR_STEP_M = 0.01
+_FAR_BINS = 1_000_000  # up to 10 km; the maximum itself is exact
 
 
 def summarize_sequence(
-    sequence: Sequence, *, progress: Callable[[Iterable[Frame]], Iterable[Frame]] | None = None,
-    class_names: tuple[str, ...] | None = None,
+    sequence: Sequence, *, progress: Callable[[Iterable[int]], Iterable[int]] | None = None,
+    class_names: tuple[str, ...] | None = None, skip_bad: bool = False,
+    skipped: SkippedFrames | None = None,
 ) -> dict[str, Any]:
     """Read every frame once and return frames, resolution, depth statistics, pose span and the
-    label classes present (with pixel fractions of all labelled pixels)."""
+    label classes present (with pixel fractions of all labelled pixels). With ``skip_bad``,
+    frames that cannot be read are left out and listed in ``skipped``. ``progress`` wraps the
+    frame indices."""
     names = class_names or getattr(sequence, "class_names", None) or NYU40_CLASSES
     depth_hist = np.zeros(65536, dtype=np.int64)  # 1/5000 m bins, exact for TUM-scaled depth
+    far_hist: np.ndarray | None = None  # 1 cm bins beyond that range (outdoor stereo depth)
+    far_max = 0.0
+    sizes: dict[str, int] = {}
     valid = total = 0
     label_counts = np.zeros(256, dtype=np.int64)
     has_labels = False
     positions, stamps = [], []
-    frames = iter(sequence) if progress is None else progress(sequence)
+    indices: Iterable[int] = range(len(sequence))
+    if progress is not None:
+        indices = progress(indices)
     cloud_points: list[int] = []
     ranges: list[np.ndarray] = []
-    for frame in frames:
+    for _, frame in read_frames(sequence, indices, skip_bad=skip_bad, skipped=skipped):
         if frame.is_cloud:  # a point cloud: its "depth" is each point's range from the sensor
             ranges.append(np.linalg.norm(frame.points, axis=1))
             cloud_points.append(len(ranges[-1]))
@@ -36,8 +49,18 @@ def summarize_sequence(
         d = frame.depth[frame.depth > 0]
         valid += d.size
         total += frame.depth.size
-        idx = np.clip(np.round(d.astype(np.float64) * 5000.0), 0, 65535).astype(np.int64)
-        depth_hist += np.bincount(idx, minlength=65536)
+        dd = d.astype(np.float64)
+        near = dd < _FAR_FROM_M
+        depth_hist += np.bincount(np.round(dd[near] * 5000.0).astype(np.int64), minlength=65536)
+        if not near.all():
+            far = dd[~near]
+            if far_hist is None:
+                far_hist = np.zeros(_FAR_BINS, dtype=np.int64)
+            far_hist += np.bincount(np.minimum((far - _FAR_FROM_M) / _FAR_STEP_M,
+                                               _FAR_BINS - 1).astype(np.int64), minlength=_FAR_BINS)
+            far_max = max(far_max, float(far.max()))
+        size = f"{frame.width}x{frame.height}"
+        sizes[size] = sizes.get(size, 0) + 1
         if frame.labels is not None:
             has_labels = True
             label_counts += np.bincount(frame.labels.ravel(), minlength=256)
@@ -63,20 +86,29 @@ def summarize_sequence(
                            "median_m": float(median), "p99_m": float(p99),
                            "valid_fraction": 1.0} if r.size else {"valid_fraction": 0.0}
     elif valid:
-        cdf = np.cumsum(depth_hist) / valid
+        hist = depth_hist if far_hist is None else np.concatenate([depth_hist, far_hist])
+        cdf = np.cumsum(hist) / valid
+
+        def value(i: int) -> float:
+            return float(i / 5000.0) if i < 65536 else _FAR_FROM_M + (i - 65536) * _FAR_STEP_M
 
         def q(p: float) -> float:
-            return float(np.searchsorted(cdf, p) / 5000.0)
+            return value(int(np.searchsorted(cdf, p)))
 
-        nz = np.nonzero(depth_hist)[0]
+        nz = np.nonzero(hist)[0]
         record["depth"] = {
-            "min_m": float(nz[0] / 5000.0), "max_m": float(nz[-1] / 5000.0),
+            "min_m": value(int(nz[0])), "max_m": far_max if far_hist is not None else value(
+                int(nz[-1])),
             "p01_m": q(0.01), "median_m": q(0.5), "p99_m": q(0.99),
             "valid_fraction": valid / total,
         }
     else:
         record["depth"] = {"valid_fraction": 0.0}
-    if len(pos):
+    if len(sizes) > 1:  # mixed sensors (SUN RGB-D): frames per image size
+        record["sizes"] = dict(sorted(sizes.items(), key=lambda kv: -kv[1]))
+    if sequence.meta.get("poses") is False:  # a segmentation dataset: no camera poses
+        record["poses"] = None
+    elif len(pos):
         steps = np.linalg.norm(np.diff(pos, axis=0), axis=1) if len(pos) > 1 else np.zeros(0)
         record["poses"] = {
             "duration_s": float(stamps[-1] - stamps[0]),
@@ -98,7 +130,7 @@ def summarize_sequence(
         }
     else:
         record["labels"] = None
-    for key in ("dropped", "synthetic", "scene", "seed"):
+    for key in ("dropped", "synthetic", "scene", "seed", "split"):
         if key in sequence.meta:
             record[key] = sequence.meta[key]
     return record

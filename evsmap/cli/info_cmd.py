@@ -6,8 +6,10 @@ import argparse
 import json
 from pathlib import Path
 
+from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.progress import progress
+from evsmap.readers.skipping import SkippedFrames
 from evsmap.registry import READERS
 from evsmap.summary import summarize_sequence
 
@@ -19,10 +21,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "number of frames, resolution, depth range, pose span and label classes.")
     p.add_argument("path", type=Path, metavar="PATH", help="sequence folder")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
-    p.add_argument("--reader", metavar="NAME", help="use this reader instead of detecting one")
     p.add_argument("--camera", metavar="NAME",
                    help="TUM camera intrinsics when the folder name does not tell "
                         "(fr1, fr2, fr3, ros-default)")
+    add_sequence_options(p)
     p.set_defaults(run=run)
 
 
@@ -39,15 +41,21 @@ def detect_reader(path: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from evsmap.cli.sequence_args import open_sequence
+
     name = args.reader or detect_reader(args.path)
-    config = {"path": str(args.path)}
+    options = list(args.reader_option)
     if args.camera:
         if "camera" not in READERS.get(name).parameters():
             raise EvsmapError(f"--camera does not apply to reader {name!r}")
-        config["camera"] = args.camera
-    seq = READERS.create(name, **config)
+        options.append(("camera", args.camera))
+    seq = open_sequence(str(args.path), name, options)
+    skipped = SkippedFrames()
     record = {"reader": name, **summarize_sequence(
-        seq, progress=lambda frames: progress(frames, total=len(seq), desc="reading"))}
+        seq, progress=lambda frames: progress(frames, total=len(seq), desc="reading"),
+        skip_bad=args.skip_bad, skipped=skipped)}
+    if args.skip_bad:
+        record["skipped"] = skipped.as_dict()
     if args.json:
         print(json.dumps(record, indent=2))
     else:
@@ -65,6 +73,9 @@ def format_info(r: dict) -> str:
             f"resolution  {r['width']}x{r['height']}  fx {r['intrinsics']['fx']:.2f} "
             f"fy {r['intrinsics']['fy']:.2f} cx {r['intrinsics']['cx']:.2f} "
             f"cy {r['intrinsics']['cy']:.2f}  ({r['intrinsics_source']})")
+    if r.get("sizes"):
+        lines.append("sizes       " + ", ".join(f"{size} x{n}" for size, n in r["sizes"].items())
+                     + "  (mixed; each frame has its own intrinsics)")
     if "points_per_cloud" in r:
         c = r["points_per_cloud"]
         lines.append(f"clouds      {c['min']:,} .. {c['max']:,} points (median {c['median']:,.0f})")
@@ -76,7 +87,9 @@ def format_info(r: dict) -> str:
                      f"valid {100 * d['valid_fraction']:.1f} %)")
     else:
         lines.append("depth       no valid depth")
-    if "poses" in r:
+    if "poses" in r and r["poses"] is None:
+        lines.append("poses       none (segmentation dataset)")
+    elif "poses" in r:
         p = r["poses"]
         ext = " x ".join(f"{v:.2f}" for v in p["extent_m"])
         lines.append(f"poses       {p['duration_s']:.2f} s, path {p['path_length_m']:.2f} m, "
@@ -85,6 +98,9 @@ def format_info(r: dict) -> str:
         dropped = ", ".join(f"{k.replace('_', ' ')}: {v}" for k, v in r["dropped"].items() if v)
         if dropped:
             lines.append(f"dropped     {dropped}")
+    if "skipped" in r:
+        lines.append("skipped     " + SkippedFrames(
+            [(f["index"], f["reason"]) for f in r["skipped"]["frames"]]).summary())
     if r["labels"]:
         lab = r["labels"]
         top = sorted(lab["classes"], key=lambda c: -c["fraction"])

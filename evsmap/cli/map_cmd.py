@@ -8,7 +8,9 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import key_value, positive_int
+from evsmap.cli.sequence_args import add_sequence_options, open_sequence
 from evsmap.errors import EvsmapError
+from evsmap.readers.skipping import SkippedFrames
 
 
 def _positive_float(text: str) -> float:
@@ -62,19 +64,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--option", type=key_value, action="append", default=[],
                    metavar="KEY=VALUE", help="an updater option, repeatable (e.g. theta=0.6)")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
+    add_sequence_options(p)
     p.set_defaults(run=run)
-
-
-def open_sequence(text: str):
-    """A sequence from a path (reader detected) or the name of a reader needing no path."""
-    from evsmap.cli.info_cmd import detect_reader
-    from evsmap.registry import READERS
-
-    path = Path(text)
-    if not path.exists() and text in READERS.names() and \
-            "path" not in READERS.get(text).parameters():
-        return READERS.create(text)
-    return READERS.create(detect_reader(path), path=str(path))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,7 +88,11 @@ def run(args: argparse.Namespace) -> int:
         from evsmap.mapping.export import check_color_by
 
         ply_color = check_color_by(updater, args.ply_color)
-    sequence = open_sequence(args.sequence)
+    sequence = open_sequence(args.sequence, args.reader, args.reader_option)
+    if sequence.meta.get("poses") is False:
+        raise EvsmapError(
+            f"{args.sequence}: {sequence.meta.get('layout', 'this dataset')} has no camera poses "
+            f"(a segmentation dataset); map a sequence with poses (TUM, a ROS bag, synthetic)")
     segmenter = None
     seg_name = args.segmenter
     if getattr(updater, "uses_semantics", False) or seg_name:
@@ -117,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
     record = map_sequence(
         sequence, updater, updater_name=args.updater, segmenter=segmenter,
         segmenter_name=seg_name, frames=args.frames, out=args.out,
-        progress=lambda it: progress(it, total=len(it), desc=f"mapping {args.updater}"))
+        progress=lambda it: progress(it, total=len(it), desc=f"mapping {args.updater}"),
+        skip_bad=args.skip_bad)
     result = record.as_dict()
     if args.ply is not None:
         from evsmap.mapping.export import export_ply
@@ -133,6 +129,10 @@ def run(args: argparse.Namespace) -> int:
 def format_record(r: dict[str, Any]) -> str:
     seg = r["segmenter"] or "none"
     ply = [f"point cloud  {r['ply_points']:,} points"] if "ply_points" in r else []
+    skipped = r.get("extra", {}).get("skipped")
+    if skipped is not None:
+        ply.append("skipped      " + SkippedFrames(
+            [(f["index"], f["reason"]) for f in skipped["frames"]]).summary())
     return "\n".join([
         f"updater      {r['updater']}  (segmenter {seg}, {r['frames']} frames of "
         f"{r['sequence']}, {r['resolution']} m)",

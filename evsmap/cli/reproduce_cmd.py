@@ -15,7 +15,7 @@ import numpy as np
 from evsmap.classes import NYU40_CLASSES, colorize
 from evsmap.cli.main import _version
 from evsmap.cli.options import nonnegative_int, positive_int
-from evsmap.data import Frame
+from evsmap.data import Frame, Sequence
 from evsmap.environment import describe
 from evsmap.errors import EvsmapError
 from evsmap.paths import default_data_root
@@ -46,15 +46,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def _timed(seq, times: list[float], keep: dict[int, Frame]):
-    """Render every frame once, recording its time and keeping the frames listed in ``keep``."""
-    for i in range(len(seq)):
+class _Timed(Sequence):
+    """``seq`` whose frames are timed as they are rendered; the frames listed in ``keep`` are
+    kept."""
+
+    def __init__(self, seq: Sequence, times: list[float], keep: dict[int, Frame]) -> None:
+        super().__init__(seq.name, seq.intrinsics, seq.meta)
+        self.seq, self.times, self.keep = seq, times, keep
+
+    def __len__(self) -> int:
+        return len(self.seq)
+
+    def frame(self, index: int) -> Frame:
         t0 = time.perf_counter()
-        frame = seq[i]
-        times.append(time.perf_counter() - t0)
-        if i in keep:
-            keep[i] = frame
-        yield frame
+        frame = self.seq.frame(index)
+        self.times.append(time.perf_counter() - t0)
+        if index in self.keep:
+            self.keep[index] = frame
+        return frame
 
 
 def run(args: argparse.Namespace) -> int:
@@ -67,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
                             height=height, noise=True)
     times: list[float] = []
     shown: dict[int, Frame] = dict.fromkeys(sorted({0, len(seq) // 3, (2 * len(seq)) // 3}))
-    synth = summarize_sequence(seq, progress=lambda f: progress(
-        _timed(seq, times, shown), total=len(seq), desc="rendering"))
+    synth = summarize_sequence(_Timed(seq, times, shown), progress=lambda f: progress(
+        f, total=len(seq), desc="rendering"))
     synth["render_ms_median"] = float(np.median(times) * 1e3)
     synth["render_ms_iqr"] = float(np.subtract(*np.percentile(times, [75, 25])) * 1e3)
     gt = {}

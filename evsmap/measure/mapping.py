@@ -15,6 +15,7 @@ import numpy as np
 
 from evsmap.data import Sequence
 from evsmap.interfaces import MapUpdater, Segmenter
+from evsmap.readers.skipping import SkippedFrames, read_frames
 
 
 @dataclass(frozen=True)
@@ -58,11 +59,14 @@ class MappingRecord:
 def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
                  segmenter: Segmenter | None = None, segmenter_name: str | None = None,
                  frames: int | None = None, out: str | PathLike[str] | None = None,
-                 progress: Callable[[Any], Any] | None = None) -> MappingRecord:
+                 progress: Callable[[Any], Any] | None = None,
+                 skip_bad: bool = False) -> MappingRecord:
     """Integrate the first ``frames`` frames of ``sequence`` (all by default) into ``updater``.
 
     Each frame is read (not timed), segmented when a segmenter is given (timed), then integrated
     (timed). The map is written to ``out`` (or a temporary file) and its byte size recorded.
+    With ``skip_bad`` a frame that cannot be read is left out and listed in
+    ``extra["skipped"]``; otherwise its error stops the run.
     """
     n = len(sequence) if frames is None else min(frames, len(sequence))
     update_ms: list[float] = []
@@ -70,8 +74,8 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
     indices = range(n)
     if progress is not None:
         indices = progress(indices)
-    for i in indices:
-        frame = sequence.frame(i)
+    skipped = SkippedFrames()
+    for _, frame in read_frames(sequence, indices, skip_bad=skip_bad, skipped=skipped):
         observation = None
         if segmenter is not None:
             t0 = time.perf_counter()
@@ -89,6 +93,7 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         with tempfile.TemporaryDirectory() as tmp:
             map_bytes = updater.write(Path(tmp) / "map.ot")
         map_file = None
+    n = len(update_ms)
     upd = np.asarray(update_ms)
     total = upd + (np.asarray(segment_ms) if segment_ms else 0.0)
     return MappingRecord(
@@ -98,4 +103,5 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         hz_median=float(1000.0 / np.median(upd)) if n else float("nan"),
         hz_end_to_end=float(1000.0 / np.median(total)) if n else float("nan"),
         map_bytes=int(map_bytes), map_file=map_file, memory_bytes=stats.memory_bytes,
-        nodes=stats.nodes, leaves=stats.leaves)
+        nodes=stats.nodes, leaves=stats.leaves,
+        extra={"skipped": skipped.as_dict()} if skip_bad else {})
