@@ -239,12 +239,22 @@ class OccupancyMap:
         count = int(np.count_nonzero(new))
         index = pos + np.cumsum(new) - new  # shifted by the new leaves inserted before
         if count:
-            at = pos[new]
-            self._codes = np.insert(self._codes, at, codes[new])
-            self._logodds = np.insert(self._logodds, at, np.float32(0.0))
+            # one mask of where the old entries go, shared by every array (np.insert per array
+            # would rebuild it each time)
+            created = index[new]
+            old = np.ones(len(self._codes) + count, dtype=bool)
+            old[created] = False
+
+            def grow(arr: np.ndarray, fill) -> np.ndarray:
+                out = np.empty((len(old), *arr.shape[1:]), dtype=arr.dtype)
+                out[old] = arr
+                out[created] = fill
+                return out
+
+            self._codes = grow(self._codes, codes[new])
+            self._logodds = grow(self._logodds, np.float32(0.0))
             for name, arr in self._payloads.items():
-                fill = np.broadcast_to(self._fills[name], (count, *arr.shape[1:]))
-                self._payloads[name] = np.insert(arr, at, fill, axis=0)
+                self._payloads[name] = grow(arr, self._fills[name])
         return index, new
 
     def insert_scan(self, points: np.ndarray, origin: np.ndarray, *, max_range: float = -1.0,

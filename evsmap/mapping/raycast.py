@@ -45,10 +45,15 @@ import numpy as np
 
 from evsmap.data import Frame
 from evsmap.geometry import backproject
+from evsmap.mapping.kernels import trace
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 
 CHUNK_ELEMENTS = 1 << 21
 """Cells (rays x padded crossings) per chunk; about 60 bytes of temporaries each."""
+
+USE_KERNEL = True
+"""Walk the rays with the compiled kernel (:mod:`evsmap.mapping.kernels`) when numba is
+installed; False selects the pure-numpy merge (the reference the tests compare it with)."""
 
 DENSE_GRID_LIMIT = 1 << 28
 """Largest bounding box (voxels) de-duplicated with a dense ``bool`` grid (256 MB)."""
@@ -199,6 +204,20 @@ def _ray_keys(org: np.ndarray, ends: np.ndarray, resolution: float,
     increments = step * space.strides  # index change of one step along each axis
 
     total = counts.sum(axis=1)
+    if USE_KERNEL and trace is not None:
+        grid = np.zeros(space.size, dtype=bool) if space.size else np.zeros(0, dtype=bool)
+        out = np.empty(0 if space.size else int(total.sum()), dtype=np.int64)
+        n = trace(tmax, tdelta, total, length.astype(np.float64), increments,
+                  end_index - origin_index, origin_index, grid, out)
+        if space.size:
+            grid[origin_index] = True
+            if len(occupied):
+                _clear_occupied(grid, space, occupied)
+            return _grid_codes(grid, space)
+        free = np.unique(np.concatenate([out[:n], [origin_index]]))
+        if len(occupied):
+            free = free[~np.isin(free, occupied, assume_unique=True)]
+        return free
     order = np.argsort(total, kind="stable")
     total_sorted = total[order]
     grid = np.zeros(space.size, dtype=bool) if space.size else None
@@ -221,10 +240,8 @@ def _ray_keys(org: np.ndarray, ends: np.ndarray, resolution: float,
 
     if grid is not None:
         grid[origin_index] = True
-        if len(occupied):  # occupied wins (end voxels of in-range rays lie inside the box)
-            keys = unpack(occupied)
-            inside = np.all((keys >= space.base) & (keys < space.base + space.shape), axis=1)
-            grid[space.index(keys[inside])] = False
+        if len(occupied):
+            _clear_occupied(grid, space, occupied)
         return _grid_codes(grid, space)
     parts.append(np.array([origin_index], dtype=np.int64))
     free = np.unique(np.concatenate(parts))
@@ -232,6 +249,14 @@ def _ray_keys(org: np.ndarray, ends: np.ndarray, resolution: float,
     if len(occupied):
         free = free[~np.isin(free, occupied, assume_unique=True)]
     return free
+
+
+def _clear_occupied(grid: np.ndarray, space: _Space, occupied: np.ndarray) -> None:
+    """Occupied wins: unmark the occupied voxels (the end voxels of in-range rays lie inside the
+    box)."""
+    keys = unpack(occupied)
+    inside = np.all((keys >= space.base) & (keys < space.base + space.shape), axis=1)
+    grid[space.index(keys[inside])] = False
 
 
 def _grid_codes(grid: np.ndarray, space: _Space, block: int = 1 << 22) -> np.ndarray:

@@ -21,7 +21,8 @@ from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import InvalidDataError
 from evsmap.geometry import backproject, transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
-from evsmap.mapping.keys import KEY_OFFSET, pack, unpack
+from evsmap.mapping.kernels import group_points
+from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate
 from evsmap.mapping.raycast import scan_keys
 from evsmap.mapping.tree import Tree
@@ -60,8 +61,13 @@ class FramePoints:
         self.origin = frame.pose[:3, 3].astype(np.float64)
         # the same float32 arithmetic as the ray casting (OctoMap's point3d)
         pts = self.points.astype(np.float32)
-        keys, ok = octomap_keys(pts, resolution)
-        self.voxel_codes, inverse = group_keys(keys[ok])
+        done = False
+        if USE_KERNEL and group_points is not None:
+            keys, ok, self.voxel_codes, inverse, done = group_points(
+                pts, 1.0 / float(resolution), KEY_OFFSET, KEY_MAX, _DENSE_BOX)
+        if not done:
+            keys, ok = octomap_keys(pts, resolution)
+            self.voxel_codes, inverse = group_keys(keys[ok])
         self.point_voxel = np.full(len(pts), -1, dtype=np.int64)
         self.point_voxel[ok] = inverse
         origin32 = self.origin.astype(np.float32)
@@ -79,6 +85,10 @@ class FramePoints:
 
 _DENSE_BOX = 1 << 24
 """Largest key box (cells) :func:`group_keys` indexes densely instead of sorting."""
+
+USE_KERNEL = True
+"""Group a frame's points with the compiled kernel (:func:`evsmap.mapping.kernels.group_points`)
+when numba is installed; False selects :func:`octomap_keys` + :func:`group_keys` (numpy)."""
 
 
 def group_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

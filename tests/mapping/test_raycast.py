@@ -162,9 +162,18 @@ def test_points_outside_the_key_range_are_skipped_like_octomap():
         scan_keys(points, np.zeros(3), 0.0)
 
 
+@pytest.fixture(params=["kernel", "numpy"])
+def dda(request, monkeypatch):
+    """Both ray walkers: the compiled kernel and the pure-numpy merge."""
+    if request.param == "kernel" and raycast.trace is None:
+        pytest.skip("numba not installed")
+    monkeypatch.setattr(raycast, "USE_KERNEL", request.param == "kernel")
+    return request.param
+
+
 @pytest.mark.parametrize("discretize", [False, True], ids=["rays", "discretized"])
 @pytest.mark.parametrize("case", range(8))
-def test_matches_octomap_on_random_clouds(case, discretize):
+def test_matches_octomap_on_random_clouds(case, discretize, dda):
     rng = np.random.default_rng(100 + case)
     res = [0.05, 0.1, 0.02, 0.037][case % 4]
     max_range = [-1.0, 2.0, 1.0, 0.7][case % 4]
@@ -184,12 +193,19 @@ def test_chunking_and_dedup_paths_agree(monkeypatch):
     rng = np.random.default_rng(7)
     points = rng.normal(size=(3000, 3)) * 1.5
     origin = np.array([0.1, -0.2, 0.05])
+    monkeypatch.setattr(raycast, "USE_KERNEL", False)
     expected = scan_keys(points, origin, 0.05, max_range=2.0)
     monkeypatch.setattr(raycast, "CHUNK_ELEMENTS", 5000)
     small = scan_keys(points, origin, 0.05, max_range=2.0)
     monkeypatch.setattr(raycast, "DENSE_GRID_LIMIT", 0)  # np.unique in packed-code space
     sparse = scan_keys(points, origin, 0.05, max_range=2.0)
-    for got in (small, sparse):
+    results = [small, sparse]
+    if raycast.trace is not None:  # the compiled kernel, with the unique path and the grid
+        monkeypatch.setattr(raycast, "USE_KERNEL", True)
+        results.append(scan_keys(points, origin, 0.05, max_range=2.0))
+        monkeypatch.setattr(raycast, "DENSE_GRID_LIMIT", 1 << 28)
+        results.append(scan_keys(points, origin, 0.05, max_range=2.0))
+    for got in results:
         assert np.array_equal(got.free, expected.free)
         assert np.array_equal(got.occupied, expected.occupied)
 
