@@ -49,8 +49,16 @@ def colorize(labels: np.ndarray, num_classes: int = len(NYU40_CLASSES)) -> np.nd
     return lut[labels]
 
 
-SUNRGBD37_CLASSES: tuple[str, ...] = NYU40_CLASSES[:37]
-"""SUN RGB-D's 37 classes (Song et al. 2015): the first 37 of the NYUv2-40 set, same order."""
+SUNRGBD37_CLASSES: tuple[str, ...] = (
+    "wall", "floor", "cabinet", "bed", "chair", "sofa", "table", "door", "window", "bookshelf",
+    "picture", "counter", "blinds", "desk", "shelves", "curtain", "dresser", "pillow", "mirror",
+    "floor mat", "clothes", "ceiling", "books", "fridge", "tv", "paper", "towel",
+    "shower curtain", "box", "whiteboard", "person", "night stand", "toilet", "sink", "lamp",
+    "bathtub", "bag",
+)
+"""SUN RGB-D's 37 classes (Song et al. 2015) by id (label value - 1 in ``SUNRGBD2Dseg.mat``): the
+toolbox's ``seg37list`` with ``_`` as a space. The same classes, in the same order, as the first
+37 of the NYUv2-40 set."""
 
 CITYSCAPES19_CLASSES: tuple[str, ...] = (
     "road", "sidewalk", "building", "wall", "fence", "pole", "traffic light", "traffic sign",

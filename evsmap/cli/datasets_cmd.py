@@ -1,0 +1,130 @@
+"""``evsmap datasets``: prepare the segmentation datasets (NYUv2, SUN RGB-D, Cityscapes) from
+their official files, and list the prepared ones."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from evsmap.cli.options import positive_int
+from evsmap.datasets import DATASETS, get_preparer
+from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.progress import progress
+
+DEFAULT_ROOT = Path("datasets")
+
+_SOURCES = {
+    "nyuv2": "folder with nyu_depth_v2_labeled.mat, splits.mat, classMapping40.mat",
+    "sunrgbd": "folder with SUNRGBD/ and SUNRGBDtoolbox/",
+    "cityscapes": "folder with leftImg8bit/, gtFine/, disparity/, camera/",
+}
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "datasets", help="prepare segmentation datasets (NYUv2, SUN RGB-D, Cityscapes), list them",
+        description="Convert the official files of a segmentation dataset into the layout "
+                    "evsmap reads (see datasets/README.md), or list the prepared datasets.")
+    dsub = p.add_subparsers(dest="datasets_command", metavar="SUBCOMMAND",
+                            parser_class=type(p))
+    dsub.required = True
+
+    prep = dsub.add_parser(
+        "prepare", help="convert a dataset's official files",
+        description="Read the official files of DATASET from --from and write the prepared "
+                    "layout to --out (written completely or not at all). Sources: "
+                    + "; ".join(f"{k}: {v}" for k, v in _SOURCES.items()) + ".")
+    prep.add_argument("dataset", choices=sorted(DATASETS), metavar="DATASET",
+                      help=f"one of {', '.join(sorted(DATASETS))}")
+    prep.add_argument("--from", dest="source", required=True, type=Path, metavar="DIR",
+                      help="folder holding the official files")
+    prep.add_argument("--out", type=Path, metavar="DIR",
+                      help="output folder (default: datasets/<DATASET> under the current folder)")
+    prep.add_argument("--limit", type=positive_int, metavar="N",
+                      help="prepare only the first N frames of each split (a quick check)")
+    prep.add_argument("--overwrite", action="store_true",
+                      help="replace a non-empty output folder (only once the new one is complete)")
+    prep.add_argument("--raw-depth", action="store_true",
+                      help="sunrgbd only: use the raw depth/ images instead of the refined "
+                           "depth_bfx/")
+    prep.set_defaults(run=run_prepare)
+
+    lst = dsub.add_parser(
+        "list", help="list prepared datasets under a data root",
+        description="List the prepared datasets (folders with evsmap-dataset.json, or layouts a "
+                    "dataset reader recognises) directly under --root.")
+    lst.add_argument("--root", type=Path, default=DEFAULT_ROOT, metavar="DIR",
+                     help="data root (default: datasets/ under the current folder)")
+    lst.add_argument("--json", action="store_true", help="print the list as JSON")
+    lst.set_defaults(run=run_list)
+
+
+def run_prepare(args: argparse.Namespace) -> int:
+    name = args.dataset
+    out = args.out if args.out is not None else DEFAULT_ROOT / name
+    options: dict = {"limit": args.limit, "overwrite": args.overwrite}
+    if args.raw_depth:
+        if name != "sunrgbd":
+            raise EvsmapError("--raw-depth applies to sunrgbd only")
+        options["raw_depth"] = True
+    prepare = get_preparer(name)
+    t0 = time.perf_counter()
+    manifest = prepare(args.source, out,
+                       progress=lambda items: progress(items, desc=f"preparing {name}"),
+                       **options)
+    dt = time.perf_counter() - t0
+    print(f"prepared {name} in {out} from {args.source} ({manifest['frames']} frames, "
+          f"{dt:.1f} s)")
+    official = manifest.get("official_counts", {})
+    for split, count in manifest["splits"].items():
+        note = f"  (official {official[split]})" if split in official else ""
+        print(f"  {split:<6} {count:>6} frames{note}")
+    if args.limit:
+        print(f"  limited to the first {args.limit} frames of each split")
+    return 0
+
+
+def _describe(folder: Path) -> dict | None:
+    from evsmap.datasets.common import MANIFEST, read_manifest
+    from evsmap.registry import READERS
+
+    if (folder / MANIFEST).is_file():
+        try:
+            record = read_manifest(folder)
+        except DataFormatError as exc:
+            return {"path": str(folder), "name": None, "error": str(exc)}
+        return {"path": str(folder), "name": record.get("name"), "splits": record.get("splits"),
+                "version": record.get("version"), "source": record.get("source")}
+    for name in DATASETS:
+        detect = READERS.get(name).extras.get("detect")
+        if detect is not None and detect(folder):
+            return {"path": str(folder), "name": name, "splits": None, "version": None,
+                    "source": None, "note": "no manifest (not written by evsmap datasets prepare)"}
+    return None
+
+
+def run_list(args: argparse.Namespace) -> int:
+    root: Path = args.root
+    if not root.is_dir():
+        raise DataFormatError(f"{root}: no such folder (pass --root DIR)")
+    found = [d for d in (_describe(p) for p in sorted(root.iterdir()) if p.is_dir()) if d]
+    if args.json:
+        print(json.dumps(found, indent=2))
+        return 0
+    if not found:
+        print(f"no prepared datasets under {root} "
+              "(evsmap datasets prepare DATASET --from DIR)")
+        return 0
+    width = max(len(d["path"]) for d in found)
+    for d in found:
+        if "error" in d:
+            detail = d["error"]
+        elif d["splits"]:
+            detail = ", ".join(f"{k} {v}" for k, v in d["splits"].items())
+            detail += f"  (from {d['source']})"
+        else:
+            detail = d.get("note", "")
+        print(f"{d['name'] or '?':<11} {d['path']:<{width}}  {detail}")
+    return 0

@@ -1,0 +1,320 @@
+"""What the segmentation dataset readers and their ``prepare_*`` functions share.
+
+* split names and ``limit`` checks, deterministic (sorted) frame order;
+* the prepared-layout manifest ``evsmap-dataset.json`` (dataset name, layout version, frames per
+  split, source path, evsmap version);
+* writing a prepared folder atomically (a hidden partial folder renamed into place at the end);
+* checked reads of label images and MATLAB files (v5 through scipy, v7.3/HDF5 through h5py);
+* :class:`SegmentationSequence`, the base of the readers: frames without poses (identity pose,
+  timestamp = index, ``meta["poses"] = False``), each with its own intrinsics.
+
+Every problem with the user's files raises :class:`~evsmap.errors.DataFormatError` or
+:class:`~evsmap.errors.InvalidDataError` with one line naming the file and what was expected.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from evsmap.data import VOID, Frame, Intrinsics, Sequence
+from evsmap.errors import DataFormatError, EvsmapError, InvalidDataError
+from evsmap.readers.images import read_uint8_labels
+
+T = TypeVar("T")
+
+MANIFEST = "evsmap-dataset.json"
+"""File name of the manifest in every prepared dataset folder."""
+MANIFEST_FORMAT = "evsmap-dataset"
+LAYOUT_VERSION = 1
+"""Version of the prepared layouts written by this evsmap (bumped when a layout changes)."""
+
+Progress = Callable[[Iterable[Any]], Iterable[Any]]
+
+_IDENTITY = np.eye(4, dtype=np.float64)
+_IDENTITY.setflags(write=False)
+
+
+# -- options ----------------------------------------------------------------------------------
+def check_split(split: str, known: Iterable[str], dataset: str) -> str:
+    """``split`` if it is one of ``known`` (or ``all``), else a one-line error."""
+    names = [*known, "all"]
+    if split not in names:
+        raise EvsmapError(f"unknown {dataset} split {split!r} (known: {', '.join(names)})")
+    return split
+
+
+def check_limit(limit: int | None) -> int | None:
+    """``None`` (every frame) or a positive integer."""
+    if limit is None:
+        return None
+    if isinstance(limit, bool) or not isinstance(limit, (int, np.integer)) or limit < 1:
+        raise EvsmapError(f"limit must be a positive integer or None, got {limit!r}")
+    return int(limit)
+
+
+def apply_limit(items: list[T], limit: int | None) -> list[T]:
+    """The first ``limit`` items (all of them for ``None``)."""
+    limit = check_limit(limit)
+    return list(items) if limit is None else list(items)[:limit]
+
+
+def class_colors_list(colors: np.ndarray) -> list[list[int]]:
+    """``uint8`` (C, 3) colours as plain lists (for ``meta`` and JSON)."""
+    return [[int(v) for v in row] for row in np.asarray(colors, dtype=np.uint8)]
+
+
+# -- files ------------------------------------------------------------------------------------
+def require_file(path: Path, what: str) -> Path:
+    if not path.is_file():
+        raise DataFormatError(f"{path}: {what} not found")
+    return path
+
+
+def require_dir(path: Path, what: str) -> Path:
+    if not path.is_dir():
+        raise DataFormatError(f"{path}: {what} folder not found")
+    return path
+
+
+def read_id_list(path: Path) -> list[str]:
+    """One id per line (blank lines and ``#`` comments skipped), in file order, no duplicates."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise DataFormatError(f"{path}: split file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataFormatError(f"{path}: cannot read split file ({exc})") from None
+    ids: list[str] = []
+    seen: set[str] = set()
+    for number, line in enumerate(text.splitlines(), 1):
+        item = line.split("#", 1)[0].strip()
+        if not item:
+            continue
+        if len(item.split()) != 1:
+            raise DataFormatError(f"{path}:{number}: expected one id per line, got {line!r}")
+        if item in seen:
+            raise DataFormatError(f"{path}:{number}: id {item} listed twice")
+        seen.add(item)
+        ids.append(item)
+    return ids
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def read_manifest(folder: Path) -> dict | None:
+    """The manifest of a prepared folder, ``None`` when there is none."""
+    path = Path(folder) / MANIFEST
+    if not path.is_file():
+        return None
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataFormatError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(record, dict) or record.get("format") != MANIFEST_FORMAT:
+        raise DataFormatError(f"{path}: not an evsmap dataset manifest "
+                              f"(expected \"format\": \"{MANIFEST_FORMAT}\")")
+    return record
+
+
+def manifest_name(folder: Path) -> str | None:
+    """The dataset name in ``folder``'s manifest, ``None`` without a (valid) manifest."""
+    try:
+        record = read_manifest(folder)
+    except DataFormatError:
+        return None
+    return None if record is None else record.get("name")
+
+
+def make_manifest(name: str, *, source: Path, splits: dict[str, int], **extra: Any) -> dict:
+    return {
+        "format": MANIFEST_FORMAT, "name": name, "version": LAYOUT_VERSION,
+        "evsmap_version": _evsmap_version(), "source": str(Path(source).resolve()),
+        "splits": dict(splits), "frames": int(sum(splits.values())), **extra,
+    }
+
+
+def write_manifest(folder: Path, record: dict) -> None:
+    write_text_atomic(Path(folder) / MANIFEST, json.dumps(record, indent=2) + "\n")
+
+
+def _evsmap_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("evsmap")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+@contextlib.contextmanager
+def staging_folder(out: Path, *, source: Path, overwrite: bool) -> Iterator[Path]:
+    """Yield an empty hidden folder beside ``out``; once the block ends without error it replaces
+    ``out`` (so an existing ``out`` is never left half-written); on error it is removed.
+
+    A non-empty ``out`` is refused unless ``overwrite``; ``out`` may not be or contain ``source``.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise EvsmapError(f"{out}: exists and is not a folder")
+    src, dst = Path(source).resolve(), out.resolve()
+    if dst == src or dst in src.parents:
+        raise EvsmapError(f"{out}: the output folder would replace the source {source}")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise EvsmapError(f"{out}: folder exists and is not empty (pass --overwrite)")
+    parent = dst.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise EvsmapError(f"{out}: cannot create parent folder ({exc})") from None
+    partial = parent / f".{dst.name}.partial-{os.getpid()}"
+    shutil.rmtree(partial, ignore_errors=True)
+    try:
+        partial.mkdir()
+        yield partial
+        if dst.exists():
+            old = parent / f".{dst.name}.old-{os.getpid()}"
+            dst.rename(old)
+            partial.rename(dst)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            partial.rename(dst)
+    except OSError as exc:
+        raise EvsmapError(f"{out}: cannot write ({exc})") from None
+    finally:
+        shutil.rmtree(partial, ignore_errors=True)
+
+
+# -- MATLAB files -------------------------------------------------------------------------------
+def is_hdf5(path: Path) -> bool:
+    """Whether ``path`` is an HDF5 file (MATLAB v7.3 files are HDF5 with a 512-byte user block)."""
+    try:
+        import h5py
+
+        return bool(h5py.is_hdf5(str(path)))
+    except OSError:
+        return False
+
+
+def load_mat(path: Path, keys: Iterable[str], what: str) -> dict[str, np.ndarray]:
+    """``keys`` of a MATLAB file, v5/v7 (scipy) or v7.3 (HDF5; arrays transposed back to MATLAB's
+    row/column order). Missing file, unreadable file and missing keys are one-line errors."""
+    require_file(path, what)
+    keys = list(keys)
+    if is_hdf5(path):
+        import h5py
+
+        try:
+            with h5py.File(path, "r") as f:
+                out = {}
+                for key in keys:
+                    if key not in f:
+                        raise DataFormatError(f"{path}: has no variable {key!r} ({what})")
+                    out[key] = np.asarray(f[key][()]).T
+                return out
+        except OSError as exc:
+            raise DataFormatError(f"{path}: unreadable MATLAB v7.3 file ({exc})") from None
+    import scipy.io
+
+    try:
+        data = scipy.io.loadmat(str(path), variable_names=keys)
+    except (ValueError, TypeError, OSError, NotImplementedError) as exc:
+        raise DataFormatError(f"{path}: not a readable MATLAB file ({exc})") from None
+    for key in keys:
+        if key not in data:
+            raise DataFormatError(f"{path}: has no variable {key!r} ({what})")
+    return {key: data[key] for key in keys}
+
+
+def mat_strings(value: object) -> list[str]:
+    """The strings in a MATLAB cell array / char array as loaded by scipy, flattened in order."""
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, bytes):
+        return [value.decode()]
+    arr = np.asarray(value)
+    if arr.dtype.kind in "US":
+        # scipy gives a string per row of a char array (chars_as_strings)
+        return [str(v) for v in arr.ravel()]
+    if arr.dtype == object:
+        out: list[str] = []
+        for item in arr.ravel(order="F"):
+            out.extend(mat_strings(item))
+        return out
+    raise DataFormatError(f"expected MATLAB strings, got {arr.dtype} {arr.shape}")
+
+
+# -- labels -----------------------------------------------------------------------------------
+def check_label_values(labels: np.ndarray, num_classes: int, where: Path | str,
+                       what: str = "label") -> np.ndarray:
+    """``labels`` if every value is a class id below ``num_classes`` or 255 (void)."""
+    bad = (labels >= num_classes) & (labels != VOID)
+    if bad.any():
+        value = int(labels[bad].max())
+        raise InvalidDataError(f"{where}: {what} {value} outside 0..{num_classes - 1} "
+                               f"({VOID} void) at {int(bad.sum())} pixels")
+    return labels
+
+
+def read_label_png(path: Path, num_classes: int, shape: tuple[int, int] | None = None
+                   ) -> np.ndarray:
+    """A ``uint8`` label PNG with ids ``0..num_classes-1`` and 255 void, of size ``shape``."""
+    labels = read_uint8_labels(path)
+    if shape is not None and labels.shape != tuple(shape):
+        raise DataFormatError(f"{path}: labels are {labels.shape[1]}x{labels.shape[0]}, expected "
+                              f"{shape[1]}x{shape[0]} like the image")
+    return check_label_values(labels, num_classes, path)
+
+
+def check_shape(path: Path, shape: tuple[int, ...], expected: tuple[int, ...], what: str) -> None:
+    if tuple(shape[:2]) != tuple(expected[:2]):
+        raise DataFormatError(f"{path}: {what} is {shape[1]}x{shape[0]}, expected "
+                              f"{expected[1]}x{expected[0]}")
+
+
+# -- sequences --------------------------------------------------------------------------------
+class SegmentationSequence(Sequence):
+    """Base of the segmentation-dataset readers: frames with labels but without poses.
+
+    Frames get the identity pose and ``timestamp = index``; ``meta`` holds ``poses: False``,
+    ``layout``, ``split``, ``class_names``, ``class_colors`` (``uint8`` RGB lists),
+    ``num_classes`` and ``path``. ``class_names`` is also an attribute (what
+    :func:`evsmap.summary.summarize_sequence` looks for). Subclasses fill ``self.names`` (one
+    identifier per frame, in order) and implement :meth:`load` (rgb, depth, intrinsics, labels).
+    """
+
+    def __init__(self, name: str, intrinsics: Intrinsics, *, layout: str, split: str,
+                 class_names: tuple[str, ...], class_colors: np.ndarray, path: Path,
+                 names: list[str], meta: dict | None = None) -> None:
+        super().__init__(name, intrinsics, {
+            "layout": layout, "poses": False, "split": split,
+            "class_names": list(class_names), "class_colors": class_colors_list(class_colors),
+            "num_classes": len(class_names), "void_label": VOID, "path": str(path),
+            **(meta or {}),
+        })
+        self.class_names = tuple(class_names)
+        self.num_classes = len(class_names)
+        self.names = list(names)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def load(self, index: int) -> tuple[np.ndarray, np.ndarray, Intrinsics, np.ndarray | None]:
+        """(rgb uint8 HxWx3, depth float32 metres HxW, intrinsics, labels uint8 HxW or None)."""
+        raise NotImplementedError
+
+    def frame(self, index: int) -> Frame:
+        rgb, depth, intrinsics, labels = self.load(index)
+        return Frame(rgb=rgb, depth=depth, intrinsics=intrinsics, pose=_IDENTITY.copy(),
+                     timestamp=float(index), labels=labels, name=self.names[index])
