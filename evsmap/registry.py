@@ -29,6 +29,10 @@ T = TypeVar("T")
 _BUILTIN_MODULES = (
     "evsmap.readers.tum",
     "evsmap.readers.synthetic",
+    "evsmap.readers.rosbag",
+    "evsmap.datasets.nyuv2",
+    "evsmap.datasets.sunrgbd",
+    "evsmap.datasets.cityscapes",
     "evsmap.segmenters.zoo",
     "evsmap.updaters.orgb",
     "evsmap.updaters.multiclass_bayes",
