@@ -24,6 +24,8 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     from evsmap.cli import (
         complexity_cmd,
+        datasets_cmd,
+        eval_cmd,
         info_cmd,
         list_cmd,
         map_cmd,
@@ -40,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd,
-                   map_cmd):
+                   map_cmd, datasets_cmd, eval_cmd):
         module.add_parser(sub)
     return parser
 

@@ -1,0 +1,228 @@
+"""``evsmap eval``: score a segmenter on a labelled dataset (mIoU, pixel accuracy, per-class IoU).
+
+One confusion matrix is summed over every labelled pixel of the split (void pixels left out),
+as the paper's MIoU columns (Tables I-III) and detectron2's ``SemSegEvaluator`` compute it; see
+:mod:`evsmap.metrics.segmentation`.
+
+A network segmenter without ``--weights`` is refused: its random initialisation scores noise,
+and a printed mIoU would look like a result. ``--allow-random`` runs it anyway (to check the
+pipeline), warns on stderr and marks the record ``"random_weights": true``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from evsmap.cli.options import key_value, positive_int
+from evsmap.cli.sequence_args import add_sequence_options
+from evsmap.errors import EvsmapError
+
+DEFAULT_SPLIT = {"cityscapes": "val"}
+"""Split evaluated when ``--split`` is not given, by reader (Table II uses Cityscapes' val, the
+test labels are not public); every other reader with splits: ``test``."""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "eval", help="score a segmenter on a labelled dataset (mIoU, per-class IoU)",
+        description="Run MODEL over every frame of a labelled dataset split and report the "
+                    "dataset-level mIoU, pixel accuracy, mean accuracy and per-class IoU "
+                    "(one confusion matrix over all labelled pixels, void pixels ignored). "
+                    "NAME-or-PATH is a dataset folder (reader detected, or --reader), a "
+                    "prepared dataset's name (looked up in datasets/NAME and the data root) "
+                    "or a reader that needs no path (e.g. synthetic). A network without "
+                    "--weights is refused unless --allow-random.")
+    p.add_argument("model", metavar="MODEL", help="segmenter name (evsmap list)")
+    p.add_argument("--dataset", required=True, metavar="NAME-or-PATH",
+                   help="labelled dataset: a folder, a prepared dataset's name, or 'synthetic'")
+    p.add_argument("--split", metavar="SPLIT",
+                   help="dataset split for readers that have splits (default: test; val for "
+                        "cityscapes)")
+    p.add_argument("--limit", type=positive_int, metavar="N", help="first N frames only")
+    p.add_argument("--weights", type=Path, metavar="FILE", help="segmenter weights (state dict)")
+    p.add_argument("--allow-random", action="store_true",
+                   help="score a network without --weights (random weights: the mIoU is "
+                        "meaningless; for checking the pipeline)")
+    p.add_argument("--backend", choices=("torch", "onnxruntime"),
+                   help="inference backend of a network segmenter (default torch)")
+    p.add_argument("-o", "--option", type=key_value, action="append", default=[],
+                   metavar="KEY=VALUE",
+                   help="a segmenter option, repeatable (e.g. -o num_classes=37, -o accuracy=0.9)")
+    add_sequence_options(p)
+    p.add_argument("--json", action="store_true", help="print the record as JSON")
+    p.set_defaults(run=run)
+
+
+def _find_dataset(text: str, reader: str | None) -> tuple[str, str | None]:
+    """``(path or reader name, reader)``: a prepared dataset's name becomes its folder."""
+    from evsmap.paths import default_data_root
+    from evsmap.registry import READERS
+
+    path = Path(text)
+    if path.exists() or reader is not None or text not in READERS.names():
+        return text, reader
+    if "path" not in READERS.get(text).parameters():
+        return text, None  # e.g. synthetic: built from options
+    roots = [Path("datasets")]
+    data_root = default_data_root()
+    if data_root is not None:
+        roots.append(data_root)
+    for root in roots:
+        if (root / text).is_dir():
+            return str(root / text), text
+    looked = ", ".join(str(r / text) for r in roots)
+    raise EvsmapError(f"reader {text!r} reads a folder and none was found (looked in {looked}): "
+                      f"pass --dataset PATH, or prepare it with `evsmap datasets prepare {text}`")
+
+
+def _reader_name(text: str, reader: str | None) -> str:
+    from evsmap.cli.info_cmd import detect_reader
+    from evsmap.registry import READERS
+
+    if reader is not None:
+        return reader
+    path = Path(text)
+    if not path.exists() and text in READERS.names():
+        return text
+    return detect_reader(path)
+
+
+def open_dataset(text: str, *, reader: str | None = None, split: str | None = None,
+                 limit: int | None = None, options: list[tuple[str, object]] | None = None):
+    """The labelled sequence to score and a description ``{reader, split, limit_applied}``.
+
+    ``split`` and ``limit`` go to readers that take them (``READERS.get(name).parameters()``);
+    a reader without splits refuses an explicit ``split``; ``limit`` is applied while reading
+    otherwise.
+    """
+    from evsmap.cli.sequence_args import open_sequence
+    from evsmap.registry import READERS
+
+    text, reader = _find_dataset(text, reader)
+    name = _reader_name(text, reader)
+    params = READERS.get(name).parameters()
+    config = dict(options or [])
+    if "split" in params:
+        config.setdefault("split", split or DEFAULT_SPLIT.get(name, "test"))
+    elif split is not None:
+        raise EvsmapError(f"reader {name!r} has no splits: leave out --split")
+    if limit is not None and "limit" in params:
+        config.setdefault("limit", limit)
+    sequence = open_sequence(text, reader, list(config.items()))
+    return sequence, {"reader": name, "split": config.get("split")}
+
+
+def dataset_classes(sequence) -> tuple[int | None, tuple[str, ...]]:
+    """The dataset's class count and names, from the reader's metadata or attributes (an
+    ``evsmap synth`` folder keeps them in ``meta['synthetic']['classes']``); ``(None, ())``
+    when the reader does not say."""
+    meta = getattr(sequence, "meta", {}) or {}
+    names = meta.get("class_names") or getattr(sequence, "class_names", None) \
+        or (meta.get("synthetic") or {}).get("classes") or ()
+    names = tuple(str(n) for n in names)
+    count = meta.get("num_classes") or getattr(sequence, "num_classes", None) \
+        or (len(names) or None)
+    return (int(count) if count else None), names
+
+
+def run(args: argparse.Namespace) -> int:
+    from evsmap.classes import class_names_for
+    from evsmap.metrics import ConfusionMatrix
+    from evsmap.progress import progress
+    from evsmap.readers.skipping import SkippedFrames, read_frames
+    from evsmap.registry import SEGMENTERS
+
+    config: dict[str, Any] = dict(args.option)
+    if args.weights is not None:
+        config["weights"] = str(args.weights)
+    if args.backend is not None:
+        config["backend"] = args.backend
+    segmenter = SEGMENTERS.create(args.model, **config)
+    network = getattr(segmenter, "module", None) is not None
+    weights = getattr(segmenter, "weights", None)
+    random_weights = network and weights is None
+    if random_weights and not args.allow_random:
+        raise EvsmapError(
+            f"{args.model} has no trained weights: pass --weights FILE (or --allow-random to "
+            f"score the random initialisation, whose mIoU is meaningless)")
+
+    sequence, source = open_dataset(args.dataset, reader=args.reader, split=args.split,
+                                    limit=args.limit, options=args.reader_option)
+    n_data, data_names = dataset_classes(sequence)
+    n_seg = int(segmenter.num_classes)
+    if n_data is not None and n_data != n_seg:
+        raise EvsmapError(
+            f"{args.model} predicts {n_seg} classes but {sequence.name!r} is labelled with "
+            f"{n_data}: use a model for this label set (e.g. -o num_classes={n_data} with "
+            f"matching --weights)")
+    if random_weights:
+        sys.stderr.write(f"evsmap eval: warning: {args.model} runs with RANDOM weights "
+                         f"(no --weights): the scores below are meaningless\n")
+    names = data_names if len(data_names) == n_seg else \
+        tuple(getattr(segmenter, "class_names", ()) or class_names_for(n_seg))
+
+    total = len(sequence) if args.limit is None else min(args.limit, len(sequence))
+    if total == 0:
+        raise EvsmapError(f"{sequence.name!r} ({source['reader']}, split "
+                          f"{source['split']}) has no frames")
+    matrix = ConfusionMatrix(n_seg)
+    skipped = SkippedFrames()
+    seconds = 0.0
+    frames = 0
+    frames_iter = read_frames(sequence, range(total), skip_bad=args.skip_bad, skipped=skipped)
+    for _, frame in progress(frames_iter, total=total, desc=f"evaluating {args.model}"):
+        if frame.labels is None:
+            raise EvsmapError(f"frame {frame.name!r} of {sequence.name!r} has no ground-truth "
+                              f"labels: eval needs a labelled dataset")
+        t0 = time.perf_counter()
+        prediction = segmenter.predict(frame).argmax
+        seconds += time.perf_counter() - t0
+        matrix.update(prediction, frame.labels)
+        frames += 1
+    result = matrix.result(class_names=names)
+    record = {
+        "model": args.model, "options": {k: v for k, v in config.items() if k != "weights"},
+        "weights": weights, "random_weights": random_weights,
+        "backend": getattr(segmenter, "backend", None),
+        "dataset": sequence.name, "reader": source["reader"], "split": source["split"],
+        "frames": frames, "skipped": skipped.as_dict() if args.skip_bad else None,
+        "seconds_per_frame": seconds / frames if frames else None,
+        **result.as_dict(),
+    }
+    if args.json:
+        print(json.dumps(record, indent=2))
+    else:
+        print(format_eval(record))
+    return 0
+
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100.0 * x:.2f} %"
+
+
+def format_eval(r: dict[str, Any]) -> str:
+    split = f", split {r['split']}" if r["split"] else ""
+    weights = r["weights"] or ("RANDOM (scores meaningless)" if r["random_weights"] else "none")
+    lines = [
+        f"model            {r['model']}  (weights: {weights})",
+        f"dataset          {r['dataset']}  ({r['reader']}{split}, {r['frames']} frames, "
+        f"{r['pixels']:,} labelled pixels)",
+        f"mIoU             {_pct(r['miou'])}  over {r['present_classes']} of "
+        f"{r['num_classes']} classes",
+        f"pixel accuracy   {_pct(r['pixel_accuracy'])}",
+        f"mean accuracy    {_pct(r['mean_accuracy'])}",
+        f"fw IoU           {_pct(r['frequency_weighted_iou'])}",
+    ]
+    if r.get("skipped"):
+        lines.append(f"skipped          {r['skipped']['count']} bad frame(s)")
+    per_class = r["per_class_iou"]
+    if per_class:
+        width = max(len(n) for n in per_class)
+        lines.append("per-class IoU (classes present in ground truth or prediction)")
+        lines += [f"  {name:<{width}}  {_pct(v)}" for name, v in per_class.items()]
+    return "\n".join(lines)

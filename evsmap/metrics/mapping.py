@@ -1,0 +1,190 @@
+"""3D quality of a finished octree map against voxel ground truth (the synthetic scenes').
+
+Voxels are compared by integer key at the map's resolution. The ground truth
+(:class:`evsmap.synth.groundtruth.VoxelLabels`) keys a voxel as ``floor(coordinate / resolution)``,
+the map as OctoMap does, ``floor(coordinate / resolution) + 2**15``; the offset is added to the
+ground truth before comparing. Surfaces lying exactly on voxel boundaries (the synthetic walls at
+x = 0, y = 0 and the floor at z = 0) may land on either side, so a match allows ``slack_voxels``
+of Chebyshev distance:
+
+* precision: occupied map leaves with a ground-truth voxel within the slack;
+* recall (observed): ground-truth voxels the map knows (a free or occupied leaf exists at the
+  voxel itself) with an occupied leaf within the slack; total recall divides by every
+  ground-truth voxel instead;
+* semantics (updaters with ``uses_semantics``): every occupied leaf that has a ground-truth voxel
+  within the slack is matched to the nearest one (the voxel itself, then face, edge and corner
+  neighbours, then further rings; ties in a fixed offset order) and its most likely class is
+  compared with that voxel's class in a :class:`~evsmap.metrics.segmentation.ConfusionMatrix`
+  (semantic accuracy = its pixel accuracy, map mIoU = its mIoU). Matched leaves without a class
+  are counted apart (``unlabelled``) and left out of the matrix.
+
+Everything is vectorised over voxels: a neighbourhood lookup is one ``np.searchsorted`` of the
+packed codes per offset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evsmap.errors import InvalidDataError
+from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
+from evsmap.metrics.segmentation import ConfusionMatrix, SegmentationResult
+
+
+@dataclass(frozen=True)
+class MapQuality:
+    """Geometric and semantic quality of one map (fractions; NaN where undefined).
+
+    Attributes:
+        resolution: leaf size, metres.
+        slack_voxels: Chebyshev tolerance of a match, in voxels.
+        occupied: occupied map leaves.
+        ground_truth: ground-truth occupied voxels.
+        observed: ground-truth voxels known (free or occupied) in the map.
+        precision: occupied leaves within the slack of a ground-truth voxel / occupied.
+        recall: observed ground-truth voxels within the slack of an occupied leaf / observed.
+        recall_total: ground-truth voxels within the slack of an occupied leaf / ground_truth.
+        matched: occupied leaves matched to a ground-truth voxel (precision's numerator).
+        unlabelled: matched leaves without a class (semantic updaters; 0 otherwise).
+        semantic_accuracy: matched labelled leaves whose class is the ground truth's / all of
+            them (``None`` for updaters without semantics).
+        map_miou: mIoU of the same matrix (``None`` without semantics).
+        semantics: the full :class:`SegmentationResult` of the matched leaves, or ``None``.
+    """
+
+    resolution: float
+    slack_voxels: int
+    occupied: int
+    ground_truth: int
+    observed: int
+    precision: float
+    recall: float
+    recall_total: float
+    matched: int
+    unlabelled: int = 0
+    semantic_accuracy: float | None = None
+    map_miou: float | None = None
+    semantics: SegmentationResult | None = field(default=None, repr=False)
+
+    def as_dict(self) -> dict:
+        out = {k: getattr(self, k) for k in (
+            "resolution", "slack_voxels", "occupied", "ground_truth", "observed", "precision",
+            "recall", "recall_total", "matched", "unlabelled", "semantic_accuracy", "map_miou")}
+        for k, v in out.items():
+            if isinstance(v, float) and np.isnan(v):
+                out[k] = None
+        out["semantics"] = None if self.semantics is None else self.semantics.as_dict()
+        return out
+
+
+def neighbour_offsets(slack: int) -> np.ndarray:
+    """``int64`` (M, 3) offsets with Chebyshev norm <= ``slack``, nearest first: sorted by
+    Chebyshev norm, then squared Euclidean length, then lexicographically (so (0, 0, 0) first)."""
+    r = np.arange(-slack, slack + 1)
+    off = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+    order = np.lexsort((off[:, 2], off[:, 1], off[:, 0], (off ** 2).sum(axis=1),
+                        np.abs(off).max(axis=1)))
+    return off[order].astype(np.int64)
+
+
+def nearest_within(query_keys: np.ndarray, target_codes: np.ndarray, slack: int) -> np.ndarray:
+    """For each of the (N, 3) map keys, the index in the sorted ``target_codes`` of the nearest
+    target voxel within Chebyshev distance ``slack`` (see :func:`neighbour_offsets`), else -1."""
+    query_keys = np.asarray(query_keys, dtype=np.int64).reshape(-1, 3)
+    target_codes = np.asarray(target_codes, dtype=np.int64)
+    found = np.full(len(query_keys), -1, dtype=np.int64)
+    if not len(query_keys) or not target_codes.size:
+        return found
+    for off in neighbour_offsets(slack):
+        todo = np.flatnonzero(found < 0)
+        if not todo.size:
+            break
+        keys = query_keys[todo] + off
+        inside = np.all((keys >= 0) & (keys <= KEY_MAX), axis=1)
+        todo, keys = todo[inside], keys[inside]
+        codes = pack(keys)
+        pos = np.searchsorted(target_codes, codes)
+        pos_ok = np.minimum(pos, target_codes.size - 1)
+        hit = (pos < target_codes.size) & (target_codes[pos_ok] == codes)
+        found[todo[hit]] = pos[hit]
+    return found
+
+
+def _ratio(num: int, den: int) -> float:
+    return float(num) / den if den else float("nan")
+
+
+def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
+                 num_classes: int | None = None) -> MapQuality:
+    """Score the occupied leaves of ``updater`` (an
+    :class:`~evsmap.updaters.base.OctreeUpdater`) against ``ground_truth``
+    (:class:`~evsmap.synth.groundtruth.VoxelLabels` at the map's resolution).
+
+    Args:
+        slack_voxels: Chebyshev tolerance of a match, in voxels (1: the 27-neighbourhood).
+        num_classes: size of the label set of the semantic scores (default: one more than the
+            largest class id in the ground truth or the map).
+
+    Raises:
+        InvalidDataError: resolutions differ, a negative slack, or an updater that exposes no
+            leaf map.
+    """
+    if isinstance(slack_voxels, bool) or not isinstance(slack_voxels, (int, np.integer)) \
+            or slack_voxels < 0:
+        raise InvalidDataError(f"slack_voxels must be an integer >= 0, got {slack_voxels!r}")
+    occupancy = getattr(updater, "map", None)
+    if occupancy is None or not hasattr(updater, "occupied_labels"):
+        raise InvalidDataError(
+            f"{type(updater).__name__} exposes no leaf map (evaluate_map needs an OctreeUpdater)")
+    resolution = float(updater.resolution)
+    if not np.isclose(resolution, float(ground_truth.resolution), rtol=1e-9, atol=0.0):
+        raise InvalidDataError(f"the map's resolution is {resolution} m but the ground truth's "
+                               f"is {ground_truth.resolution} m")
+    slack = int(slack_voxels)
+
+    gt_keys = np.asarray(ground_truth.keys, dtype=np.int64).reshape(-1, 3) + KEY_OFFSET
+    gt_labels = np.asarray(ground_truth.labels, dtype=np.int64).ravel()
+    inside = np.all((gt_keys >= 0) & (gt_keys <= KEY_MAX), axis=1)
+    gt_keys, gt_labels = gt_keys[inside], gt_labels[inside]
+    gt_codes = pack(gt_keys)
+    order = np.argsort(gt_codes, kind="stable")
+    gt_codes, gt_keys, gt_labels = gt_codes[order], gt_keys[order], gt_labels[order]
+
+    occ_codes, occ_labels = updater.occupied_labels()
+    occ_codes = np.asarray(occ_codes, dtype=np.int64)
+    occ_labels = np.asarray(occ_labels, dtype=np.int64)
+    occ_keys = unpack(occ_codes)
+
+    # precision: each occupied leaf's nearest ground-truth voxel within the slack
+    match = nearest_within(occ_keys, gt_codes, slack)
+    matched = match >= 0
+    # recall: ground-truth voxels with an occupied leaf within the slack
+    covered = nearest_within(gt_keys, np.sort(occ_codes), slack) >= 0
+    _, known = occupancy.index(gt_codes)
+    n_gt, n_occ = int(gt_codes.size), int(occ_codes.size)
+    n_observed = int(np.count_nonzero(known))
+
+    quality = dict(
+        resolution=resolution, slack_voxels=slack, occupied=n_occ, ground_truth=n_gt,
+        observed=n_observed, precision=_ratio(np.count_nonzero(matched), n_occ),
+        recall=_ratio(np.count_nonzero(covered & known), n_observed),
+        recall_total=_ratio(np.count_nonzero(covered), n_gt),
+        matched=int(np.count_nonzero(matched)))
+    if not getattr(updater, "uses_semantics", False):
+        return MapQuality(**quality)
+
+    pred = occ_labels[matched]
+    truth = gt_labels[match[matched]]
+    labelled = pred >= 0
+    if num_classes is None:
+        top = max(int(truth.max()) if truth.size else -1, int(pred.max()) if pred.size else -1,
+                  int(gt_labels.max()) if gt_labels.size else -1)
+        num_classes = max(top + 1, 1)
+    cm = ConfusionMatrix(num_classes)
+    cm.update(pred[labelled], truth[labelled])
+    result = cm.result()
+    return MapQuality(**quality, unlabelled=int(np.count_nonzero(~labelled)),
+                      semantic_accuracy=result.pixel_accuracy, map_miou=result.miou,
+                      semantics=result)
