@@ -1,0 +1,449 @@
+"""Running one cell: a complexity, speed, accuracy or mapping measurement, returned as a
+:class:`~evsmap.runner.records.CellRecord`.
+
+Cells the machine cannot measure (a dataset not prepared, weights not given, a Jetson) become
+``na`` records naming what is missing; a cell whose run raises becomes an ``error`` record with
+the message. Mapping is measured per (system, sequence) in "mapping runs" (``extra/mapping/...``
+records, beyond the paper's tables); Table IV's cells are then read from those runs
+(:func:`table4_record`), so each map is built once.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evsmap.errors import EvsmapError
+from evsmap.paths import REPO_ROOT
+from evsmap.runner.context import RunContext
+from evsmap.runner.records import CellRecord, needs_text
+from evsmap.tables.schema import CellSpec, Component, load_tables
+
+MAPPING_WEIGHTS = "nyuv2"
+"""The dataset the segmenters of the mapping systems are trained on (40 NYUv2 classes)."""
+
+REFERENCE_ROW = "octomap-cpp"
+"""The C++ OctoMap (occupancy only) mapped beside Table IV's systems as a reference."""
+
+
+# ----------------------------------------------------------------------------- environment
+def environment(threads: int | None = None) -> dict[str, Any]:
+    """CPU model, core and thread counts, library versions, git commit and host."""
+    from evsmap.environment import describe
+    from evsmap.measure.speed import library_versions
+
+    env: dict[str, Any] = dict(describe())
+    env["threads"] = threads or os.cpu_count() or 1
+    env["host"] = socket.gethostname()
+    try:
+        env["versions"] = dict(library_versions())
+    except Exception:  # pragma: no cover - a missing optional library
+        env["versions"] = {}
+    for lib in ("numba", "octomap"):
+        try:
+            module = __import__(lib)
+            env["versions"][lib] = getattr(module, "__version__", "unknown")
+        except ImportError:
+            pass
+    env["git_commit"] = git_commit()
+    return env
+
+
+def git_commit() -> str | None:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True,
+                             text=True, timeout=10, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def _base(spec: CellSpec) -> dict[str, Any]:
+    return {"key": spec.key, "table": spec.table, "row": spec.row, "label": spec.label,
+            "kind": spec.kind, "metrics": list(spec.metrics), "inputs": spec_inputs(spec)}
+
+
+def spec_inputs(spec: CellSpec) -> dict[str, Any]:
+    return {"segmenter": spec.segmenter.spec if spec.segmenter else None,
+            "updater": spec.updater.spec if spec.updater else None,
+            "datasets": list(spec.datasets), "split": spec.split,
+            "input_size": list(spec.input_size) if spec.input_size else None,
+            "voxel_size": spec.voxel_size, "hardware": spec.hardware,
+            "config_key": spec.config_key}
+
+
+def na_record(spec: CellSpec, needs: list[str], ctx: RunContext) -> CellRecord:
+    return CellRecord(**_base(spec), status="na", needs=list(needs), reason=needs_text(needs),
+                      started=_now())
+
+
+# ----------------------------------------------------------------------------- networks
+def build_segmenter(component: Component, *, input_size=None, backend: str | None = None,
+                    weights: str | None = None):
+    """The segmenter of ``component`` (seeded: untrained networks get the same weights every
+    run, so ONNX exports are reused)."""
+    import torch
+
+    from evsmap.registry import SEGMENTERS
+
+    config = dict(component.config)
+    params = SEGMENTERS.get(component.name).parameters()
+    if input_size is not None and "input_size" in params:
+        config["input_size"] = tuple(input_size)
+    if backend is not None and "backend" in params:
+        config["backend"] = backend
+    if weights is not None:
+        config["weights"] = weights
+    torch.manual_seed(0)
+    return SEGMENTERS.create(component.name, **config)
+
+
+def _size(spec: CellSpec, segmenter) -> tuple[int, int]:
+    return tuple(spec.input_size) if spec.input_size else tuple(segmenter.default_size)
+
+
+def run_complexity(spec: CellSpec, ctx: RunContext) -> CellRecord:
+    from evsmap.measure.complexity import measure_complexity
+
+    segmenter = build_segmenter(spec.segmenter)
+    h, w = _size(spec, segmenter)
+    rec = measure_complexity(segmenter.module, segmenter.example_inputs(h, w))
+    quantities = _quantities(spec)
+    values = {col: float(rec.params if q == "params" else rec.flops)
+              for col, q in quantities.items()}
+    notes = [f"fvcore at {w}x{h} (1 MAC = 1 FLOP, as fvcore and the paper's lineage count)"]
+    if rec.uncounted_ops:
+        notes.append("operators fvcore does not count: " + ", ".join(sorted(rec.uncounted_ops)))
+    return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
+                      details=rec.as_dict())
+
+
+def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
+    from evsmap.measure.complexity import measure_complexity
+    from evsmap.measure.speed import measure_speed
+
+    segmenter = build_segmenter(spec.segmenter, input_size=spec.input_size)
+    h, w = _size(spec, segmenter)
+    inputs = segmenter.example_inputs(h, w)
+    macs = measure_complexity(segmenter.module, inputs).flops
+    cache = Path(ctx.out) / "cache" / "onnx" if ctx.speed_backend == "onnxruntime" else None
+    rec = measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,
+                        runs=ctx.speed_runs, warmup=ctx.speed_warmup, threads=ctx.threads,
+                        macs=macs, input_names=segmenter.input_names,
+                        key=spec.segmenter.spec, cache_dir=_onnx_cache(ctx) or cache)
+    values = {col: float(rec.fps_median) for col in spec.metrics}
+    notes = [f"{ctx.speed_backend} on the CPU ({rec.threads} threads, {rec.cpu}), {w}x{h}, "
+             f"median of {rec.runs} runs after {rec.warmup} warm-up; untrained weights "
+             f"(speed does not depend on them)"]
+    return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
+                      details=rec.as_dict())
+
+
+def _onnx_cache(ctx: RunContext) -> Path | None:
+    env = os.environ.get("EVSMAP_CACHE_DIR")
+    return Path(env) / "onnx" if env else None
+
+
+def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
+    from evsmap.cli.eval_cmd import dataset_classes
+    from evsmap.metrics import ConfusionMatrix
+    from evsmap.registry import READERS
+
+    dataset = spec.datasets[0]
+    path = ctx.dataset_path(dataset)
+    weights = ctx.weights_path(spec.segmenter.spec, dataset)
+    if path is None or weights is None:  # guarded by the caller's needs check
+        raise EvsmapError(f"{spec.key}: dataset or weights missing")
+    segmenter = build_segmenter(spec.segmenter, input_size=spec.input_size,
+                                backend="onnxruntime", weights=str(weights))
+    config: dict[str, Any] = {"path": str(path), "split": spec.split or "test"}
+    if spec.input_size and "resolution" in READERS.get(dataset).parameters():
+        config["resolution"] = f"{spec.input_size[1]}x{spec.input_size[0]}"
+    if ctx.quick:
+        config["limit"] = 10
+    sequence = READERS.create(dataset, **config)
+    n_data, names = dataset_classes(sequence)
+    if n_data is not None and n_data != segmenter.num_classes:
+        raise EvsmapError(f"{spec.segmenter.spec} predicts {segmenter.num_classes} classes, "
+                          f"{dataset} has {n_data}")
+    matrix = ConfusionMatrix(segmenter.num_classes)
+    for i in range(len(sequence)):
+        frame = sequence.frame(i)
+        matrix.update(segmenter.predict(frame).argmax, frame.labels)
+    result = matrix.result(class_names=names)
+    values = {col: float(result.miou) for col in spec.metrics}
+    notes = [f"{dataset} {config['split']} split, {len(sequence)} images, weights {weights.name}"]
+    return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
+                      details=result.as_dict())
+
+
+def _quantities(spec: CellSpec) -> dict[str, str]:
+    table = load_tables()[spec.table]
+    return {col: table.column(col).quantity for col in spec.metrics}
+
+
+# ----------------------------------------------------------------------------- mapping runs
+@dataclass(frozen=True)
+class MappingRun:
+    """One system mapping one sequence (an ``extra/mapping/...`` record)."""
+
+    row: str
+    label: str
+    segmenter: Component | None
+    updater: Component
+    sequence: str
+    voxel_size: float
+
+    @property
+    def key(self) -> str:
+        return f"extra/mapping/{self.row}/{self.sequence}@{self.voxel_size:g}m"
+
+
+def mapping_runs(sequences: list[str], voxel_size: float) -> list[MappingRun]:
+    """Table IV's systems plus the C++ OctoMap reference on each of ``sequences``."""
+    table = load_tables()["table4"]
+    runs = []
+    for seq in sequences:
+        for system in table.rows:
+            if system.implemented and system.updater is not None:
+                runs.append(MappingRun(system.id, system.label,
+                                       system.segmenter_for(MAPPING_WEIGHTS), system.updater,
+                                       seq, voxel_size))
+        runs.append(MappingRun(REFERENCE_ROW, "OctoMap (C++)", None, Component("octomap-cpp"),
+                               seq, voxel_size))
+    return runs
+
+
+def open_mapping_sequence(ctx: RunContext, name: str):
+    from evsmap.registry import READERS
+    from evsmap.runner.context import MAPPING_SEQUENCES
+    from evsmap.synth.sequence import SyntheticSequence
+
+    if name == "synthetic":
+        return SyntheticSequence(**ctx.synthetic)
+    path = ctx.dataset_path(name)
+    if path is None:
+        raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")
+    info = MAPPING_SEQUENCES[name]
+    return READERS.create(info["reader"], path=str(path), **info["options"])
+
+
+def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
+    """Map ``run.sequence`` with ``run``'s system; time each update, add the segmentation time
+    per frame, measure the map file and (on the synthetic sequence) its 3D quality."""
+    from evsmap.registry import UPDATERS
+    from evsmap.runner.segcache import SegmentationCache
+
+    base = {"key": run.key, "table": "extra", "row": run.row, "label": run.label,
+            "kind": "mapping", "metrics": [],
+            "inputs": {"segmenter": run.segmenter.spec if run.segmenter else None,
+                       "updater": run.updater.spec, "sequence": run.sequence,
+                       "voxel_size": run.voxel_size}}
+    semantic = run.segmenter is not None
+    weights = ctx.weights_path(run.segmenter.spec, MAPPING_WEIGHTS) if semantic else None
+    if run.sequence != "synthetic" and ctx.dataset_path(run.sequence) is None:
+        return CellRecord(**base, status="na", needs=[f"dataset:{run.sequence}"],
+                          reason=needs_text([f"dataset:{run.sequence}"]), started=_now())
+    sequence = open_mapping_sequence(ctx, run.sequence)
+    n = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
+    indices = list(range(n))
+    notes: list[str] = []
+    cache = SegmentationCache(Path(ctx.out) / "cache" / "segmentation")
+    observations: list | None = None
+    segment_ms: list[float] = []
+    if semantic:
+        labelled = n > 0 and sequence.frame(0).labels is not None
+        if weights is not None:
+            net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
+            observations, segment_ms, _ = cache.observations(
+                net, sequence, indices, key={"segmenter": run.segmenter.spec,
+                                             "weights": str(weights), "sequence": sequence.name})
+            notes.append(f"labels from {run.segmenter.spec} with weights {weights.name} "
+                         f"(onnxruntime)")
+        elif labelled:
+            from evsmap.registry import SEGMENTERS
+
+            oracle = SEGMENTERS.create("oracle", **ctx.oracle)
+            observations, _, _ = cache.observations(
+                oracle, sequence, indices, key={"segmenter": "oracle", **ctx.oracle,
+                                                "sequence": sequence.name})
+            net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
+            segment_ms, _ = cache.timings(net, sequence, indices, key={
+                "segmenter": run.segmenter.spec, "backend": ctx.speed_backend,
+                "threads": ctx.threads, "sequence": sequence.name})
+            notes.append(f"labels from the oracle segmenter ({_options(ctx.oracle)}: ground "
+                         f"truth with seeded noise), no trained weights; segmentation time of "
+                         f"the untrained {run.segmenter.spec} ({ctx.speed_backend}) on the "
+                         f"same frames")
+        else:
+            need = f"weights:{run.segmenter.spec}@{MAPPING_WEIGHTS}"
+            return CellRecord(**base, status="na", needs=[need],
+                              reason=needs_text([need]) + f" ({run.sequence} has no "
+                              f"ground-truth labels for the oracle)", started=_now())
+    updater = UPDATERS.create(run.updater.name, resolution=run.voxel_size,
+                              **run.updater.config)
+    update_ms = []
+    for k, i in enumerate(indices):
+        frame = sequence.frame(i)
+        obs = observations[k] if observations is not None else None
+        t0 = time.perf_counter()
+        updater.integrate(frame, obs)
+        update_ms.append((time.perf_counter() - t0) * 1000.0)
+    stats = updater.stats()
+    with tempfile.TemporaryDirectory() as tmp:
+        map_bytes = updater.write(Path(tmp) / "map.ot")
+    upd = np.asarray(update_ms)
+    total = upd + (np.asarray(segment_ms) if segment_ms else 0.0)
+    values: dict[str, float] = {
+        "frames": float(n), "update_hz": float(1000.0 / np.median(upd)),
+        "end_to_end_hz": float(1000.0 / np.median(total)), "map_bytes": float(map_bytes),
+        "memory_bytes": float(stats.memory_bytes)}
+    details: dict[str, Any] = {
+        "update_ms": update_ms, "segment_ms": segment_ms, "nodes": stats.nodes,
+        "leaves": stats.leaves, "sequence_name": sequence.name, **values}
+    notes.append(f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians "
+                 f"over frames (update only; end to end = segmentation + update)")
+    if run.sequence == "synthetic" and hasattr(updater, "occupied_labels"):
+        from evsmap.metrics import evaluate_map
+
+        quality = evaluate_map(updater, sequence.ground_truth(run.voxel_size))
+        q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
+        details["quality"] = q
+        for name in ("precision", "recall", "semantic_accuracy", "map_miou"):
+            if q.get(name) is not None and np.isfinite(q[name]):
+                values[name] = float(q[name])
+        _save_map_artifact(updater, run, ctx)
+        if observations is not None:
+            _save_segmentation_artifact(sequence, indices[len(indices) // 2],
+                                        observations[len(indices) // 2], run, ctx,
+                                        "oracle" if weights is None else run.segmenter.spec)
+    return CellRecord(**base, status="ok", values=values, notes=notes, details=details)
+
+
+def _options(config: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v}" for k, v in sorted(config.items())) or "defaults"
+
+
+def _save_map_artifact(updater, run: MappingRun, ctx: RunContext) -> None:
+    from evsmap.mapping.export import occupied_points
+
+    centres, rgb, labels = occupied_points(updater)
+    folder = Path(ctx.out) / "artifacts"
+    folder.mkdir(parents=True, exist_ok=True)
+    n = len(centres)
+    np.savez_compressed(
+        folder / f"map-{run.row}-{run.sequence}.npz", centres=centres.astype(np.float32),
+        labels=labels if labels is not None else np.full(n, -1, dtype=np.int16),
+        colors=rgb if rgb is not None else np.zeros((n, 3), dtype=np.uint8),
+        resolution=np.float64(run.voxel_size))
+
+
+def _save_segmentation_artifact(sequence, index: int, observation, run: MappingRun,
+                                ctx: RunContext, source: str) -> None:
+    folder = Path(ctx.out) / "artifacts"
+    path = folder / f"seg-{source}-{run.sequence}.npz"
+    if path.exists():
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    frame = sequence.frame(index)
+    title = (f"{source} on {sequence.name} frame {index}"
+             + (f" ({_options(ctx.oracle)})" if source == "oracle" else ""))
+    np.savez_compressed(path, rgb=frame.rgb, gt=frame.labels, pred=observation.argmax,
+                        title=np.str_(title))
+
+
+def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) -> CellRecord:
+    """A Table IV cell from the mapping runs: the map size on its sequence, or the end-to-end
+    rate on the first of its sequences the system could map (else the synthetic one)."""
+    base = _base(spec)
+    voxel = spec.voxel_size or ctx.voxel_size
+
+    def run_of(seq: str) -> CellRecord | None:
+        return runs.get(f"extra/mapping/{spec.row}/{seq}@{voxel:g}m")
+
+    quantities = _quantities(spec)
+    values, notes, details = {}, [], {}
+    for col, q in quantities.items():
+        if q == "map_size":
+            source = run_of(spec.datasets[0])
+            if source is None or source.status != "ok":
+                return _from_failed(spec, source)
+            values[col] = source.values["map_bytes"]
+            notes += source.notes
+            details[col] = {"source": source.key}
+        else:  # runtime_hz
+            tried = [run_of(s) for s in spec.datasets]
+            source = next((r for r in tried if r is not None and r.status == "ok"), None)
+            fallback = source is None
+            if fallback:
+                source = run_of("synthetic")
+            if source is None or source.status != "ok":
+                return _from_failed(spec, source)
+            values[col] = source.values["end_to_end_hz"]
+            seq = source.inputs.get("sequence")
+            notes.append(f"end-to-end rate measured on {seq}"
+                         + (" (none of the paper's sequences could be mapped here)"
+                            if fallback else "") + "; " + "; ".join(source.notes))
+            details[col] = {"source": source.key}
+    return CellRecord(**base, status="ok", values=values, notes=notes, details=details,
+                      started=_now())
+
+
+def _from_failed(spec: CellSpec, source: CellRecord | None) -> CellRecord:
+    if source is None:
+        return CellRecord(**_base(spec), status="error", error="its mapping run did not run",
+                          started=_now())
+    return CellRecord(**_base(spec), status=source.status, needs=source.needs,
+                      reason=source.reason, error=source.error, started=_now())
+
+
+# ----------------------------------------------------------------------------- dispatch
+RUNNERS = {"complexity": run_complexity, "speed": run_speed, "accuracy": run_accuracy}
+
+
+def execute_spec(spec: CellSpec, ctx: RunContext) -> CellRecord:
+    """Run one non-mapping cell, turning errors into ``error`` records."""
+    started, t0 = _now(), time.perf_counter()
+    try:
+        record = RUNNERS[spec.kind](spec, ctx)
+    except EvsmapError as exc:
+        record = CellRecord(**_base(spec), status="error", error=str(exc))
+    except Exception as exc:  # a bug: keep the traceback in the record, go on with the run
+        record = CellRecord(**_base(spec), status="error", error=f"{type(exc).__name__}: {exc}",
+                            details={"traceback": traceback.format_exc()})
+    record.started, record.seconds = started, time.perf_counter() - t0
+    record.environment = environment(ctx.threads)
+    return record
+
+
+def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
+    started, t0 = _now(), time.perf_counter()
+    base = {"key": run.key, "table": "extra", "row": run.row, "label": run.label,
+            "kind": "mapping", "metrics": [],
+            "inputs": {"sequence": run.sequence, "voxel_size": run.voxel_size,
+                       "updater": run.updater.spec,
+                       "segmenter": run.segmenter.spec if run.segmenter else None}}
+    try:
+        record = mapping_record(run, ctx)
+    except EvsmapError as exc:
+        record = CellRecord(**base, status="error", error=str(exc))
+    except Exception as exc:
+        record = CellRecord(**base, status="error", error=f"{type(exc).__name__}: {exc}",
+                            details={"traceback": traceback.format_exc()})
+    record.started, record.seconds = started, time.perf_counter() - t0
+    record.environment = environment(ctx.threads)
+    return record

@@ -1,0 +1,161 @@
+"""One record per cell, stored as JSON as soon as the cell finishes.
+
+A record holds what was run (the cell's inputs), what came out (values in base units: parameter
+count, MAC count, frames per second, hertz, bytes, mIoU as a fraction), why a cell could not be
+measured (``status = "na"`` with ``needs``), or the error of a failed cell, and the environment
+it ran in. The report layer formats records; nothing here formats numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from evsmap.errors import DataFormatError
+
+STATUSES = ("ok", "na", "error")
+
+NEEDS_TEXT = {
+    "dataset": "needs the {} dataset",
+    "weights": "needs trained weights ({})",
+    "hardware": "needs {} hardware",
+}
+
+
+def needs_text(needs: list[str] | tuple[str, ...]) -> str:
+    """``"n/a - needs the nyuv2 dataset, needs trained weights (feagnet-v2@nyuv2)"``."""
+    parts = []
+    for need in needs:
+        kind, _, what = need.partition(":")
+        parts.append(NEEDS_TEXT.get(kind, "needs {}").format(what or kind))
+    return "n/a - " + ", ".join(parts) if parts else "n/a"
+
+
+@dataclass
+class CellRecord:
+    """The outcome of one cell.
+
+    Attributes:
+        key: the cell's :attr:`evsmap.tables.CellSpec.key` (``extra/...`` for the measurements
+            beyond the paper's tables).
+        table, row, label, kind: where the cell belongs (``kind``: accuracy, complexity, speed,
+            mapping).
+        metrics: the column ids the cell fills.
+        status: ``ok`` (values measured), ``na`` (cannot be measured here: see ``needs`` and
+            ``reason``) or ``error`` (the run failed: see ``error``).
+        values: column id -> measured value in base units (only for ``ok``).
+        notes: how the values were obtained, one sentence each (the sequence measured on, the
+            labels used, the backend).
+        needs: requirement strings missing here (``dataset:X``, ``weights:S@D``, ``hardware:H``).
+        reason: a one-line explanation for ``na`` cells ("n/a - needs the nyuv2 dataset").
+        error: the error message of a failed cell.
+        details: the full measurement records (speed IQR, per-frame times, map statistics, 3D
+            map quality, ...) as plain JSON.
+        inputs: the cell's configuration (segmenter and updater specs, datasets, sizes).
+        environment: CPU model, threads, library versions, git commit, host.
+        started, seconds: UTC start time (ISO 8601) and wall time.
+    """
+
+    key: str
+    table: str
+    row: str
+    label: str
+    kind: str
+    metrics: list[str]
+    status: str
+    values: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    needs: list[str] = field(default_factory=list)
+    reason: str = ""
+    error: str = ""
+    details: dict[str, Any] = field(default_factory=dict)
+    inputs: dict[str, Any] = field(default_factory=dict)
+    environment: dict[str, Any] = field(default_factory=dict)
+    started: str = ""
+    seconds: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"record {self.key}: status must be one of {STATUSES}, "
+                             f"got {self.status!r}")
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, source: str = "record") -> CellRecord:
+        try:
+            return cls(**data)
+        except (TypeError, ValueError) as exc:
+            raise DataFormatError(f"{source}: not a cell record ({exc})") from None
+
+
+def _file_name(key: str) -> str:
+    """A file name for ``key``: readable, unique (a hash suffix keeps distinct keys apart)."""
+    import hashlib
+
+    safe = re.sub(r"[^A-Za-z0-9_.+=-]+", "_", key).strip("_")[:150]
+    return f"{safe}-{hashlib.sha1(key.encode()).hexdigest()[:10]}.json"
+
+
+class RecordStore:
+    """The records of one run: ``DIR/records/<key>.json``, each written atomically."""
+
+    def __init__(self, root: str | os.PathLike[str]) -> None:
+        self.root = Path(root)
+        self.folder = self.root / "records"
+
+    def path(self, key: str) -> Path:
+        return self.folder / _file_name(key)
+
+    def write(self, record: CellRecord) -> Path:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        target = self.path(record.key)
+        fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=".tmp-", suffix=".json")
+        try:
+            with os.fdopen(fd, "w") as fh:
+                json.dump(record.as_dict(), fh, indent=1, default=_json_default)
+            os.replace(tmp, target)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return target
+
+    def get(self, key: str) -> CellRecord | None:
+        path = self.path(key)
+        if not path.is_file():
+            return None
+        return self._read(path)
+
+    def _read(self, path: Path) -> CellRecord:
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise DataFormatError(f"{path}: unreadable record ({exc})") from None
+        return CellRecord.from_dict(data, source=str(path))
+
+    def __iter__(self) -> Iterator[CellRecord]:
+        if not self.folder.is_dir():
+            return iter(())
+        return (self._read(p) for p in sorted(self.folder.glob("*.json")))
+
+    def all(self) -> list[CellRecord]:
+        return list(self)
+
+
+def _json_default(value: Any) -> Any:
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

@@ -1,0 +1,112 @@
+"""On-disk cache of segmentation outputs and timings, shared by the cells of one run.
+
+* Observations (per-frame top-k classes and probabilities) are computed once per (segmenter
+  configuration, weights file, sequence, frames) and stored as one ``.npz`` per frame, so every
+  updater of Table IV maps the same labels and none pays for segmentation again.
+* Segmentation times (ms per frame) of a network are stored next to them: when no trained weights
+  are given, mapping uses the oracle's labels and the untrained network is only timed (its speed
+  does not depend on its weights), which is what the end-to-end rate needs.
+
+Entries are keyed by a hash of everything that determines them and written atomically (a
+temporary folder renamed into place), so an interrupted run never leaves half an entry.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evsmap.data import SemanticObservation, Sequence
+
+
+def cache_key(**parts: Any) -> str:
+    text = json.dumps(parts, sort_keys=True, default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+class SegmentationCache:
+    """Observations and timings under ``root`` (``<run>/cache/segmentation``)."""
+
+    def __init__(self, root: str | os.PathLike[str]) -> None:
+        self.root = Path(root)
+
+    def _entry(self, kind: str, key: str) -> Path:
+        return self.root / f"{kind}-{key}"
+
+    def _publish(self, tmp: Path, final: Path) -> None:
+        try:
+            os.replace(tmp, final)
+        except OSError:  # another process published the same entry first
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    def observations(self, segmenter, sequence: Sequence, indices: list[int], *,
+                     key: dict[str, Any], progress: Callable | None = None
+                     ) -> tuple[list[SemanticObservation], list[float], bool]:
+        """The observations of ``segmenter`` on ``sequence``'s frames ``indices`` (computed and
+        stored on the first call), the time of each prediction in ms when computed, and whether
+        they came from the cache."""
+        entry = self._entry("obs", cache_key(indices=indices, **key))
+        if (entry / "meta.json").is_file():
+            meta = json.loads((entry / "meta.json").read_text())
+            obs = []
+            for i in range(len(indices)):
+                with np.load(entry / f"{i:05d}.npz") as z:
+                    obs.append(SemanticObservation(classes=z["classes"], probs=z["probs"],
+                                                   num_classes=int(z["num_classes"])))
+            return obs, meta["predict_ms"], True
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=self.root, prefix=".tmp-obs-"))
+        obs, times = [], []
+        try:
+            items = indices if progress is None else progress(indices)
+            for n, i in enumerate(items):
+                frame = sequence.frame(i)
+                t0 = time.perf_counter()
+                o = segmenter.predict(frame)
+                times.append((time.perf_counter() - t0) * 1000.0)
+                np.savez(tmp / f"{n:05d}.npz", classes=o.classes, probs=o.probs,
+                         num_classes=o.num_classes)
+                obs.append(o)
+            (tmp / "meta.json").write_text(json.dumps(
+                {"key": key, "indices": indices, "predict_ms": times}, default=str))
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        self._publish(tmp, entry)
+        return obs, times, False
+
+    def timings(self, segmenter, sequence: Sequence, indices: list[int], *,
+                key: dict[str, Any], warmup: int = 1) -> tuple[list[float], bool]:
+        """ms per ``predict`` of ``segmenter`` on each frame (after ``warmup`` untimed
+        predictions), measured once and stored; and whether they came from the cache."""
+        entry = self._entry("time", cache_key(indices=indices, warmup=warmup, **key))
+        if (entry / "meta.json").is_file():
+            return json.loads((entry / "meta.json").read_text())["predict_ms"], True
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=self.root, prefix=".tmp-time-"))
+        try:
+            frames = [sequence.frame(i) for i in indices]
+            for frame in frames[:warmup]:
+                segmenter.predict(frame)
+            times = []
+            for frame in frames:
+                t0 = time.perf_counter()
+                segmenter.predict(frame)
+                times.append((time.perf_counter() - t0) * 1000.0)
+            (tmp / "meta.json").write_text(json.dumps(
+                {"key": key, "indices": indices, "warmup": warmup, "predict_ms": times},
+                default=str))
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        self._publish(tmp, entry)
+        return times, False

@@ -1,0 +1,200 @@
+"""The matrix runner: planning against what is available, records, resume, configuration
+sharing, Table IV from the mapping runs, and the segmentation cache."""
+
+from __future__ import annotations
+
+from concurrent.futures import Future
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import evsmap.runner.matrix as matrix
+from evsmap.runner.context import RunContext
+from evsmap.runner.execute import MappingRun, table4_record
+from evsmap.runner.records import CellRecord, RecordStore, needs_text
+from evsmap.tables.schema import Component, expand, load_tables
+
+
+class Inline:
+    """An executor that runs each task at once in this process."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def submit(self, fn, *args):
+        fut = Future()
+        fut.set_result(fn(*args))
+        return fut
+
+
+@pytest.fixture
+def ctx(tmp_path):
+    empty = tmp_path / "data"
+    empty.mkdir()
+    c = RunContext.create(tmp_path / "run", data_root=empty, quick=True)
+    return c
+
+
+@pytest.fixture
+def fake(monkeypatch):
+    """Replace the measurements by a counter; a cell whose row is in ``fail`` raises."""
+    calls: list[str] = []
+    fail: set[str] = set()
+
+    def execute_spec(spec, ctx):
+        calls.append(spec.key)
+        if spec.row in fail:
+            return CellRecord(key=spec.key, table=spec.table, row=spec.row, label=spec.label,
+                              kind=spec.kind, metrics=list(spec.metrics), status="error",
+                              error="boom")
+        return CellRecord(key=spec.key, table=spec.table, row=spec.row, label=spec.label,
+                          kind=spec.kind, metrics=list(spec.metrics), status="ok",
+                          values={m: float(len(calls)) for m in spec.metrics})
+
+    monkeypatch.setattr(matrix, "execute_spec", execute_spec)
+    return calls, fail
+
+
+def _run(ctx, plan, **kw):
+    return matrix.run_matrix(ctx, plan, pool=lambda n: Inline(), fresh=Inline, **kw)
+
+
+def test_plan_marks_what_is_missing(ctx):
+    plan = matrix.plan(ctx, ["table1"])
+    by_key = {s.key: s for s in plan.specs}
+    acc = by_key["table1/feagnet-v2/accuracy/nyuv2:test[miou]"]
+    assert acc.needs == ("dataset:nyuv2", "weights:feagnet-v2@nyuv2")
+    assert not by_key["table1/feagnet-v2/complexity@640x480[params,flops]"].needs
+    assert by_key["table1/feagnet-v2-jetson/speed@640x480#jetson-tensorrt[fps]"].needs == (
+        "hardware:jetson-tensorrt",)
+    assert plan.runs == [] and plan.sequences == []
+
+
+def test_weights_and_datasets_are_found(ctx, tmp_path):
+    weights = tmp_path / "w"
+    weights.mkdir()
+    (weights / "feagnet-v2@nyuv2.pt").write_bytes(b"")
+    (weights / "feagnet-v1@sunrgbd.pt").write_bytes(b"")
+    ctx.weights_dir = str(weights)
+    assert ctx.weights_path("feagnet-v2", "nyuv2").name == "feagnet-v2@nyuv2.pt"
+    # options that only adapt the network to the dataset fall back to the plain name
+    assert ctx.weights_path("feagnet-v1(num_classes=37)", "sunrgbd") is not None
+    assert ctx.weights_path("feagnet-v1", "nyuv2") is None
+    assert ctx.available(["weights:feagnet-v2@nyuv2", "dataset:nyuv2",
+                          "hardware:jetson-tensorrt"]) == ["weights:feagnet-v2@nyuv2"]
+
+
+def test_records_na_measured_shared_and_resumed(ctx, fake):
+    calls, fail = fake
+    plan = matrix.plan(ctx, ["table1"])
+    records = _run(ctx, plan)
+    assert [r.key for r in records] == plan.keys
+    by_key = {r.key: r for r in records}
+    na = by_key["table1/feagnet-v2/accuracy/nyuv2:test[miou]"]
+    assert na.status == "na" and not na.values
+    assert na.reason == needs_text(["dataset:nyuv2", "weights:feagnet-v2@nyuv2"])
+    assert "needs the nyuv2 dataset" in na.reason
+    # FEAGNet-V2's complexity is one configuration in two rows: measured once, recorded twice
+    cx = "complexity@640x480[params,flops]"
+    assert sum(k.endswith(cx) and "feagnet-v2" in k for k in calls) == 1
+    a, b = by_key[f"table1/feagnet-v2/{cx}"], by_key[f"table1/feagnet-v2-jetson/{cx}"]
+    assert a.values == b.values and a.status == b.status == "ok"
+    # every record is on disk
+    store = RecordStore(ctx.out)
+    assert {r.key for r in store} == set(plan.keys)
+    # resume: nothing finished runs again; only the n/a cells are reconsidered
+    calls.clear()
+    _run(ctx, plan, resume=True)
+    assert calls == []
+    _run(ctx, plan, resume=True, force=True)
+    assert len(calls) > 0
+
+
+def test_a_failing_cell_is_recorded_and_the_run_goes_on(ctx, fake):
+    calls, fail = fake
+    fail.add("esanet-r34")
+    plan = matrix.plan(ctx, ["table1"])
+    records = {r.key: r for r in _run(ctx, plan)}
+    assert records["table1/esanet-r34/speed@640x480[fps]"].status == "error"
+    assert records["table1/feagnet-v1/speed@640x480[fps]"].status == "ok"
+    # resume retries the failed cells only
+    fail.clear()
+    calls.clear()
+    _run(ctx, plan, resume=True)
+    assert calls and all("esanet-r34" in k for k in calls)
+
+
+def _run_record(row, seq, status="ok", **values):
+    return CellRecord(key=f"extra/mapping/{row}/{seq}@0.05m", table="extra", row=row,
+                      label=row, kind="mapping", metrics=[], status=status,
+                      values=values, notes=[f"{seq} note"], inputs={"sequence": seq},
+                      needs=[] if status == "ok" else ["weights:x@nyuv2"],
+                      reason="" if status == "ok" else "n/a - needs trained weights (x@nyuv2)")
+
+
+def test_table4_cells_come_from_the_mapping_runs(ctx):
+    specs = {s.key: s for s in expand(load_tables()["table4"])}
+    runs = {r.key: r for r in [
+        _run_record("evsmap", "synthetic", end_to_end_hz=7.5, map_bytes=1e6),
+        _run_record("evsmap", "tum", status="na"),
+        _run_record("orgbmap", "tum", end_to_end_hz=30.0, map_bytes=2e5),
+    ]}
+    rate = table4_record(specs["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
+                               "[runtime_hz]"], runs, ctx)
+    assert rate.status == "ok" and rate.values == {"runtime": 7.5}
+    assert "measured on synthetic" in rate.notes[0]
+    size = table4_record(specs["table4/evsmap/mapping/tum@0.05m[map_size]"], runs, ctx)
+    assert size.status == "na" and "needs trained weights" in size.reason
+    orgb = table4_record(specs["table4/orgbmap/mapping/tum@0.05m[map_size]"], runs, ctx)
+    assert orgb.values == {"size_seq1": 2e5}
+    orgb_rate = table4_record(specs["table4/orgbmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
+                                    "[runtime_hz]"], runs, ctx)
+    assert orgb_rate.values == {"runtime": 30.0} and "measured on tum" in orgb_rate.notes[0]
+
+
+def test_segmentation_cache_computes_once(tmp_path):
+    from evsmap.registry import READERS, SEGMENTERS
+    from evsmap.runner.segcache import SegmentationCache
+
+    seq = READERS.create("synthetic", frames=3, width=64, height=48)
+    oracle = SEGMENTERS.create("oracle", seed=3)
+    calls = []
+    predict = oracle.predict
+
+    def counting(frame):
+        calls.append(frame.name)
+        return predict(frame)
+
+    oracle.predict = counting
+    cache = SegmentationCache(tmp_path)
+    first, ms, hit = cache.observations(oracle, seq, [0, 1, 2], key={"s": "oracle"})
+    assert not hit and len(calls) == 3 and len(ms) == 3
+    again, _, hit = cache.observations(oracle, seq, [0, 1, 2], key={"s": "oracle"})
+    assert hit and len(calls) == 3
+    for a, b in zip(first, again, strict=True):
+        assert np.array_equal(a.classes, b.classes) and np.array_equal(a.probs, b.probs)
+    # another key (another segmenter, other frames) is another entry
+    cache.observations(oracle, seq, [0, 1], key={"s": "oracle"})
+    assert len(calls) == 5
+    times, hit = cache.timings(oracle, seq, [0, 1], key={"s": "oracle"}, warmup=1)
+    assert not hit and len(times) == 2
+    assert cache.timings(oracle, seq, [0, 1], key={"s": "oracle"}, warmup=1) == (times, True)
+
+
+def test_mapping_run_on_the_synthetic_sequence(ctx):
+    from evsmap.runner.execute import execute_mapping
+
+    ctx.synthetic.update(frames=3, width=80, height=60)
+    run = MappingRun("evsmap", "EVSMap", Component("oracle"), Component("multiclass-bayes"),
+                     "synthetic", 0.1)
+    # the oracle stands for a network here: its "timing" is the oracle's own
+    rec = execute_mapping(run, ctx)
+    assert rec.status == "ok", rec.error
+    assert rec.values["frames"] == 3 and rec.values["map_bytes"] > 0
+    assert 0.5 < rec.values["precision"] <= 1.0
+    assert (Path(ctx.out) / "artifacts" / "map-evsmap-synthetic.npz").is_file()
+    assert rec.environment["cpu"]
