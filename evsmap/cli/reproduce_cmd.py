@@ -1,174 +1,128 @@
-"""``evsmap reproduce``: the main job. This version renders and summarises the built-in synthetic
-sequence (and the real TUM sample frames when the data root has them); the paper's tables are
-added by the matrix runner."""
+"""``evsmap reproduce``: the main job. Expands the paper's Tables I-IV into cells, measures every
+cell that can be measured on this machine (the rest say what they need), stores one record per
+cell and writes the report folder: one Markdown and one CSV file per table with the paper's value
+beside each measured one, an index and plots."""
 
 from __future__ import annotations
 
 import argparse
-import json
-import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-import numpy as np
-
-from evsmap.classes import NYU40_CLASSES, colorize
-from evsmap.cli.main import _version
-from evsmap.cli.options import nonnegative_int, positive_int
-from evsmap.data import Frame, Sequence
-from evsmap.environment import describe
+from evsmap.cli.options import positive_int
 from evsmap.errors import EvsmapError
-from evsmap.paths import default_data_root
-from evsmap.progress import progress
-from evsmap.readers.tum import TumSequence
-from evsmap.summary import summarize_sequence
-from evsmap.synth.scene import DEFAULT_SCENE, SCENES
-from evsmap.synth.sequence import SyntheticSequence
+
+TABLE_NAMES = {"I": "table1", "II": "table2", "III": "table3", "IV": "table4"}
+
+
+def _tables(text: str) -> list[str]:
+    out = []
+    for part in text.split(","):
+        name = part.strip().upper()
+        if name not in TABLE_NAMES:
+            raise argparse.ArgumentTypeError(
+                f"unknown table {part.strip()!r} (choose from {', '.join(TABLE_NAMES)})")
+        if TABLE_NAMES[name] not in out:
+            out.append(TABLE_NAMES[name])
+    return out
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "reproduce", help="run the reproduction and write a report folder",
-        description="Render and summarise the built-in synthetic sequence (and the real TUM "
-                    "sample when the data root holds it) into reports/<run>/: summary.md, "
-                    "summary.json and frames.png.")
+        "reproduce", help="measure the paper's Tables I-IV and write a report folder",
+        description="Measure every cell of the paper's Tables I-IV that this machine can "
+                    "measure (parameters, FLOPs and CPU speed of every network; mapping rate "
+                    "and map size of every system on the built-in synthetic sequence and the "
+                    "real TUM sample; mIoU where prepared datasets and trained weights are "
+                    "given) and write reports/<run>/ with the paper's value beside every "
+                    "measured one. Cells that cannot be measured say what they need.")
+    p.add_argument("--tables", type=_tables, default=list(TABLE_NAMES.values()),
+                   metavar="LIST", help="tables to reproduce, e.g. I,IV (default I,II,III,IV)")
     p.add_argument("--out", type=Path, metavar="DIR",
-                   help="report folder (default reports/<UTC date-time>)")
-    p.add_argument("--scene", default=DEFAULT_SCENE, metavar="NAME",
-                   help=f"synthetic room ({', '.join(sorted(SCENES))}; default {DEFAULT_SCENE})")
-    p.add_argument("--seed", type=nonnegative_int, default=0, metavar="S", help="seed (default 0)")
-    p.add_argument("--frames", type=positive_int, default=60, metavar="N",
-                   help="synthetic frames (default 60)")
-    p.add_argument("--quick", action="store_true",
-                   help="smoke test: 10 frames at 320x240")
+                   help="run folder (default reports/<UTC date-time>)")
     p.add_argument("--data-root", type=Path, metavar="DIR",
-                   help="real data root (default $EVSMAP_DATA_ROOT or ../shared/data)")
+                   help="where prepared datasets (nyuv2/, sunrgbd/, cityscapes/) and mapping "
+                        "sequences (tum_fr1_xyz/, rtabmap.bag, asl.bag, ours1.bag, ours2.bag) "
+                        "are found (default $EVSMAP_DATA_ROOT or ../shared/data; datasets/ is "
+                        "always searched too)")
+    p.add_argument("--weights-dir", type=Path, metavar="DIR",
+                   help="trained weights named <segmenter>@<dataset>.pt, e.g. "
+                        "feagnet-v2@nyuv2.pt")
+    p.add_argument("--quick", action="store_true",
+                   help="smoke test (under 3 minutes): 8 frames at 320x240, 3 timed runs with "
+                        "torch, speed cells above 1024x512 skipped")
+    p.add_argument("--workers", type=positive_int, default=2, metavar="N",
+                   help="processes for the cells that are not timed (default 2); timed cells "
+                        "always run alone, each in a fresh process")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out: keep its finished cells, run the rest")
+    p.add_argument("--force", action="store_true",
+                   help="with --resume: run every cell again")
     p.set_defaults(run=run)
 
 
-class _Timed(Sequence):
-    """``seq`` whose frames are timed as they are rendered; the frames listed in ``keep`` are
-    kept."""
-
-    def __init__(self, seq: Sequence, times: list[float], keep: dict[int, Frame]) -> None:
-        super().__init__(seq.name, seq.intrinsics, seq.meta)
-        self.seq, self.times, self.keep = seq, times, keep
-
-    def __len__(self) -> int:
-        return len(self.seq)
-
-    def frame(self, index: int) -> Frame:
-        t0 = time.perf_counter()
-        frame = self.seq.frame(index)
-        self.times.append(time.perf_counter() - t0)
-        if index in self.keep:
-            self.keep[index] = frame
-        return frame
-
-
 def run(args: argparse.Namespace) -> int:
+    import json
+
+    from evsmap.progress import progress
+    from evsmap.report.build import build_report
+    from evsmap.runner.context import RunContext
+    from evsmap.runner.execute import environment
+    from evsmap.runner.matrix import plan, run_matrix, write_run_file
+
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("reports") / stamp
-    if out.exists() and any(out.iterdir()):
-        raise EvsmapError(f"--out {out}: folder exists and is not empty")
-    width, height, frames = (320, 240, 10) if args.quick else (640, 480, args.frames)
-    seq = SyntheticSequence(scene=args.scene, seed=args.seed, frames=frames, width=width,
-                            height=height, noise=True)
-    times: list[float] = []
-    shown: dict[int, Frame] = dict.fromkeys(sorted({0, len(seq) // 3, (2 * len(seq)) // 3}))
-    synth = summarize_sequence(_Timed(seq, times, shown), progress=lambda f: progress(
-        f, total=len(seq), desc="rendering"))
-    synth["render_ms_median"] = float(np.median(times) * 1e3)
-    synth["render_ms_iqr"] = float(np.subtract(*np.percentile(times, [75, 25])) * 1e3)
-    gt = {}
-    for res in (0.05, 0.02):
-        t0 = time.perf_counter()
-        vox = seq.ground_truth(res)
-        classes = np.bincount(vox.labels, minlength=len(NYU40_CLASSES))
-        gt[f"{res:g}"] = {"occupied_voxels": len(vox), "seconds": time.perf_counter() - t0,
-                          "classes": int((classes > 0).sum())}
-    synth["ground_truth_voxels"] = gt
-
-    real = None
-    root = args.data_root or default_data_root()
-    tum_dir = root / "tum_fr1_xyz" if root else None
-    if tum_dir is not None and tum_dir.is_dir():
-        tum = TumSequence(path=tum_dir)
-        real = summarize_sequence(tum, progress=lambda f: progress(f, total=len(tum), desc="TUM"))
-
+    if args.force and not args.resume:
+        raise EvsmapError("--force only applies with --resume (a new run measures everything)")
+    if args.resume:
+        if not (out / "run.json").is_file():
+            raise EvsmapError(f"--resume: {out} holds no run (run.json missing)")
+        try:
+            previous = json.loads((out / "run.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise EvsmapError(f"--resume: {out / 'run.json'} is unreadable ({exc})") from None
+        stamp = previous.get("run", stamp)
+    elif out.exists() and any(out.iterdir()):
+        raise EvsmapError(f"--out {out}: folder exists and is not empty (use --resume to "
+                          f"continue a run there)")
+    if args.weights_dir is not None and not args.weights_dir.is_dir():
+        raise EvsmapError(f"--weights-dir {args.weights_dir}: no such folder")
+    if args.data_root is not None and not args.data_root.is_dir():
+        raise EvsmapError(f"--data-root {args.data_root}: no such folder")
     out.mkdir(parents=True, exist_ok=True)
-    _contact_sheet(shown, out / "frames.png")
-    record = {
-        "run": stamp, "evsmap_version": _version(), **describe(),
-        "synthetic": synth, "tum_fr1_xyz": real,
-        "data_root": str(root) if root else None,
-    }
-    (out / "summary.json").write_text(json.dumps(record, indent=2) + "\n")
-    (out / "summary.md").write_text(_markdown(record))
-    print(f"report written to {out}/ (summary.md, summary.json, frames.png)")
-    return 0
 
+    ctx = RunContext.create(out, data_root=args.data_root, weights_dir=args.weights_dir,
+                            quick=args.quick)
+    the_plan = plan(ctx, args.tables)
+    started = datetime.now(UTC).isoformat(timespec="seconds")
+    env = environment(ctx.threads)
+    sequences = {"synthetic": {**ctx.synthetic, "labels": "ground truth (oracle segmenter)"}}
+    for name in the_plan.sequences:
+        if name != "synthetic":
+            sequences[name] = {"path": str(ctx.dataset_path(name)), "frames": ctx.frames}
+    fields = dict(run=stamp, started=started, finished=None, tables=args.tables,
+                  environment=env, sequences=sequences)
+    write_run_file(ctx, the_plan, out / "run.json", **fields)
 
-def _contact_sheet(frames: dict[int, Frame], path: Path) -> None:
-    import matplotlib
+    total = len(the_plan.keys)
+    bar = progress(range(total), total=total, desc="cells", unit="cell")
+    counts = {"ok": 0, "na": 0, "error": 0}
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    def tick(record) -> None:
+        counts[record.status] += 1
+        next(bar, None)
 
-    fig, axes = plt.subplots(len(frames), 3, figsize=(12, 3.1 * len(frames)), squeeze=False)
-    for row, (i, f) in enumerate(sorted(frames.items())):
-        for ax, img, title in zip(
-            axes[row], (f.rgb, f.depth, colorize(f.labels)),
-            (f"RGB frame {i}", "depth (m)", "labels (NYUv2-40)"), strict=True,
-        ):
-            shown = ax.imshow(img, cmap="viridis" if img.ndim == 2 else None)
-            ax.set_title(title, fontsize=9)
-            ax.axis("off")
-            if img.ndim == 2:
-                fig.colorbar(shown, ax=ax, fraction=0.035)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-
-
-def _markdown(r: dict) -> str:
-    s = r["synthetic"]
-    d = s["depth"]
-    lines = [
-        f"# evsmap reproduce - run {r['run']}", "",
-        f"evsmap {r['evsmap_version']}, Python {r['python']}, {r['cpu']} ({r['cpus']} CPUs). "
-        "Every number below was measured in this run.", "",
-        "## Built-in synthetic sequence", "",
-        f"Scene `{s['scene']}`, seed {s['seed']}, {s['frames']} frames at "
-        f"{s['width']}x{s['height']}, Kinect-like depth noise.", "",
-        "| quantity | value |", "|---|---|",
-        f"| render time per frame (median, IQR) | {s['render_ms_median']:.1f} ms "
-        f"({s['render_ms_iqr']:.1f} ms) |",
-        f"| depth range (1-99 %) | {d['p01_m']:.2f} - {d['p99_m']:.2f} m |",
-        f"| valid depth pixels | {100 * d['valid_fraction']:.1f} % |",
-        f"| camera path | {s['poses']['path_length_m']:.2f} m over "
-        f"{s['poses']['duration_s']:.2f} s |",
-        f"| label classes seen | {s['labels']['classes_present']} |",
-    ]
-    for res, g in s["ground_truth_voxels"].items():
-        lines.append(f"| ground-truth occupied voxels at {float(res) * 100:g} cm | "
-                     f"{g['occupied_voxels']:,} ({g['classes']} classes) |")
-    lines += ["", "Classes seen (share of labelled pixels):", ""]
-    lines += [f"- {c['name']}: {100 * c['fraction']:.1f} %"
-              for c in sorted(s["labels"]["classes"], key=lambda c: -c["fraction"])]
-    lines += ["", "![frames](frames.png)", ""]
-    t = r["tum_fr1_xyz"]
-    lines += ["## Real TUM RGB-D sample (freiburg1_xyz)", ""]
-    if t is None:
-        lines += ["n/a - needs `tum_fr1_xyz` under the data root (`--data-root`).", ""]
-    else:
-        td = t["depth"]
-        lines += [
-            "| quantity | value |", "|---|---|",
-            f"| associated frames | {t['frames']} (dropped: {t.get('dropped')}) |",
-            f"| depth range (1-99 %) | {td['p01_m']:.2f} - {td['p99_m']:.2f} m |",
-            f"| camera path | {t['poses']['path_length_m']:.3f} m over "
-            f"{t['poses']['duration_s']:.2f} s |", "",
-        ]
-    lines += ["The paper's Tables I-IV are not part of this report yet.", ""]
-    return "\n".join(lines)
+    records = run_matrix(ctx, the_plan, workers=args.workers, resume=args.resume,
+                         force=args.force, on_record=tick)
+    fields["finished"] = datetime.now(UTC).isoformat(timespec="seconds")
+    write_run_file(ctx, the_plan, out / "run.json", **fields)
+    written = build_report(out)
+    ok = sum(r.status == "ok" for r in records)
+    na = sum(r.status == "na" for r in records)
+    err = [r for r in records if r.status == "error"]
+    print(f"{len(records)} cells: {ok} measured, {na} n/a (need data, weights or a Jetson), "
+          f"{len(err)} failed")
+    for r in err[:10]:
+        print(f"  failed: {r.key}: {r.error}")
+    print(f"report written to {out}/ ({', '.join(p.name for p in written[:6])}, ...)")
+    return 1 if err else 0

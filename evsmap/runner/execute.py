@@ -395,6 +395,7 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
                 return _from_failed(spec, source)
             values[col] = source.values["end_to_end_hz"]
             seq = source.inputs.get("sequence")
+            base["inputs"]["sequence"] = seq
             notes.append(f"end-to-end rate measured on {seq}"
                          + (" (none of the paper's sequences could be mapped here)"
                             if fallback else "") + "; " + "; ".join(source.notes))

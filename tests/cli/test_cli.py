@@ -117,16 +117,35 @@ def test_every_command_has_help():
         assert proc.returncode == 0 and "usage: evsmap " + cmd in proc.stdout
 
 
-def test_reproduce_quick(capsys, tmp_path, data_root):
+def test_reproduce_quick_table_iv_then_resume_and_report(capsys, tmp_path, data_root):
     out_dir = tmp_path / "report"
-    code, out, _ = run(capsys, "reproduce", "--quick", "--out", str(out_dir),
-                       "--data-root", str(data_root))
+    code, out, err = run(capsys, "reproduce", "--quick", "--tables", "IV", "--out",
+                         str(out_dir), "--data-root", str(data_root))
+    assert code == 0, err
+    assert "0 failed" in out
+    run_file = json.loads((out_dir / "run.json").read_text())
+    assert run_file["finished"] and run_file["tables"] == ["table4"]
+    assert set(run_file["sequences"]) == {"synthetic", "tum"}
+    md = (out_dir / "table4.md").read_text()
+    assert "| ORGBMap" in md and "/ 3.54 (" in md  # ORGBMap's TUM map measured beside the paper
+    assert "n/a / 24.96" in md  # Seq.2 needs the RTAB-Map bag
+    assert "## Measured beyond the paper" in md
+    records = list((out_dir / "records").glob("*.json"))
+    assert len(records) == len(run_file["cells"])
+    for name in ("index.md", "table4.csv", "mapping.png", "qualitative.png"):
+        assert (out_dir / name).stat().st_size > 100
+    # a second run into the same folder is refused; --resume reruns nothing that finished
+    code, _, err = run(capsys, "reproduce", "--quick", "--tables", "IV", "--out", str(out_dir))
+    assert code == 2 and "--resume" in err
+    before = {p.name: p.stat().st_mtime_ns for p in (out_dir / "records").glob("*.json")}
+    ok = [p.name for p in (out_dir / "records").glob("*.json")
+          if json.loads(p.read_text())["status"] == "ok"]
+    code, out, _ = run(capsys, "reproduce", "--quick", "--tables", "IV", "--out", str(out_dir),
+                       "--data-root", str(data_root), "--resume")
     assert code == 0
-    summary = json.loads((out_dir / "summary.json").read_text())
-    assert summary["synthetic"]["frames"] == 10
-    assert summary["synthetic"]["render_ms_median"] > 0
-    assert summary["synthetic"]["ground_truth_voxels"]["0.05"]["occupied_voxels"] > 1000
-    assert summary["tum_fr1_xyz"]["frames"] == 36
-    md = (out_dir / "summary.md").read_text()
-    assert "Built-in synthetic sequence" in md and "freiburg1_xyz" in md
-    assert (out_dir / "frames.png").stat().st_size > 10_000
+    after = {p.name: p.stat().st_mtime_ns for p in (out_dir / "records").glob("*.json")}
+    assert all(before[n] == after[n] for n in ok)
+    # the report is rebuilt from the records alone
+    (out_dir / "table4.md").unlink()
+    code, out, _ = run(capsys, "report", str(out_dir))
+    assert code == 0 and (out_dir / "table4.md").read_text() == md

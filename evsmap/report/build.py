@@ -1,0 +1,289 @@
+"""Build a run folder's report from what the runner stored (no measuring).
+
+Reads ``DIR/run.json`` and ``DIR/records/*.json`` and writes into ``DIR``:
+
+* ``tableN.md`` / ``tableN.csv`` per table of the run (see :mod:`evsmap.report.tables`),
+  ``extra.csv`` with the measurements beyond the paper;
+* ``networks.png``, ``mapping.png``, ``qualitative.png`` where there is data for them (see
+  :mod:`evsmap.report.plots`);
+* ``index.md``: the run, its environment, what was available, cell counts per table and links.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from evsmap.errors import DataFormatError
+from evsmap.report import plots
+from evsmap.report.tables import (
+    STATUSES,
+    extra_frame,
+    extra_records,
+    table_frame,
+    table_markdown,
+)
+from evsmap.runner.records import CellRecord
+from evsmap.tables.schema import PaperTable, expand_all, load_tables
+
+RUN_FILE = "run.json"
+PLOTS = {
+    "networks.png": "speed against parameters and FLOPs (Tables I and II)",
+    "mapping.png": "mapping rate and map size per sequence and system",
+    "qualitative.png": "segmentation overlays and top-down semantic maps",
+}
+_NO_DATA = {
+    "networks.png": "no network of Table I or II has a measured speed and complexity",
+    "mapping.png": "no mapping system was measured",
+    "qualitative.png": "the run stored no segmentation or map artifacts",
+}
+
+
+# ------------------------------------------------------------------------------- reading
+def read_run(run_dir: str | Path) -> dict[str, Any]:
+    """``DIR/run.json`` as a dict.
+
+    Raises:
+        DataFormatError: the folder or the file is missing, or the file is not a JSON object.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise DataFormatError(f"{run_dir}: no such run folder")
+    path = run_dir / RUN_FILE
+    if not path.is_file():
+        raise DataFormatError(f"{path}: missing (not a run folder of 'evsmap reproduce')")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DataFormatError(f"{path}: unreadable run description ({exc})") from None
+    if not isinstance(data, dict):
+        raise DataFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    for key, kind in (("tables", list), ("available", list), ("cells", list),
+                      ("environment", dict), ("sequences", dict)):
+        if data.get(key) is not None and not isinstance(data[key], kind):
+            raise DataFormatError(f"{path}: {key!r} must be a JSON {kind.__name__}")
+    return data
+
+
+def read_records(run_dir: str | Path) -> list[CellRecord]:
+    """Every ``DIR/records/*.json``, in file-name order.
+
+    Raises:
+        DataFormatError: a record is not JSON, not a cell record, or holds a value that is not
+            a number; the message names the file.
+    """
+    folder = Path(run_dir) / "records"
+    if not folder.is_dir():
+        return []
+    out = []
+    for path in sorted(folder.glob("*.json")):
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise DataFormatError(f"{path}: unreadable record ({exc})") from None
+        if not isinstance(data, dict):
+            raise DataFormatError(f"{path}: not a cell record (a JSON {type(data).__name__})")
+        rec = CellRecord.from_dict(data, source=str(path))
+        _check_record(rec, path)
+        out.append(rec)
+    return out
+
+
+def _check_record(rec: CellRecord, path: Path) -> None:
+    if not isinstance(rec.key, str) or not rec.key:
+        raise DataFormatError(f"{path}: not a cell record (no key)")
+    for name, kind in (("values", dict), ("details", dict), ("inputs", dict),
+                       ("environment", dict), ("metrics", list), ("notes", list),
+                       ("needs", list)):
+        if not isinstance(getattr(rec, name), kind):
+            raise DataFormatError(f"{path}: record {rec.key!r}: {name!r} must be a JSON "
+                                  f"{kind.__name__}")
+    for cid, value in rec.values.items():
+        if (value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                   or not math.isfinite(value))):
+            raise DataFormatError(f"{path}: record {rec.key!r}: value {cid!r} is not a finite "
+                                  f"number ({value!r})")
+
+
+# ------------------------------------------------------------------------------- building
+def build_report(run_dir: str | Path) -> list[Path]:
+    """Write the report files of ``run_dir`` from its stored records; returns the files written
+    (index.md last).
+
+    Raises:
+        DataFormatError: ``run.json`` or a record is missing or corrupt (the message names the
+            file).
+    """
+    run_dir = Path(run_dir)
+    run = read_run(run_dir)
+    records = read_records(run_dir)
+    by_key = {r.key: r for r in records}
+    tables = load_tables()
+    available = [str(a) for a in run.get("available") or []]
+    specs = expand_all(tables, available=available)
+    table_ids = [t for t in (run.get("tables") or []) if t in tables]
+    table_ids += sorted({r.table for r in records if r.table in tables} - set(table_ids))
+    if not table_ids:
+        table_ids = sorted(tables)
+    extras = extra_records(records)
+
+    written: list[Path] = []
+    frames: dict[str, pd.DataFrame] = {}
+    for tid in table_ids:
+        table = tables[tid]
+        frame = table_frame(table, by_key, specs)
+        frames[tid] = frame
+        md = table_markdown(table, by_key, specs, frame=frame,
+                            extras=extras if tid == "table4" else None)
+        written.append(_write(run_dir / f"{tid}.md", md))
+        written.append(_write_csv(run_dir / f"{tid}.csv", frame))
+    extra_path = run_dir / "extra.csv"
+    if extras:
+        written.append(_write_csv(extra_path, extra_frame(extras)))
+    else:
+        extra_path.unlink(missing_ok=True)
+
+    labels = _map_labels(tables, records)
+    drawn: dict[str, bool] = {}
+    for name, draw in (
+        ("networks.png", lambda p: plots.networks_plot(frames, p)),
+        ("mapping.png", lambda p: plots.mapping_plot(records, p, tables)),
+        ("qualitative.png", lambda p: plots.qualitative_plot(run_dir / "artifacts", p, labels)),
+    ):
+        path = run_dir / name
+        drawn[name] = draw(path)
+        if drawn[name]:
+            written.append(path)
+        else:
+            path.unlink(missing_ok=True)  # a stale figure from an earlier build
+
+    index = index_markdown(run, tables, table_ids, frames, extras, drawn,
+                           has_extra_csv=bool(extras))
+    written.append(_write(run_dir / "index.md", index))
+    return written
+
+
+def _write(path: Path, text: str) -> Path:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    return path
+
+
+def _write_csv(path: Path, frame: pd.DataFrame) -> Path:
+    return _write(path, frame.to_csv(index=False))
+
+
+def _map_labels(tables: Mapping[str, PaperTable], records: list[CellRecord]) -> dict[str, str]:
+    labels = {"octomap-cpp": "OctoMap (C++)"}
+    if "table4" in tables:
+        labels.update({r.id: r.label for r in tables["table4"].rows})
+    for rec in records:
+        if rec.key.startswith("extra/") and rec.label:
+            labels.setdefault(rec.row, rec.label)
+    return labels
+
+
+# ------------------------------------------------------------------------------- index
+def _md(text: Any) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
+                   table_ids: list[str], frames: Mapping[str, pd.DataFrame],
+                   extras: list[CellRecord], drawn: Mapping[str, bool], *,
+                   has_extra_csv: bool) -> str:
+    """The run's ``index.md``."""
+    run_id = run.get("run") or "unknown"
+    out = [f"# evsmap report - run {run_id}", ""]
+    finished = run.get("finished") or "not finished (interrupted, or still running)"
+    out += [f"- Started: {run.get('started') or 'unknown'}", f"- Finished: {finished}"]
+    if run.get("quick"):
+        out.append("- Quick run (`--quick`): smaller inputs and fewer frames than the paper's "
+                   "settings")
+    out.append(f"- Data root: `{run['data_root']}`" if run.get("data_root")
+               else "- Data root: none")
+    out.append(f"- Weights folder: `{run['weights_dir']}`" if run.get("weights_dir")
+               else "- Weights folder: none (networks run with untrained weights where a cell "
+                    "allows it; accuracy cells need trained weights)")
+    out.append("")
+
+    env = run.get("environment") or {}
+    if env:
+        out += ["## Environment", "", "| | |", "|---|---|"]
+        for key, name in (("cpu", "CPU"), ("cpus", "CPU cores"), ("threads", "threads"),
+                          ("python", "Python"), ("host", "host"), ("git_commit", "git commit")):
+            if env.get(key) not in (None, ""):
+                out.append(f"| {name} | {_md(env[key])} |")
+        versions = env.get("versions") or {}
+        if isinstance(versions, Mapping):
+            for lib, version in versions.items():
+                out.append(f"| {_md(lib)} | {_md(version if version else 'not installed')} |")
+        for key, value in env.items():
+            if key not in ("cpu", "cpus", "threads", "python", "host", "git_commit", "versions"):
+                out.append(f"| {_md(key)} | {_md(value)} |")
+        out.append("")
+
+    out += ["## Available", ""]
+    available = run.get("available") or []
+    out += ([f"- `{a}`" for a in available] if available
+            else ["Nothing beyond evsmap itself (no dataset, no trained weights, no special "
+                  "hardware)."])
+    out.append("")
+    sequences = run.get("sequences") or {}
+    if sequences:
+        out += ["Mapping sequences:", "", "| sequence | frames | size | scene | labels |",
+                "|---|---:|---|---|---|"]
+        for name, s in sequences.items():
+            s = s if isinstance(s, Mapping) else {}
+            size = (f"{s['width']}x{s['height']}" if s.get("width") and s.get("height")
+                    else "-")
+            out.append(f"| {_md(name)} | {_md(s.get('frames', '-'))} | {size} | "
+                       f"{_md(s.get('scene') or '-')} | {_md(s.get('labels') or '-')} |")
+        out.append("")
+
+    out += ["## Tables", "",
+            "| table | " + " | ".join(STATUSES) + " | files |",
+            "|---|" + "---:|" * len(STATUSES) + "---|"]
+    for tid in table_ids:
+        counts = frames[tid]["status"].value_counts()
+        table = tables[tid]
+        cells = " | ".join(str(int(counts.get(s, 0))) for s in STATUSES)
+        out.append(f"| Table {table.number}: {_md(table.title)} | {cells} | "
+                   f"[{tid}.md]({tid}.md), [{tid}.csv]({tid}.csv) |")
+    out += ["", "Cells: `ok` measured; `n/a` cannot be measured here (the table's notes say what "
+            "is missing); `error` the run failed; `not run` no record (the run was interrupted "
+            "or did not include the cell); `no value` a record without that value; `paper "
+            "only` a row evsmap does not implement.", ""]
+    if extras:
+        n = {s: sum(1 for r in extras if r.status == s) for s in ("ok", "na", "error")}
+        out += [f"Measurements beyond the paper: {n['ok']} ok, {n['na']} n/a, {n['error']} "
+                "error, in [table4.md](table4.md) (\"Measured beyond the paper\")"
+                + (" and [extra.csv](extra.csv)." if has_extra_csv else "."), ""]
+
+    out += ["## Figures", ""]
+    for name, what in PLOTS.items():
+        if drawn.get(name):
+            out.append(f"- [{name}]({name}): {what}")
+        else:
+            out.append(f"- {name}: skipped, {_NO_DATA[name]}")
+    out.append("")
+    for name in PLOTS:
+        if drawn.get(name):
+            out += [f"![{PLOTS[name]}]({name})", ""]
+
+    out += ["## Filling the n/a cells", "",
+            "An `n/a` cell names what it needs. Datasets: prepare them with "
+            "`evsmap datasets prepare` under the data root (or give `--data-root DIR`). "
+            "Trained weights: give `--weights-dir DIR` with one file per network and dataset "
+            "named `<segmenter>@<dataset>.pt` (the segmenter spec as the note prints it, e.g. "
+            "`feagnet-v2@nyuv2.pt`). The starred Jetson cells (TensorRT speeds) need a Jetson "
+            "AGX Xavier with TensorRT; they stay n/a on any other machine. Then run "
+            "`evsmap reproduce` again, and `evsmap report DIR` to rebuild these files from the "
+            "stored records.", ""]
+    return "\n".join(out).rstrip() + "\n"

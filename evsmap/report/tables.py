@@ -1,0 +1,397 @@
+"""The paper's tables with the measured values beside the printed ones.
+
+:func:`table_frame` joins a :class:`~evsmap.tables.PaperTable` with the run's
+:class:`~evsmap.runner.records.CellRecord` s into a long frame (one line per row and measured
+column); :func:`table_markdown` prints the table as the paper lays it out, every cell
+``measured / paper (ratio)``, with numbered footnotes. :func:`extra_frame` and
+:func:`extra_markdown` do the same for the measurements beyond the paper (``extra/...`` records).
+
+Every number shown as measured comes from a record's ``values``; nothing is derived or filled in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import pandas as pd
+
+from evsmap.runner.records import CellRecord, needs_text
+from evsmap.tables.schema import CellSpec, Column, PaperTable, expand
+
+FRAME_COLUMNS = ("table", "row", "label", "column", "header", "unit", "measured", "paper",
+                 "ratio", "status", "note")
+"""Columns of :func:`table_frame`."""
+
+STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
+"""Cell statuses in a frame: measured; cannot be measured here (``note`` says what is
+missing); the run failed; no record; a record without a value for the column; a row evsmap does
+not implement."""
+
+EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "memory_bytes", "precision", "recall",
+                "semantic_accuracy", "map_miou", "frames")
+"""Value keys of the ``extra`` mapping records (base units)."""
+
+EXTRA_COLUMNS = ("key", "row", "label", "sequence", "voxel_size", "status", *EXTRA_VALUES,
+                 "note")
+"""Columns of :func:`extra_frame` (values in base units: Hz, bytes, fractions)."""
+
+# (value key, header, divisor to printed unit, decimals)
+_EXTRA_PRINT = (
+    ("update_hz", "Update (Hz)", 1.0, 1),
+    ("end_to_end_hz", "End-to-end (Hz)", 1.0, 1),
+    ("map_bytes", "Map size (MB)", 1e6, 2),
+    ("memory_bytes", "Memory (MB)", 1e6, 1),
+    ("precision", "Occupancy precision (%)", 0.01, 1),
+    ("recall", "Occupancy recall (%)", 0.01, 1),
+    ("semantic_accuracy", "Semantic accuracy (%)", 0.01, 1),
+    ("map_miou", "Map mIoU (%)", 0.01, 1),
+)
+
+
+# ------------------------------------------------------------------------------- helpers
+def _number(value: Any) -> float | None:
+    """``value`` as a finite float, else ``None`` (bools are not numbers here)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def format_number(value: float, decimals: int | None) -> str:
+    """``value`` with ``decimals`` digits after the point (2 when unknown), widened until it
+    shows at least three significant digits (a measurement is shown one digit finer than the
+    paper prints): ``format_number(4.278, 1) == "4.28"``, ``format_number(0.0123, 1) ==
+    "0.0123"``, ``format_number(5, 0) == "5.00"``, ``format_number(143.2, 0) == "143"``."""
+    d = 2 if decimals is None else max(0, decimals)
+    if value != 0 and math.isfinite(value):
+        d = max(d, 2 - math.floor(math.log10(abs(value))))
+    return f"{value:.{d}f}"
+
+
+def format_ratio(ratio: float) -> str:
+    """``0.95x``; two significant digits below 0.1."""
+    if ratio != 0 and abs(ratio) < 0.1:
+        return f"{ratio:.2g}x"
+    return f"{ratio:.2f}x"
+
+
+def header_with_unit(col: Column) -> str:
+    """The printed header, with the unit added when the header does not show it."""
+    if not col.unit or col.header == col.unit or f"({col.unit})" in col.header:
+        return col.header
+    return f"{col.header} ({col.unit})"
+
+
+def _row_label(system) -> str:
+    return f"{system.label} ({system.year})" if system.year else system.label
+
+
+def _md_escape(text: str) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def _sequence_note(record: CellRecord) -> str | None:
+    seq = record.inputs.get("sequence") if isinstance(record.inputs, dict) else None
+    if not seq:
+        return None
+    if any(str(seq) in n for n in record.notes):
+        return None
+    return f"measured on sequence '{seq}'"
+
+
+def record_note(record: CellRecord, *, sequence: bool = True) -> str:
+    """What a cell's note says about its record: the reason of an ``na`` record, the error of a
+    failed one, the notes of an ``ok`` one (with the sequence it was measured on, from
+    ``inputs["sequence"]``, unless ``sequence`` is false or the notes name it)."""
+    if record.status == "na":
+        return record.reason or needs_text(record.needs)
+    if record.status == "error":
+        return f"error: {record.error or 'unknown error'}"
+    notes = [str(n) for n in record.notes if str(n).strip()]
+    seq = _sequence_note(record) if sequence else None
+    if seq:
+        notes.append(seq)
+    return "; ".join(notes)
+
+
+def _cell_index(table: PaperTable, records: Mapping[str, CellRecord],
+                specs: Iterable[CellSpec] | None) -> dict[tuple[str, str], CellRecord | None]:
+    """(row, column) -> the record that fills it (``None``: expected but not run)."""
+    specs = expand(table) if specs is None else [s for s in specs if s.table == table.id]
+    out: dict[tuple[str, str], CellRecord | None] = {}
+    for spec in specs:
+        rec = records.get(spec.key)
+        for cid in spec.metrics:
+            out[(spec.row, cid)] = rec
+    # Records whose key no spec knows (written with other options) still fill their cells.
+    for rec in records.values():
+        if rec.table != table.id or rec.key.startswith("extra/"):
+            continue
+        for cid in rec.metrics:
+            if out.get((rec.row, cid)) is None and (rec.row, cid) in table.cells:
+                out[(rec.row, cid)] = rec
+    return out
+
+
+# ------------------------------------------------------------------------------- frames
+def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
+                specs: Iterable[CellSpec] | None = None) -> pd.DataFrame:
+    """One line per row (paper order) and non-flag column (paper order) of ``table``.
+
+    Args:
+        records: the run's records by key.
+        specs: the cell specs the records were run from (``expand`` of the tables; specs of
+            other tables are ignored). ``None``: :func:`~evsmap.tables.expand` of ``table``.
+
+    ``measured`` and ``paper`` are in the column's printed unit (base value / ``Column.scale``),
+    ``ratio = measured / paper`` where both exist; ``status`` is one of :data:`STATUSES`;
+    ``note`` explains n/a (the record's reason), error ("error: ...") and unrun cells, and
+    carries the record's notes for measured ones.
+    """
+    specs = None if specs is None else list(specs)
+    index = _cell_index(table, records, specs)
+    lines = []
+    for system in table.rows:
+        for col in table.columns:
+            if col.kind == "flag":
+                continue
+            cell = table.cell(system.id, col.id)
+            paper = None if cell.number is None else float(cell.number)
+            measured = None
+            if not system.implemented:
+                status, note = "paper only", ""
+            elif (system.id, col.id) not in index or index[(system.id, col.id)] is None:
+                status, note = "not run", "not run"
+            else:
+                rec = index[(system.id, col.id)]
+                assert rec is not None
+                note = record_note(rec)
+                if rec.status == "na":
+                    status = "n/a"
+                elif rec.status == "error":
+                    status = "error"
+                else:
+                    value = _number(rec.values.get(col.id))
+                    if value is None:
+                        status = "no value"
+                        note = "; ".join(x for x in (
+                            f"the record holds no value for {col.id!r}", note) if x)
+                    else:
+                        status, measured = "ok", value / col.scale
+            ratio = (measured / paper if measured is not None and paper not in (None, 0.0)
+                     else None)
+            lines.append({"table": table.id, "row": system.id, "label": system.label,
+                          "column": col.id, "header": col.header, "unit": col.unit,
+                          "measured": measured, "paper": paper, "ratio": ratio,
+                          "status": status, "note": note})
+    frame = pd.DataFrame(lines, columns=list(FRAME_COLUMNS))
+    for name in ("measured", "paper", "ratio"):
+        frame[name] = pd.to_numeric(frame[name]).astype("float64")
+    return frame
+
+
+def extra_records(records: Iterable[CellRecord]) -> list[CellRecord]:
+    """The ``extra/...`` records, ordered by sequence, voxel size, Table IV row order, key."""
+    order = {r: i for i, r in enumerate(("orgbmap", "tesamap", "tfeagmap", "mesamap", "evsmap",
+                                          "octomap-cpp"))}
+    extras = [r for r in records if r.table == "extra" or r.key.startswith("extra/")]
+    return sorted(extras, key=lambda r: (str(r.inputs.get("sequence", "")),
+                                         _number(r.inputs.get("voxel_size")) or 0.0,
+                                         order.get(r.row, len(order)), r.key))
+
+
+def extra_frame(records: Iterable[CellRecord]) -> pd.DataFrame:
+    """The ``extra`` records, one line each, values in base units (:data:`EXTRA_COLUMNS`)."""
+    lines = []
+    for rec in extra_records(records):
+        line: dict[str, Any] = {
+            "key": rec.key, "row": rec.row, "label": rec.label,
+            "sequence": str(rec.inputs.get("sequence", "")),
+            "voxel_size": _number(rec.inputs.get("voxel_size")),
+            "status": {"na": "n/a"}.get(rec.status, rec.status),
+            "note": record_note(rec, sequence=False)}
+        for key in EXTRA_VALUES:
+            line[key] = _number(rec.values.get(key)) if rec.status == "ok" else None
+        lines.append(line)
+    frame = pd.DataFrame(lines, columns=list(EXTRA_COLUMNS))
+    for name in ("voxel_size", *EXTRA_VALUES):
+        frame[name] = pd.to_numeric(frame[name]).astype("float64")
+    return frame
+
+
+# ------------------------------------------------------------------------------- markdown
+class Footnotes:
+    """Numbered footnotes; the same text gets the same number."""
+
+    def __init__(self) -> None:
+        self.texts: list[str] = []
+
+    def ref(self, text: str) -> str:
+        text = " ".join(str(text).split())
+        if not text:
+            return ""
+        if text not in self.texts:
+            self.texts.append(text)
+        return f"[{self.texts.index(text) + 1}]"
+
+    def markdown(self) -> list[str]:
+        return [f"{i}. {_md_escape(t)}" for i, t in enumerate(self.texts, 1)]
+
+
+def _paper_text(cell) -> str:
+    text = cell.printed if cell.number is not None else "-"
+    return f"**{text}**" if cell.bold and cell.number is not None else text
+
+
+def _cell_markdown(line: Mapping[str, Any], cell, notes: Footnotes) -> str:
+    paper = _paper_text(cell)
+    status = line["status"]
+    if status == "paper only":
+        return f"- / {paper}"
+    ref = notes.ref(line["note"]) if line["note"] and status != "not run" else ""
+    if status == "ok":
+        measured = format_number(line["measured"], cell.decimals if cell.number is not None
+                                 else None)
+        text = f"{measured} / {paper}"
+        if not pd.isna(line["ratio"]):
+            text += f" ({format_ratio(line['ratio'])})"
+    elif status == "n/a":
+        text = f"n/a / {paper}"
+    elif status == "error":
+        text = f"error / {paper}"
+    elif status == "not run":
+        text = f"not run / {paper}"
+    else:
+        text = f"- / {paper}"
+    return f"{text} {ref}".strip()
+
+
+def _column_details(col: Column) -> str:
+    parts = []
+    if col.datasets:
+        parts.append(", ".join(col.datasets) + (f" ({col.split})" if col.split else ""))
+    if col.input_size is not None:
+        h, w = col.input_size
+        parts.append(f"input {w}x{h}" + (" (assumed)" if col.input_size_source == "assumed"
+                                         else ""))
+    if col.voxel_size is not None:
+        parts.append(f"voxel {col.voxel_size:g} m" + (" (assumed)"
+                                                     if col.voxel_size_source == "assumed"
+                                                     else ""))
+    if col.note:
+        parts.append(col.note)
+    return "; ".join(parts)
+
+
+def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
+                   specs: Iterable[CellSpec] | None = None, *,
+                   extras: Iterable[CellRecord] | None = None,
+                   frame: pd.DataFrame | None = None) -> str:
+    """The table as the paper prints it, every measured cell ``measured / paper (ratio)``.
+
+    Flag columns (Table III's check marks) print as in the paper. Cells that were not measured
+    read ``n/a`` / ``error`` / ``not run`` with a footnote saying why; rows evsmap does not
+    implement read ``- / paper``. ``extras``: the ``extra`` records, printed after the table
+    under "Measured beyond the paper" (Table IV).
+    """
+    frame = table_frame(table, records, specs) if frame is None else frame
+    by_cell = {(r["row"], r["column"]): r for r in frame.to_dict("records")}
+    notes = Footnotes()
+    out = [f"# Table {table.number} - {table.title}", ""]
+    if table.caption:
+        out += [f"*{table.caption}*", ""]
+    if table.note:
+        out += [f"Note: {' '.join(table.note.split())}", ""]
+    out += ["Each cell: measured / paper (measured ÷ paper). Measured values are evsmap's on "
+            "this machine; bold marks the paper's best values; `paper only`: evsmap does not "
+            "implement the row. Bracketed numbers refer to the notes below the table.", ""]
+    headers = ["System"] + [_md_escape(header_with_unit(c)) for c in table.columns]
+    out.append("| " + " | ".join(headers) + " |")
+    out.append("|" + "|".join(["---"] + [":---:" if c.kind == "flag" else "---:"
+                                         for c in table.columns]) + "|")
+    for system in table.rows:
+        label = _md_escape(_row_label(system))
+        if not system.implemented:
+            label += " (paper only)"
+        if system.note:
+            label += f" {notes.ref(system.note)}"
+        cells = [label]
+        for col in table.columns:
+            cell = table.cell(system.id, col.id)
+            if col.kind == "flag":
+                cells.append(cell.printed)
+                continue
+            line = by_cell.get((system.id, col.id))
+            cells.append(_md_escape(_cell_markdown(line, cell, notes)) if line is not None
+                         else _paper_text(cell))
+        out.append("| " + " | ".join(cells) + " |")
+    out.append("")
+    if table.footnotes:
+        out += ["Marks as printed in the paper:", ""]
+        out += [f"- {m} {_md_escape(t)}" for m, t in table.footnotes.items()] + [""]
+    details = [(c, _column_details(c)) for c in table.columns if c.kind != "flag"]
+    details = [(c, d) for c, d in details if d]
+    if details:
+        out += ["Columns:", ""]
+        out += [f"- {_md_escape(header_with_unit(c))}: {d}" for c, d in details]
+        out.append("")
+    if notes.texts:
+        out += ["Notes:", ""] + notes.markdown() + [""]
+    counts = frame["status"].value_counts()
+    out += ["Cells: " + ", ".join(f"{int(counts.get(s, 0))} {s}" for s in STATUSES
+                                  if counts.get(s, 0)), ""]
+    if extras is not None:
+        out += extra_markdown(extras)
+    return "\n".join(out).rstrip() + "\n"
+
+
+def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
+    """The "Measured beyond the paper" section: one table per sequence (and voxel size)."""
+    extras = extra_records(records)
+    out = ["## Measured beyond the paper", ""]
+    if not extras:
+        return out + ["No measurements beyond the paper in this run.", ""]
+    out += ["Every mapping system on the sequences this run had, with the map update rate alone "
+            "and end-to-end (segmentation + update), the size of the written map file, the "
+            "memory the map holds, and the map's quality against the ground truth (occupancy "
+            "precision and recall, semantic accuracy and mIoU of the occupied voxels).", ""]
+    groups: dict[tuple[str, float | None], list[CellRecord]] = {}
+    for rec in extras:
+        key = (str(rec.inputs.get("sequence", "") or "unknown"),
+               _number(rec.inputs.get("voxel_size")))
+        groups.setdefault(key, []).append(rec)
+    for (seq, voxel), recs in groups.items():
+        title = f"### Sequence `{seq}`"
+        if voxel is not None:
+            title += f", voxel size {voxel:g} m"
+        out += [title, ""]
+        notes = Footnotes()
+        frames = {_number(r.values.get("frames")) for r in recs if r.status == "ok"} - {None}
+        if len(frames) == 1:
+            out += [f"{int(frames.pop())} frames.", ""]
+        headers = ["System"] + [h for _, h, _, _ in _EXTRA_PRINT]
+        out.append("| " + " | ".join(headers) + " |")
+        out.append("|---|" + "|".join("---:" for _ in _EXTRA_PRINT) + "|")
+        for rec in recs:
+            note = record_note(rec, sequence=False)
+            label = _md_escape(rec.label or rec.row)
+            if note:
+                label += f" {notes.ref(note)}"
+            cells = [label]
+            for key, _, div, dec in _EXTRA_PRINT:
+                value = _number(rec.values.get(key)) if rec.status == "ok" else None
+                if rec.status == "na":
+                    cells.append("n/a")
+                elif rec.status == "error":
+                    cells.append("error")
+                elif value is None:
+                    cells.append("-")
+                else:
+                    cells.append(format_number(value / div, dec))
+            out.append("| " + " | ".join(cells) + " |")
+        out.append("")
+        if notes.texts:
+            out += notes.markdown() + [""]
+    return out

@@ -1,0 +1,206 @@
+import math
+import re
+
+import pandas as pd
+import pytest
+from conftest import make_records, spec_key
+
+from evsmap.report.tables import (
+    FRAME_COLUMNS,
+    extra_frame,
+    format_number,
+    format_ratio,
+    table_frame,
+    table_markdown,
+)
+from evsmap.runner.records import CellRecord
+from evsmap.tables import expand_all, load_tables
+
+
+@pytest.fixture(scope="module")
+def tables():
+    return load_tables()
+
+
+@pytest.fixture(scope="module")
+def records():
+    return {r.key: r for r in make_records()}
+
+
+@pytest.fixture(scope="module")
+def specs():
+    return expand_all(available=["dataset:tum"])
+
+
+def line(frame, row, column):
+    sel = frame[(frame["row"] == row) & (frame["column"] == column)]
+    assert len(sel) == 1
+    return sel.iloc[0]
+
+
+def md_cell(md, label, header):
+    """The text of the markdown table cell of row ``label`` under ``header``."""
+    lines = [x for x in md.splitlines() if x.startswith("| ")]
+    headers = [h.strip() for h in lines[0].strip("|").split(" | ")]
+    for x in lines[1:]:
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", x.strip())[1:-1]]
+        if cells[0].split(" [")[0].removesuffix(" (paper only)") == label:
+            return cells[headers.index(header)]
+    raise AssertionError(f"row {label!r} not in the markdown")
+
+
+def footnote(md, ref):
+    n = ref.strip("[]")
+    for x in md.splitlines():
+        if x.startswith(f"{n}. "):
+            return x[len(n) + 2:]
+    raise AssertionError(f"footnote {ref} missing")
+
+
+def test_format_number():
+    assert format_number(4.278, 1) == "4.28"  # at least three significant digits
+    assert format_number(4.28, 2) == "4.28"
+    assert format_number(0.0123, 1) == "0.0123"
+    assert format_number(5.0, 0) == "5.00"
+    assert format_number(123.4, 0) == "123"
+    assert format_number(1234.5, 1) == "1234.5"
+    assert format_number(7.5, None) == "7.50"
+    assert format_ratio(0.951) == "0.95x" and format_ratio(0.0123) == "0.012x"
+
+
+def test_frame_has_every_row_and_measured_column(tables, records, specs):
+    for table in tables.values():
+        frame = table_frame(table, records, specs)
+        assert tuple(frame.columns) == FRAME_COLUMNS
+        cols = [c.id for c in table.columns if c.kind != "flag"]
+        assert len(frame) == len(table.rows) * len(cols)
+        assert list(dict.fromkeys(frame["row"])) == [r.id for r in table.rows]
+        assert set(frame["column"]) == set(cols)
+        assert set(frame["status"]) <= {"ok", "n/a", "error", "not run", "no value",
+                                        "paper only"}
+
+
+def test_multi_column_record_values_and_ratio(tables, records, specs):
+    frame = table_frame(tables["table1"], records, specs)
+    params = line(frame, "feagnet-v2", "params")
+    assert params["status"] == "ok"
+    assert params["measured"] == pytest.approx(4.28) and params["paper"] == pytest.approx(4.5)
+    assert params["ratio"] == pytest.approx(4.28 / 4.5)
+    assert params["note"] == "fvcore FLOPs at 640x480"
+    flops = line(frame, "feagnet-v2", "flops")  # the same record fills both columns
+    assert flops["measured"] == pytest.approx(7.5) and flops["ratio"] == pytest.approx(7.5 / 7.8)
+    fps = line(frame, "feagnet-v2", "fps")
+    assert fps["measured"] == pytest.approx(20.07) and fps["paper"] == pytest.approx(37.7)
+    t4 = table_frame(tables["table4"], records, specs)
+    size = line(t4, "orgbmap", "size_seq1")
+    assert size["measured"] == pytest.approx(1.234) and size["unit"] == "MB"
+    assert size["ratio"] == pytest.approx(1.234 / 3.54)
+    assert "tum" in size["note"]  # the sequence it was measured on
+
+
+def test_na_error_missing_and_paper_only(tables, records, specs):
+    frame = table_frame(tables["table1"], records, specs)
+    na = line(frame, "feagnet-v2", "miou_nyuv2")
+    assert na["status"] == "n/a" and math.isnan(na["measured"]) and math.isnan(na["ratio"])
+    assert na["note"] == ("n/a - needs the nyuv2 dataset, needs trained weights "
+                          "(feagnet-v2@nyuv2)")
+    assert na["paper"] == pytest.approx(47.6)
+    err = line(frame, "feagnet-v1", "fps")
+    assert err["status"] == "error" and err["note"] == "error: RuntimeError: boom"
+    assert math.isnan(err["measured"])
+    missing = line(frame, "esanet-r34", "params")
+    assert missing["status"] == "not run" and missing["note"] == "not run"
+    only = frame[frame["row"] == "3dgnn-r101"]
+    assert set(only["status"]) == {"paper only"} and only["measured"].isna().all()
+    assert math.isnan(line(frame, "3dgnn-r101", "flops")["paper"])  # blank in the paper
+    t3 = table_frame(tables["table3"], records, specs)
+    novalue = line(t3, "basel", "flops")
+    assert novalue["status"] == "no value" and math.isnan(novalue["measured"])
+
+
+def test_record_under_an_unknown_key_still_fills_its_cell(tables):
+    rec = CellRecord(key="table1/feagnet-v2/complexity/other-options", table="table1",
+                     row="feagnet-v2", label="FEAGNet-V2", kind="complexity",
+                     metrics=["params"], status="ok", values={"params": 4.0e6})
+    frame = table_frame(tables["table1"], {rec.key: rec})
+    assert line(frame, "feagnet-v2", "params")["measured"] == pytest.approx(4.0)
+
+
+def test_markdown_cells(tables, records, specs):
+    md = table_markdown(tables["table1"], records, specs)
+    assert md.startswith("# Table I - FEAGNet compared to SOTA networks on NYUv2 and SUN RGBD")
+    assert tables["table1"].note.split(";")[0] in md
+    # measured / paper (ratio), measured with the paper's decimals (>= 2 significant digits)
+    assert md_cell(md, "FEAGNet-V2", "Params (M)").startswith("4.28 / 4.5 (0.95x)")
+    assert md_cell(md, "FEAGNet-V2", "FPS").startswith("20.1 / 37.7 (0.53x)")
+    # n/a: the reason as a footnote, never a number on the measured side
+    na = md_cell(md, "FEAGNet-V2", "MIoU NYUv2 (%)")
+    assert re.fullmatch(r"n/a / 47\.6 \[\d+\]", na), na
+    assert footnote(md, na.split()[-1]) == ("n/a - needs the nyuv2 dataset, needs trained "
+                                            "weights (feagnet-v2@nyuv2)")
+    jetson = md_cell(md, "FEAGNet-V2*", "FPS")
+    assert jetson.startswith("n/a / 52.5 [")
+    assert footnote(md, jetson.split()[-1]) == "n/a - needs jetson-tensorrt hardware"
+    err = md_cell(md, "FEAGNet-V1", "FPS")
+    assert err.startswith("error / 39.2 [")
+    assert footnote(md, err.split()[-1]) == "error: RuntimeError: boom"
+    assert md_cell(md, "ESANet-R34Δ (2021)", "Params (M)") == "not run / 46.9"
+    # paper-only rows, blank paper cells, marks and bold as printed
+    assert md_cell(md, "3DGNN-R101 (2017)", "MIoU NYUv2 (%)") == "- / 43.1"
+    assert md_cell(md, "3DGNN-R101 (2017)", "FLOPs (G)") == "- / -"
+    assert md_cell(md, "RDFNet-R101 (2017)", "FPS") == "- / 7.9†"
+    assert md_cell(md, "PGDENet-R34 (2023)", "MIoU NYUv2 (%)") == "- / **53.7**"
+    assert md_cell(md, "FEAGNet-V2*", "Params (M)") == "not run / **4.5**"
+    # identical notes share one footnote
+    assert md.count("fvcore FLOPs at 640x480") == 1
+
+
+def test_every_row_and_column_in_markdown(tables, records, specs):
+    for table in tables.values():
+        md = table_markdown(table, records, specs)
+        header = next(x for x in md.splitlines() if x.startswith("| System"))
+        for col in table.columns:
+            assert col.header.replace("|", "\\|") in header, (table.id, col.id)
+        body = [x for x in md.splitlines() if x.startswith("| ")][1:]
+        assert len(body) == len(table.rows)
+        for system, text in zip(table.rows, body, strict=True):
+            assert text.startswith(f"| {system.label}"), (table.id, system.id)
+
+
+def test_table3_flags_as_printed(tables, records, specs):
+    md = table_markdown(tables["table3"], records, specs)
+    assert md_cell(md, "Basel. + CFIM", "CFIM") == "√"
+    assert md_cell(md, "Basel. + CFIM", "DAPPF") == ""
+    assert md_cell(md, "Basel. + CFIM + DAPPF + WA&HA + ML",
+                   "Params (M)") == "4.45 / 4.45 (1.00x)"
+    frame = table_frame(tables["table3"], records, specs)
+    assert "cfim" not in set(frame["column"])
+
+
+def test_table4_extras_section(tables, records, specs):
+    extras = [r for r in records.values() if r.key.startswith("extra/")]
+    md = table_markdown(tables["table4"], records, specs, extras=extras)
+    assert md_cell(md, "MVSMMap", "Runtime (Hz)").startswith("3.21 / 14.4 (0.22x)")
+    section = md.split("## Measured beyond the paper", 1)[1]
+    assert "### Sequence `synthetic`, voxel size 0.05 m" in section
+    assert "### Sequence `tum`, voxel size 0.05 m" in section
+    assert ("| MVSMMap [1] | 12.5 | 3.21 | 2.50 | 8.10 | 95.1 | 80.2 | 87.5 | 61.3 |"
+            in section)
+    assert "| OctoMap (C++) | 45.0 | 45.0 | 1.20 | 3.00 | - | - | - | - |" in section
+    assert re.search(r"\| TESAMap \[\d\] \| n/a \| n/a", section)
+    assert "n/a - needs trained weights (esanet@nyuv2)" in section
+
+
+def test_extra_frame_base_units():
+    frame = extra_frame(make_records())
+    assert len(frame) == 5
+    ev = frame[frame["key"] == "extra/mapping/evsmap/synthetic@0.05m"].iloc[0]
+    assert ev["map_bytes"] == 2.5e6 and ev["precision"] == pytest.approx(0.951)
+    assert ev["sequence"] == "synthetic" and ev["voxel_size"] == 0.05
+    na = frame[frame["row"] == "tesamap"].iloc[0]
+    assert na["status"] == "n/a" and pd.isna(na["update_hz"])
+
+
+def test_spec_key_helper_matches_expand():
+    assert spec_key("table1", "feagnet-v2", "complexity") == \
+        "table1/feagnet-v2/complexity@640x480[params,flops]"
