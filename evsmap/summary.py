@@ -130,7 +130,8 @@ def summarize_sequence(
         }
     else:
         record["labels"] = None
-    for key in ("dropped", "synthetic", "scene", "seed", "split"):
+    for key in ("dropped", "synthetic", "scene", "seed", "split", "pose_source",
+                "time_source_reason"):
         if key in sequence.meta:
             record[key] = sequence.meta[key]
     return record

@@ -93,7 +93,10 @@ def format_info(r: dict) -> str:
         p = r["poses"]
         ext = " x ".join(f"{v:.2f}" for v in p["extent_m"])
         lines.append(f"poses       {p['duration_s']:.2f} s, path {p['path_length_m']:.2f} m, "
-                     f"extent {ext} m")
+                     f"extent {ext} m" + (f"  (from {r['pose_source']})"
+                                          if r.get("pose_source") else ""))
+    if r.get("time_source_reason"):
+        lines.append(f"stamps      {r['time_source_reason']}")
     if r.get("dropped"):
         dropped = ", ".join(f"{k.replace('_', ' ')}: {v}" for k, v in r["dropped"].items() if v)
         if dropped:

@@ -57,7 +57,15 @@ def _version() -> str:
         return "unknown"
 
 
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    """Warnings as one line (``evsmap: warning: ...``), without the source line."""
+    return f"evsmap: warning: {message}\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    import warnings
+
+    warnings.formatwarning = _format_warning
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

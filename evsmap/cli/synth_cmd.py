@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
 import sys
 import time
 from pathlib import Path
 
 from evsmap.classes import NYU40_CLASSES
 from evsmap.cli.options import nonnegative_int, positive_int
-from evsmap.errors import EvsmapError
+from evsmap.fileio import staging_folder
 from evsmap.progress import progress
 from evsmap.readers.tum import METADATA_FILE, write_tum
 from evsmap.synth.render import DEPTH_SCALE
@@ -61,34 +59,10 @@ def metadata(seq: SyntheticSequence) -> dict:
 def write_synthetic(seq: SyntheticSequence, out: Path, *, overwrite: bool = False) -> None:
     """Render ``seq`` into ``out`` atomically: a partial folder is renamed into place only when
     complete, so an existing ``out`` is never left half-replaced."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise EvsmapError(f"--out {out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise EvsmapError(f"--out {out}: folder exists and is not empty (pass --overwrite)")
-    parent = out.resolve().parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise EvsmapError(f"--out {out}: cannot create parent folder ({exc})") from None
-    partial = parent / f".{out.name}.partial-{os.getpid()}"
-    shutil.rmtree(partial, ignore_errors=True)
-    try:
-        partial.mkdir()
+    with staging_folder(Path(out), overwrite=overwrite, what="--out ") as partial:
         write_tum(seq, partial, quaternions=seq.quaternions,
                   progress=lambda frames: progress(frames, total=len(seq), desc="rendering"))
         (partial / METADATA_FILE).write_text(json.dumps(metadata(seq), indent=2) + "\n")
-        if out.exists():
-            old = parent / f".{out.name}.old-{os.getpid()}"
-            out.rename(old)
-            partial.rename(out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            partial.rename(out)
-    except OSError as exc:
-        raise EvsmapError(f"--out {out}: cannot write ({exc})") from None
-    finally:
-        shutil.rmtree(partial, ignore_errors=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -46,11 +46,11 @@ from evsmap.datasets.common import (
     read_label_png,
     read_manifest,
     require_dir,
-    staging_folder,
     write_manifest,
     write_text_atomic,
 )
 from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.fileio import staging_folder
 from evsmap.readers.images import read_rgb, read_uint8_labels, read_uint16, write_png
 from evsmap.registry import READERS
 

@@ -14,11 +14,9 @@ Every problem with the user's files raises :class:`~evsmap.errors.DataFormatErro
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import shutil
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -156,44 +154,6 @@ def _evsmap_version() -> str:
         return version("evsmap")
     except PackageNotFoundError:
         return "unknown"
-
-
-@contextlib.contextmanager
-def staging_folder(out: Path, *, source: Path, overwrite: bool) -> Iterator[Path]:
-    """Yield an empty hidden folder beside ``out``; once the block ends without error it replaces
-    ``out`` (so an existing ``out`` is never left half-written); on error it is removed.
-
-    A non-empty ``out`` is refused unless ``overwrite``; ``out`` may not be or contain ``source``.
-    """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise EvsmapError(f"{out}: exists and is not a folder")
-    src, dst = Path(source).resolve(), out.resolve()
-    if dst == src or dst in src.parents:
-        raise EvsmapError(f"{out}: the output folder would replace the source {source}")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise EvsmapError(f"{out}: folder exists and is not empty (pass --overwrite)")
-    parent = dst.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise EvsmapError(f"{out}: cannot create parent folder ({exc})") from None
-    partial = parent / f".{dst.name}.partial-{os.getpid()}"
-    shutil.rmtree(partial, ignore_errors=True)
-    try:
-        partial.mkdir()
-        yield partial
-        if dst.exists():
-            old = parent / f".{dst.name}.old-{os.getpid()}"
-            dst.rename(old)
-            partial.rename(dst)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            partial.rename(dst)
-    except OSError as exc:
-        raise EvsmapError(f"{out}: cannot write ({exc})") from None
-    finally:
-        shutil.rmtree(partial, ignore_errors=True)
 
 
 # -- MATLAB files -------------------------------------------------------------------------------

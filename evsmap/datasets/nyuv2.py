@@ -43,11 +43,11 @@ from evsmap.datasets.common import (
     read_manifest,
     require_dir,
     require_file,
-    staging_folder,
     write_manifest,
     write_text_atomic,
 )
 from evsmap.errors import DataFormatError
+from evsmap.fileio import staging_folder
 from evsmap.readers.images import read_rgb, read_uint16, write_png
 from evsmap.registry import READERS
 

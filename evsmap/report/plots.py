@@ -127,7 +127,11 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path) -> bool:
             continue
         positive = [v for v in xs if v > 0]
         if positive and max(positive) / min(positive) > 20:
+            from matplotlib.ticker import NullFormatter, ScalarFormatter
+
             ax.set_xscale("log")
+            ax.xaxis.set_major_formatter(ScalarFormatter())
+            ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel(xlabel)
         ax.set_ylabel("FPS (batch 1)")
         ax.grid(True, alpha=0.3)

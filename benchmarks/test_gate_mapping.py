@@ -1,0 +1,88 @@
+"""Performance gate: the mapping goals of EVSMaP's multi-class Bayesian updater (Table IV).
+
+On the 37 real TUM fr1_xyz frames (max range 4 m, discretize on, untrained seeded FEAGNet-V1
+top-3 labels computed beforehand), at 5 cm and at 2 cm:
+
+* update rate(multiclass-bayes) / update rate(octomap-cpp) >= 1 (the C++ OctoMap, occupancy
+  only, in the same run)
+* update rate(multiclass-bayes) / update rate(classic-semantic) > 1
+* map file(classic-semantic) / map file(multiclass-bayes) >= 2
+
+Each pass maps the whole sequence into a fresh map with every updater, the updaters in
+alternating order from pass to pass; a rate is 1000 / the median ms per frame over all passes.
+Only ratios measured in this run are compared. Runs only with ``--benchmark-only``.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from evsmap.registry import SEGMENTERS, UPDATERS
+
+NAMES = ("octomap-cpp", "classic-semantic", "multiclass-bayes")
+RESOLUTIONS = (0.05, 0.02)
+PASSES = 3
+MAX_RANGE = 4.0
+
+
+def _measure(frames, observations) -> dict:
+    out = {}
+    for res in RESOLUTIONS:
+        times: dict[str, list[float]] = {n: [] for n in NAMES}
+        size: dict[str, int] = {}
+        for p in range(PASSES):
+            for name in NAMES if p % 2 == 0 else NAMES[::-1]:
+                updater = UPDATERS.create(name, resolution=res, max_range=MAX_RANGE)
+                semantic = getattr(updater, "uses_semantics", False)
+                for frame, obs in zip(frames, observations, strict=True):
+                    t0 = time.perf_counter()
+                    updater.integrate(frame, obs if semantic else None)
+                    times[name].append((time.perf_counter() - t0) * 1000.0)
+                with tempfile.TemporaryDirectory() as tmp:
+                    size[name] = updater.write(Path(tmp) / "map.ot")
+        out[res] = {n: {"hz": float(1000.0 / np.median(times[n])),
+                        "ms_median": float(np.median(times[n])),
+                        "ms_iqr": float(np.subtract(*np.percentile(times[n], [75, 25]))),
+                        "map_bytes": int(size[n])} for n in NAMES}
+    return out
+
+
+@pytest.mark.gate
+def test_multiclass_bayes_mapping_goals(benchmark, capsys, tum_frames):
+    import torch
+
+    torch.manual_seed(0)
+    segmenter = SEGMENTERS.create("feagnet-v1")
+    observations = [segmenter.predict(f) for f in tum_frames]
+    benchmark.group = "gate"
+    result = benchmark.pedantic(_measure, args=(tum_frames, observations), rounds=1,
+                                warmup_rounds=0, iterations=1)
+    lines = [f"mapping gate (TUM fr1_xyz, {len(tum_frames)} frames, max range {MAX_RANGE} m, "
+             f"{PASSES} passes)"]
+    failed = []
+    for res, figures in result.items():
+        for name, r in figures.items():
+            lines.append(f"  {res * 100:g} cm {name:18s} {r['hz']:6.1f} Hz  "
+                         f"{r['ms_median']:6.1f} ms median (IQR {r['ms_iqr']:5.1f})  "
+                         f"file {r['map_bytes'] / 1e3:8.1f} KB")
+        mcb, ref, cls = (figures[n] for n in ("multiclass-bayes", "octomap-cpp",
+                                              "classic-semantic"))
+        checks = {
+            "rate vs octomap-cpp >= 1": mcb["hz"] / ref["hz"] >= 1.0,
+            "rate vs classic-semantic > 1": mcb["hz"] / cls["hz"] > 1.0,
+            "file classic / multiclass >= 2": cls["map_bytes"] / mcb["map_bytes"] >= 2.0,
+        }
+        lines.append(f"  {res * 100:g} cm ratios: rate/octomap-cpp {mcb['hz'] / ref['hz']:.2f}, "
+                     f"rate/classic {mcb['hz'] / cls['hz']:.2f}, file classic/multiclass "
+                     f"{cls['map_bytes'] / mcb['map_bytes']:.2f}")
+        failed += [f"{res * 100:g} cm: {k}" for k, ok in checks.items() if not ok]
+    benchmark.extra_info.update(figures={str(k): v for k, v in result.items()})
+    report = "\n".join(lines)
+    with capsys.disabled():
+        print("\n" + report)
+    assert not failed, "mapping goals not met: " + "; ".join(failed) + "\n" + report
