@@ -49,11 +49,13 @@ def environment(threads: int | None = None) -> dict[str, Any]:
         env["versions"] = dict(library_versions())
     except Exception:  # pragma: no cover - a missing optional library
         env["versions"] = {}
-    for lib in ("numba", "octomap"):
+    from importlib.metadata import PackageNotFoundError, version
+
+    env["versions"].pop("python", None)  # already in env["python"]
+    for dist in ("numba", "octomap-python", "open3d", "evsmap"):
         try:
-            module = __import__(lib)
-            env["versions"][lib] = getattr(module, "__version__", "unknown")
-        except ImportError:
+            env["versions"][dist] = version(dist)
+        except PackageNotFoundError:
             pass
     env["git_commit"] = git_commit()
     return env
