@@ -171,7 +171,7 @@ def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
     if path is None or weights is None:  # guarded by the caller's needs check
         raise EvsmapError(f"{spec.key}: dataset or weights missing")
     segmenter = build_segmenter(spec.segmenter, input_size=spec.input_size,
-                                backend="onnxruntime", weights=str(weights))
+                                backend=ctx.speed_backend, weights=str(weights))
     config: dict[str, Any] = {"path": str(path), "split": spec.split or "test"}
     if spec.input_size and "resolution" in READERS.get(dataset).parameters():
         config["resolution"] = f"{spec.input_size[1]}x{spec.input_size[0]}"

@@ -198,3 +198,35 @@ def test_mapping_run_on_the_synthetic_sequence(ctx):
     assert 0.5 < rec.values["precision"] <= 1.0
     assert (Path(ctx.out) / "artifacts" / "map-evsmap-synthetic.npz").is_file()
     assert rec.environment["cpu"]
+
+
+def test_accuracy_cell_with_a_dataset_and_weights(tmp_path, data_root):
+    import shutil
+
+    import torch
+
+    from evsmap.registry import SEGMENTERS
+    from evsmap.runner.execute import execute_spec
+
+    # a prepared NYUv2 folder: the two real samples as the test split
+    root = tmp_path / "data"
+    shutil.copytree(data_root / "nyuv2_samples", root / "nyuv2")
+    (root / "nyuv2" / "test.txt").write_text("000433\n000464\n")
+    (root / "nyuv2" / "train.txt").write_text("")
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    torch.manual_seed(1)
+    torch.save(SEGMENTERS.create("feagnet-v1").module.state_dict(),
+               weights / "feagnet-v1@nyuv2.pt")
+    ctx = RunContext.create(tmp_path / "run", data_root=root, weights_dir=weights, quick=True)
+    plan = matrix.plan(ctx, ["table1"])
+    spec = next(s for s in plan.specs if s.key == "table1/feagnet-v1/accuracy/nyuv2:test[miou]")
+    assert spec.needs == ()
+    rec = execute_spec(spec, ctx)
+    assert rec.status == "ok", rec.error
+    assert 0.0 <= rec.values[spec.metrics[0]] <= 1.0
+    assert rec.details["pixels"] > 500_000  # both images' labelled pixels
+    assert "nyuv2 test split, 2 images, weights feagnet-v1@nyuv2.pt" in rec.notes[0]
+    # SUN RGB-D is still missing
+    sun = next(s for s in plan.specs if s.key == "table1/feagnet-v1/accuracy/sunrgbd:test[miou]")
+    assert "dataset:sunrgbd" in sun.needs
