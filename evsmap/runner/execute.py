@@ -236,7 +236,18 @@ def open_mapping_sequence(ctx: RunContext, name: str):
     from evsmap.synth.sequence import SyntheticSequence
 
     if name == "synthetic":
-        return SyntheticSequence(**ctx.synthetic)
+        # rendered once per run into the cache (TUM layout, read back bit-identical), so the
+        # mapping runs, the segmentation cache and the timings all read the same frames cheaply
+        from evsmap.cli.synth_cmd import write_synthetic
+        from evsmap.readers.tum import METADATA_FILE
+
+        o = ctx.synthetic
+        folder = Path(ctx.out) / "cache" / "sequences" / (
+            f"synthetic-{o['scene']}-s{o['seed']}-{o['width']}x{o['height']}-{o['frames']}f"
+            + ("-noise" if o.get("noise") else ""))
+        if not (folder / METADATA_FILE).is_file():
+            write_synthetic(SyntheticSequence(**o), folder, overwrite=True)
+        return READERS.create("tum", path=str(folder))
     path = ctx.dataset_path(name)
     if path is None:
         raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")
@@ -321,8 +332,10 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                  f"over frames (update only; end to end = segmentation + update)")
     if run.sequence == "synthetic" and hasattr(updater, "occupied_labels"):
         from evsmap.metrics import evaluate_map
+        from evsmap.synth.sequence import SyntheticSequence
 
-        quality = evaluate_map(updater, sequence.ground_truth(run.voxel_size))
+        truth = SyntheticSequence(**ctx.synthetic).ground_truth(run.voxel_size)
+        quality = evaluate_map(updater, truth)
         q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
         details["quality"] = q
         for name in ("precision", "recall", "semantic_accuracy", "map_miou"):
