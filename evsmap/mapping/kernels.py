@@ -2,6 +2,8 @@
 
 * :func:`trace` - 3D DDA (OctoMap's ``computeRayKeys``), one ray at a time in machine code.
 * :func:`group_points` - OctoMap keys of a frame's points and their grouping by voxel.
+* :func:`grow_rows` - the sorted leaf arrays with the rows of new leaves inserted.
+* :func:`depth_points` - a depth image's valid pixels as float32 world points.
 
 Both have pure-numpy counterparts (:func:`evsmap.mapping.raycast._ray_keys`'s merge and
 :func:`evsmap.updaters.base.group_keys`) that compute the same results; the tests compare them.
@@ -135,8 +137,57 @@ def _group_points(points, rf, offset, key_max, dense_limit):
     return keys, ok, codes, inverse, True
 
 
+def _depth_points(depth, fx, fy, cx, cy, pose):
+    """The valid pixels of a depth image (flat indices, row-major) and their world points rounded
+    to float32, with exactly :func:`evsmap.geometry.backproject`'s float64 arithmetic."""
+    h, w = depth.shape
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            if depth[v, u] > 0:
+                n += 1
+    pixels = np.empty(n, dtype=np.int64)
+    points = np.empty((n, 3), dtype=np.float32)
+    i = 0
+    for v in range(h):
+        for u in range(w):
+            d = depth[v, u]
+            if d > 0:
+                z = np.float64(d)
+                x = (np.float64(u) - cx) / fx * z
+                y = (np.float64(v) - cy) / fy * z
+                for a in range(3):
+                    points[i, a] = np.float32(
+                        pose[a, 0] * x + pose[a, 1] * y + pose[a, 2] * z + pose[a, 3])
+                pixels[i] = v * w + u
+                i += 1
+    return pixels, points
+
+
+def _grow_rows(old, created, fill, out):
+    """``out`` (rows = rows of ``old`` + len(``created``)): the rows of ``old`` in order, with
+    the rows of ``fill`` (one per new row, or a single row for all) at the sorted row positions
+    ``created`` (2-D arrays; 1-D ones as one column)."""
+    j = 0
+    src = 0
+    n_new = created.shape[0]
+    per_row = fill.shape[0] > 1
+    for dst in range(out.shape[0]):
+        if j < n_new and created[j] == dst:
+            f = j if per_row else 0
+            for c in range(out.shape[1]):
+                out[dst, c] = fill[f, c]
+            j += 1
+        else:
+            for c in range(out.shape[1]):
+                out[dst, c] = old[src, c]
+            src += 1
+
+
 if numba is not None:
     trace = numba.njit(cache=True, nogil=True)(_trace)
     group_points = numba.njit(cache=True, nogil=True)(_group_points)
+    grow_rows = numba.njit(cache=True, nogil=True)(_grow_rows)
+    depth_points = numba.njit(cache=True, nogil=True)(_depth_points)
 else:  # pragma: no cover
-    trace = group_points = None
+    trace = group_points = grow_rows = depth_points = None

@@ -26,6 +26,7 @@ import numpy as np
 
 from evsmap.data import Frame
 from evsmap.interfaces import FREE, OCCUPIED, UNKNOWN, PointQuery
+from evsmap.mapping.kernels import grow_rows
 from evsmap.mapping.keys import pack
 from evsmap.mapping.raycast import frame_points, octomap_keys, scan_keys
 
@@ -247,6 +248,15 @@ class OccupancyMap:
 
             def grow(arr: np.ndarray, fill) -> np.ndarray:
                 out = np.empty((len(old), *arr.shape[1:]), dtype=arr.dtype)
+                if grow_rows is not None and arr.ndim <= 2:
+                    width = 1 if arr.ndim == 1 else arr.shape[1]
+                    fill = np.asarray(fill, dtype=arr.dtype)
+                    rows = len(fill) if fill.ndim == arr.ndim else 1
+                    fill = np.ascontiguousarray(
+                        np.broadcast_to(fill.reshape(rows, -1), (rows, width)))
+                    grow_rows(arr.reshape(len(arr), width), created, fill,
+                              out.reshape(len(out), width))
+                    return out
                 out[old] = arr
                 out[created] = fill
                 return out

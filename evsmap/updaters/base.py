@@ -21,7 +21,7 @@ from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import InvalidDataError
 from evsmap.geometry import backproject, transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
-from evsmap.mapping.kernels import group_points
+from evsmap.mapping.kernels import depth_points, group_points
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate
 from evsmap.mapping.raycast import scan_keys
@@ -36,7 +36,7 @@ class FramePoints:
     fuse (colour, semantics) in the same order, and the endpoint voxel of each point.
 
     Attributes:
-        points: (N, 3) float64 world coordinates.
+        points: (N, 3) float64 world coordinates (computed on first use).
         origin: (3,) camera centre (sensor origin of a point-cloud frame).
         pixels: (N,) flat pixel index of each point (its index in a point-cloud frame), the
             index into :meth:`Frame.colors`.
@@ -51,16 +51,22 @@ class FramePoints:
                  discretize: bool = False) -> None:
         from evsmap.mapping.raycast import _norm, octomap_keys
 
+        self._frame = frame
+        self._points: np.ndarray | None = None
         if frame.is_cloud:
             self.pixels = np.arange(len(frame.points))
-            self.points = transform_points(frame.points, frame.pose)
+            self._points = transform_points(frame.points, frame.pose)
+            pts = self._points.astype(np.float32)
+        elif USE_KERNEL and depth_points is not None:
+            i = frame.intrinsics
+            self.pixels, pts = depth_points(frame.depth, i.fx, i.fy, i.cx, i.cy, frame.pose)
         else:
             valid = frame.depth > 0
             self.pixels = np.flatnonzero(valid)
-            self.points = backproject(frame.depth, frame.intrinsics, frame.pose, mask=valid)
+            self._points = backproject(frame.depth, frame.intrinsics, frame.pose, mask=valid)
+            # the same float32 arithmetic as the ray casting (OctoMap's point3d)
+            pts = self._points.astype(np.float32)
         self.origin = frame.pose[:3, 3].astype(np.float64)
-        # the same float32 arithmetic as the ray casting (OctoMap's point3d)
-        pts = self.points.astype(np.float32)
         done = False
         if USE_KERNEL and group_points is not None:
             keys, ok, self.voxel_codes, inverse, done = group_points(
@@ -81,6 +87,15 @@ class FramePoints:
         else:
             self.rays = pts
             self.endpoint = ok & (_norm(pts - origin32) <= max_range) if max_range >= 0 else ok
+
+
+    @property
+    def points(self) -> np.ndarray:
+        """(N, 3) float64 world coordinates of the points (computed on first use)."""
+        if self._points is None:
+            f = self._frame
+            self._points = backproject(f.depth, f.intrinsics, f.pose, mask=f.depth > 0)
+        return self._points
 
 
 _DENSE_BOX = 1 << 24

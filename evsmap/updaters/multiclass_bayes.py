@@ -22,6 +22,7 @@ import numpy as np
 from evsmap.data import Frame, SemanticObservation
 from evsmap.mapping import fusion
 from evsmap.mapping.fusion import MCBState
+from evsmap.mapping.mcb_kernel import frame_update
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.registry import UPDATERS
 from evsmap.updaters.base import FramePoints, OctreeUpdater, strongest_child
@@ -31,6 +32,10 @@ PAYLOAD_FORMAT = np.dtype([("classes", "u1", (3,)), ("logodds", "i1", (3,)), ("o
 ids (255 = empty slot) and the class and "others" log-odds in units of ``quantum``."""
 EMPTY_ID = 255
 TREE_TYPE = "MultiClassBayesOcTree"
+
+USE_KERNEL = True
+"""Update the payloads with the compiled kernel (:mod:`evsmap.mapping.mcb_kernel`) when numba
+is installed; False selects the numpy reference (the tests compare the two)."""
 
 
 class MultiClassBayesMap(OctreeUpdater):
@@ -88,6 +93,26 @@ class MultiClassBayesMap(OctreeUpdater):
 
     def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
                          observation: SemanticObservation | None) -> None:
+        self._check_classes(observation)
+        if USE_KERNEL and frame_update is not None:
+            pixels, voxels, local_index = self.endpoint_voxels(points)
+            span = int(observation.classes.max()) + 1 if observation.classes.size else 0
+            if 0 < span and len(voxels) * span <= fusion._DENSE_LIMIT:
+                k = observation.k
+                m = self.map
+                frame_update(
+                    m.payload("classes"), m.payload("class_logodds"), m.payload("others"),
+                    update.free_index, voxels, local_index, pixels,
+                    observation.classes.reshape(-1, k), observation.probs.reshape(-1, k),
+                    span, self.quantum,
+                    self._steps, self.psi, self.phi, self.theta, fusion.MIN_LOGODDS,
+                    fusion.MAX_LOGODDS, fusion.PROB_MIN)
+                return
+        self._update_payloads_numpy(points, update, observation)
+
+    def _update_payloads_numpy(self, points: FramePoints, update: ScanUpdate,
+                               observation: SemanticObservation) -> None:
+        """The reference implementation (numpy, whole arrays)."""
         # rays: lower the semantics of traversed voxels that have some
         free = update.free_index
         if free.size:
@@ -96,7 +121,6 @@ class MultiClassBayesMap(OctreeUpdater):
             if idx.size:
                 self._store(idx, fusion.mcb_miss(self.state(idx), phi=self.phi))
         # end points: local map of this frame, merged with Algorithm 1
-        self._check_classes(observation)
         pixels, voxels, local_index = self.endpoint_voxels(points)
         if not voxels.size:
             return
