@@ -77,7 +77,8 @@ def test_multiclass_bayes_mapping_goals(benchmark, capsys, tum_frames):
             "rate vs classic-semantic > 1": mcb["hz"] / cls["hz"] > 1.0,
             "file classic / multiclass >= 2": cls["map_bytes"] / mcb["map_bytes"] >= 2.0,
         }
-        lines.append(f"  {res * 100:g} cm ratios: rate/octomap-cpp {mcb['hz'] / ref['hz']:.2f}, "
+        lines.append(f"  {res * 100:g} cm ratios: rate/octomap-cpp {mcb['hz'] / ref['hz']:.2f} "
+                     f"(stretch goal 3: {'met' if mcb['hz'] >= 3 * ref['hz'] else 'not met'}), "
                      f"rate/classic {mcb['hz'] / cls['hz']:.2f}, file classic/multiclass "
                      f"{cls['map_bytes'] / mcb['map_bytes']:.2f}")
         failed += [f"{res * 100:g} cm: {k}" for k, ok in checks.items() if not ok]
