@@ -36,8 +36,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "real TUM sample; mIoU where prepared datasets and trained weights are "
                     "given) and write reports/<run>/ with the paper's value beside every "
                     "measured one. Cells that cannot be measured say what they need.")
-    p.add_argument("--tables", type=_tables, default=list(TABLE_NAMES.values()),
-                   metavar="LIST", help="tables to reproduce, e.g. I,IV (default I,II,III,IV)")
+    p.add_argument("--tables", type=_tables, default=None,
+                   metavar="LIST", help="tables to reproduce, e.g. I,IV (default I,II,III,IV; "
+                                        "with --resume, those of the run)")
     p.add_argument("--out", type=Path, metavar="DIR",
                    help="run folder (default reports/<UTC date-time>)")
     p.add_argument("--data-root", type=Path, metavar="DIR",
@@ -82,9 +83,22 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:
             raise EvsmapError(f"--resume: {out / 'run.json'} is unreadable ({exc})") from None
         stamp = previous.get("run", stamp)
+        # a resumed run keeps its settings: records made with other ones would be mixed in
+        if bool(previous.get("quick")) != args.quick:
+            raise EvsmapError(f"--resume: the run in {out} was made "
+                              f"{'with' if previous.get('quick') else 'without'} --quick; "
+                              f"resume it with the same setting")
+        stored = list(previous.get("tables") or TABLE_NAMES.values())
+        if args.tables is not None and args.tables != stored:
+            raise EvsmapError(f"--resume: the run in {out} covers tables "
+                              f"{', '.join(stored)}; resume it without --tables (or with the "
+                              f"same list)")
+        args.tables = stored
     elif out.exists() and any(out.iterdir()):
         raise EvsmapError(f"--out {out}: folder exists and is not empty (use --resume to "
                           f"continue a run there)")
+    if args.tables is None:
+        args.tables = list(TABLE_NAMES.values())
     if args.weights_dir is not None and not args.weights_dir.is_dir():
         raise EvsmapError(f"--weights-dir {args.weights_dir}: no such folder")
     if args.data_root is not None and not args.data_root.is_dir():
