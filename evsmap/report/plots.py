@@ -126,10 +126,11 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path) -> bool:
             ax.set_axis_off()
             continue
         positive = [v for v in xs if v > 0]
-        if positive and max(positive) / min(positive) > 20:
-            from matplotlib.ticker import NullFormatter, ScalarFormatter
+        if positive and max(positive) / min(positive) > 8:
+            from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
             ax.set_xscale("log")
+            ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
             ax.xaxis.set_major_formatter(ScalarFormatter())
             ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel(xlabel)
