@@ -12,6 +12,7 @@ Each returns ``False`` (and writes nothing) when it has no data to draw.
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -316,7 +317,7 @@ def _draw_seg(axes, data: Mapping[str, np.ndarray], path: Path) -> None:
     for ax, img, name in zip(axes, (rgb, _overlay(rgb, gt), _overlay(rgb, pred)),
                              (f"{title}: RGB", "ground truth", "prediction"), strict=True):
         ax.imshow(img)
-        ax.set_title(name, fontsize=8)
+        ax.set_title(textwrap.fill(name, 48), fontsize=8)
         ax.set_axis_off()
 
 
