@@ -14,6 +14,7 @@ Every problem with the user's files raises :class:`~evsmap.errors.DataFormatErro
 
 from __future__ import annotations
 
+import abc
 import json
 import os
 from collections.abc import Callable, Iterable
@@ -270,9 +271,9 @@ class SegmentationSequence(Sequence):
     def __len__(self) -> int:
         return len(self.names)
 
+    @abc.abstractmethod
     def load(self, index: int) -> tuple[np.ndarray, np.ndarray, Intrinsics, np.ndarray | None]:
         """(rgb uint8 HxWx3, depth float32 metres HxW, intrinsics, labels uint8 HxW or None)."""
-        raise NotImplementedError
 
     def frame(self, index: int) -> Frame:
         rgb, depth, intrinsics, labels = self.load(index)

@@ -52,9 +52,9 @@ def _clip(x, lo, hi):
     return x
 
 
-def _top3(keys, valid, n, out):
-    """Indices of the 3 smallest keys (``-value``; invalid = +inf) in stable order; the full
-    ranking of the ``n`` candidates is written to ``out``."""
+def _rank(keys, n, out):
+    """The stable ascending ranking of the ``n`` keys (``-value``; invalid = +inf) written to
+    ``out``: the first 3 are the kept candidates."""
     for i in range(n):
         out[i] = i
     # insertion sort: stable
@@ -224,7 +224,7 @@ def _frame_update(classes, lodds, others, free, voxels, local_index, pixels, obs
             cand_lo[3 + j] = (np.float64(loc_lo[j]) + delta_g) / 2.0
         for i in range(6):
             keys6[i] = -cand_lo[i] if cand_ok[i] else np.inf
-        _top3(keys6, cand_ok, 6, rank6)
+        _rank(keys6, 6, rank6)
         # log-sum-exp of the candidates ranked 4..6 that are valid
         top = -np.inf
         for r in range(3, 6):
@@ -249,7 +249,7 @@ def _frame_update(classes, lodds, others, free, voxels, local_index, pixels, obs
         for i in range(6):
             cand_lo[i] = _clip(cand_lo[i], min_lo, max_lo)
             keys6[i] = -cand_lo[i] if cand_ok[i] else np.inf
-        _top3(keys6, cand_ok, 6, rank6)
+        _rank(keys6, 6, rank6)
         for s in range(3):
             i = rank6[s]
             if cand_ok[i]:
@@ -266,7 +266,7 @@ if numba is not None:
     _logaddexp = numba.njit(**_opts)(_logaddexp)
     _quantize = numba.njit(**_opts)(_quantize)
     _clip = numba.njit(**_opts)(_clip)
-    _top3 = numba.njit(**_opts)(_top3)
+    _rank = numba.njit(**_opts)(_rank)
     frame_update = numba.njit(**_opts)(_frame_update)
 else:  # pragma: no cover
     frame_update = None

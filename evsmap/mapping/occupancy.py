@@ -240,16 +240,17 @@ class OccupancyMap:
         count = int(np.count_nonzero(new))
         index = pos + np.cumsum(new) - new  # shifted by the new leaves inserted before
         if count:
-            # one mask of where the old entries go, shared by every array (np.insert per array
-            # would rebuild it each time)
             created = index[new]
-            old = np.ones(len(self._codes) + count, dtype=bool)
-            old[created] = False
+            total = len(self._codes) + count
+            old = None  # without the kernel: one mask of where the old rows go, for all arrays
+            if grow_rows is None:
+                old = np.ones(total, dtype=bool)
+                old[created] = False
 
             def grow(arr: np.ndarray, fill) -> np.ndarray:
-                out = np.empty((len(old), *arr.shape[1:]), dtype=arr.dtype)
-                if grow_rows is not None and arr.ndim <= 2:
-                    width = 1 if arr.ndim == 1 else arr.shape[1]
+                out = np.empty((total, *arr.shape[1:]), dtype=arr.dtype)
+                if old is None:
+                    width = int(np.prod(arr.shape[1:], dtype=np.int64))
                     fill = np.asarray(fill, dtype=arr.dtype)
                     rows = len(fill) if fill.ndim == arr.ndim else 1
                     fill = np.ascontiguousarray(
