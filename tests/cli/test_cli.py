@@ -117,7 +117,7 @@ def test_every_command_has_help():
         assert proc.returncode == 0 and "usage: evsmap " + cmd in proc.stdout
 
 
-def test_reproduce_quick_table_iv_then_resume_and_report(capsys, tmp_path, data_root):
+def test_reproduce_quick_table_iv_then_resume_and_report(capsys, tmp_path, data_root, tum_dir):
     out_dir = tmp_path / "report"
     code, out, err = run(capsys, "reproduce", "--quick", "--tables", "IV", "--out",
                          str(out_dir), "--data-root", str(data_root))

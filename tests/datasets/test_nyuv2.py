@@ -21,11 +21,8 @@ from evsmap.registry import READERS
 
 
 @pytest.fixture(scope="module")
-def samples(data_root):
-    path = data_root / "nyuv2_samples"
-    if not path.is_dir():
-        pytest.skip(f"{path} not present")
-    return path
+def samples(nyuv2_samples_dir):
+    return nyuv2_samples_dir
 
 
 def test_real_samples(samples):

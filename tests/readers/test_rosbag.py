@@ -277,12 +277,10 @@ def assert_matches_tum(seq, tum, *, rgb_exact=True, depth_tol=0.0):
 # --------------------------------------------------------------------------------------------
 
 
-def test_real_lidar_bag(data_root):
+def test_real_lidar_bag(lidar_bag):
     from rosbags.highlevel import AnyReader
 
-    bag = data_root / "ros" / "lidar_odometry.bag"
-    if not bag.is_file():
-        pytest.skip(f"{bag} not present")
+    bag = lidar_bag
     assert is_rosbag(bag)
     # the clouds are stamped in 2020 wall time and the odometry in simulated time (60.2 s ..),
     # also 7 s apart in bag time: the reader pairs them in order and says so
@@ -381,7 +379,7 @@ def test_ros1_jpeg_and_compressed_inverse_depth(tmp_path, tum):
                        depth_tol=zmax**2 / (DEPTH_Z0 * (DEPTH_Z0 + 1)) + 1e-4)
 
 
-def test_cli_info_and_map_on_bags(tmp_path, tum, data_root, capsys):
+def test_cli_info_and_map_on_bags(tmp_path, tum, lidar_bag, capsys):
     from evsmap.cli.main import main
 
     bag = write_tum_bag(tmp_path / "cli.bag", tum, "ros1")
@@ -392,14 +390,12 @@ def test_cli_info_and_map_on_bags(tmp_path, tum, data_root, capsys):
     assert main(["map", str(bag), "--updater", "orgb", "--frames", "2",
                  "--resolution", "0.1"]) == 0
     assert "2 frames of cli" in capsys.readouterr().out
-    lidar = data_root / "ros" / "lidar_odometry.bag"
-    if lidar.is_file():
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            assert main(["info", str(lidar)]) == 0
-            assert "clouds      35,707 .. 36,457 points" in capsys.readouterr().out
-            assert main(["map", str(lidar), "--updater", "orgb", "--resolution", "0.2"]) == 0
-            assert "5 frames of lidar_odometry" in capsys.readouterr().out
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["info", str(lidar_bag)]) == 0
+        assert "clouds      35,707 .. 36,457 points" in capsys.readouterr().out
+        assert main(["map", str(lidar_bag), "--updater", "orgb", "--resolution", "0.2"]) == 0
+        assert "5 frames of lidar_odometry" in capsys.readouterr().out
 
 
 # --------------------------------------------------------------------------------------------

@@ -200,7 +200,7 @@ def test_mapping_run_on_the_synthetic_sequence(ctx):
     assert rec.environment["cpu"]
 
 
-def test_accuracy_cell_with_a_dataset_and_weights(tmp_path, data_root):
+def test_accuracy_cell_with_a_dataset_and_weights(tmp_path, nyuv2_samples_dir):
     import shutil
 
     import torch
@@ -210,7 +210,7 @@ def test_accuracy_cell_with_a_dataset_and_weights(tmp_path, data_root):
 
     # a prepared NYUv2 folder: the two real samples as the test split
     root = tmp_path / "data"
-    shutil.copytree(data_root / "nyuv2_samples", root / "nyuv2")
+    shutil.copytree(nyuv2_samples_dir, root / "nyuv2")
     (root / "nyuv2" / "test.txt").write_text("000433\n000464\n")
     (root / "nyuv2" / "train.txt").write_text("")
     weights = tmp_path / "weights"
