@@ -1,12 +1,17 @@
-"""Developer and CI sessions. Every install goes through constraints.txt (torch==2.13.0 CPU)."""
+"""Developer and CI sessions. Every install goes through constraints.txt, the full lock of the
+runtime and test dependencies (torch==2.13.0 CPU among them); `nox -s lock` regenerates it."""
 
 from __future__ import annotations
+
+import re
+from pathlib import Path
 
 import nox
 
 nox.options.sessions = ["tests", "lint"]
 nox.options.reuse_existing_virtualenvs = True
-CONSTRAINTS = ("-c", "constraints.txt")
+LOCK = "constraints.txt"
+CONSTRAINTS = ("-c", LOCK)
 
 
 def _install(session: nox.Session, extras: str = "test") -> None:
@@ -42,3 +47,25 @@ def reproduce(session: nox.Session) -> None:
     """The main job: `evsmap reproduce` (extra arguments are passed on)."""
     _install(session, extras="test")
     session.run("evsmap", "reproduce", *session.posargs)
+
+
+@nox.session
+def lock(session: nox.Session) -> None:
+    """Regenerate constraints.txt: every dependency of every extra resolved afresh (pip-tools).
+
+    Inputs: pyproject.toml and requirements/pins.in (torch==2.13.0). Extra arguments go to
+    pip-compile, e.g. `nox -s lock -- --upgrade-package numpy` instead of the full upgrade.
+    """
+    session.install(*CONSTRAINTS, "pip-tools")
+    args = list(session.posargs) or ["--upgrade"]
+    session.run("pip-compile", "--quiet", "--all-extras", "--strip-extras", "--no-emit-index-url",
+                "--no-emit-find-links", "--output-file", LOCK, *args, "pyproject.toml",
+                "requirements/pins.in", env={"CUSTOM_COMPILE_COMMAND": "nox -s lock"})
+    _portable_torch_pin(Path(LOCK))
+
+
+def _portable_torch_pin(path: Path) -> None:
+    """`torch==2.13.0+cpu` (a local wheel's version) -> `torch==2.13.0`, which both the CPU wheel
+    and PyPI's build satisfy, so the lock installs on machines with either index."""
+    text = path.read_text()
+    path.write_text(re.sub(r"^(torch==[0-9.]+)\+\w+", r"\1", text, flags=re.MULTILINE))

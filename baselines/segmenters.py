@@ -4,13 +4,15 @@
 from __future__ import annotations
 
 from os import PathLike
+from typing import TYPE_CHECKING
 
-from baselines.esanet import esanet_r34_nbt1d
-from baselines.fchardnet import fchardnet70
 from evsmap.classes import class_names_for
 from evsmap.errors import UnknownNameError
 from evsmap.registry import SEGMENTERS
-from evsmap.segmenters.network import INDOOR, NetworkSegmenter, Normalization
+from evsmap.segmenters.normalization import INDOOR, Normalization
+
+if TYPE_CHECKING:  # the networks import torch: only when one is made
+    from evsmap.segmenters.network import NetworkSegmenter
 
 _SIZES = {"nyuv2": (480, 640), "sunrgbd": (480, 640), "cityscapes": (512, 1024)}
 _CLASSES = {"nyuv2": 40, "sunrgbd": 37, "cityscapes": 19}
@@ -28,6 +30,8 @@ def _dataset(name: str, dataset: str) -> str:
 
 def _network(name: str, dataset: str, num_classes: int | None, build, *, uses_depth: bool,
              backend: str, weights, input_size) -> NetworkSegmenter:
+    from evsmap.segmenters.network import NetworkSegmenter
+
     key = _dataset(name, dataset)
     classes = _CLASSES[key] if num_classes is None else num_classes
     return NetworkSegmenter(
@@ -51,6 +55,8 @@ def esanet(
     weights: str | PathLike[str] | None = None,
     input_size: tuple[int, int] | None = None,
 ) -> NetworkSegmenter:
+    from baselines.esanet import esanet_r34_nbt1d
+
     return _network("esanet-r34-nbt1d", dataset, num_classes,
                     lambda c, d: esanet_r34_nbt1d(num_classes=c, dataset=d), uses_depth=True,
                     backend=backend, weights=weights, input_size=input_size)
@@ -69,6 +75,8 @@ def fchardnet(
     weights: str | PathLike[str] | None = None,
     input_size: tuple[int, int] | None = None,
 ) -> NetworkSegmenter:
+    from baselines.fchardnet import fchardnet70
+
     return _network("fchardnet-70", dataset, num_classes,
                     lambda c, d: fchardnet70(num_classes=c), uses_depth=False,
                     backend=backend, weights=weights, input_size=input_size)

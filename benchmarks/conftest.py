@@ -10,7 +10,9 @@ import pytest
 
 
 def pytest_benchmark_update_machine_info(config, machine_info):
-    import open3d
+    from evsmap.open3d_loader import load_open3d
+
+    open3d = load_open3d()
     import torch
 
     machine_info["evsmap"] = {
@@ -20,23 +22,12 @@ def pytest_benchmark_update_machine_info(config, machine_info):
 
 
 @pytest.fixture(scope="session")
-def shared_data():
-    from evsmap.paths import default_data_root
-
-    root = default_data_root()
-    if root is None:
-        pytest.skip("real sample data not found (set EVSMAP_DATA_ROOT)")
-    return root
-
-
-@pytest.fixture(scope="session")
-def tum_frames(shared_data):
+def tum_frames():
     """All 37 real TUM fr1_xyz frames (0.021 s association tolerance keeps the 37th)."""
     from evsmap.registry import READERS
+    from evsmap.testing import require_sample
 
-    path = shared_data / "tum_fr1_xyz"
-    if not path.is_dir():
-        pytest.skip(f"{path} not present")
+    path = require_sample("tum-fr1-xyz")
     seq = READERS.create("tum", path=str(path), max_time_difference=0.021)
     return [seq[i] for i in range(len(seq))]
 

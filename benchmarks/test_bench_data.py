@@ -22,7 +22,9 @@ def test_ground_truth_voxels_2cm(benchmark):
     assert len(vox) > 0
 
 
-def test_load_tum_frame(benchmark, shared_data):
-    seq = TumSequence(path=shared_data / "tum_fr1_xyz")
+def test_load_tum_frame(benchmark):
+    from evsmap.testing import require_sample
+
+    seq = TumSequence(path=require_sample("tum-fr1-xyz"))
     counter = iter(range(10**9))
     benchmark.pedantic(lambda: seq[next(counter) % len(seq)], rounds=30, warmup_rounds=3)

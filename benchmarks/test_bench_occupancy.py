@@ -13,6 +13,7 @@ import pytest
 
 from evsmap.mapping.occupancy import OccupancyMap
 from evsmap.mapping.raycast import frame_points
+from evsmap.testing import require_module
 
 MAX_RANGE = 4.0
 
@@ -26,7 +27,7 @@ def test_insert_frame(benchmark, tum_frames, impl, resolution):
         def insert(frame):
             target.insert_frame(frame, max_range=MAX_RANGE, discretize=True)
     else:
-        octomap = pytest.importorskip("octomap")
+        octomap = require_module("octomap")
         target = octomap.OcTree(resolution)
 
         def insert(frame):

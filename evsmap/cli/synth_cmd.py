@@ -12,8 +12,8 @@ from evsmap.classes import NYU40_CLASSES
 from evsmap.cli.options import nonnegative_int, positive_int
 from evsmap.fileio import staging_folder
 from evsmap.progress import progress
+from evsmap.readers.images import DEPTH_SCALE
 from evsmap.readers.tum import METADATA_FILE, write_tum
-from evsmap.synth.render import DEPTH_SCALE
 from evsmap.synth.scene import DEFAULT_SCENE, SCENES
 from evsmap.synth.sequence import GENERATOR_VERSION, SyntheticSequence
 

@@ -152,7 +152,9 @@ def export_ply(updater, path: str | os.PathLike[str], *, color_by: str | None = 
 
 def _write_point_cloud(path: Path, points: np.ndarray, colors: np.ndarray) -> None:
     """Binary PLY through Open3D, atomically (temporary ``.ply`` beside ``path``, then rename)."""
-    import open3d as o3d
+    from evsmap.open3d_loader import load_open3d
+
+    o3d = load_open3d()
 
     folder = path.parent
     if not folder.is_dir():

@@ -9,6 +9,22 @@ from PIL import Image, UnidentifiedImageError
 
 from evsmap.errors import DataFormatError
 
+DEPTH_SCALE = 5000.0
+"""TUM RGB-D depth PNG scale: metres = value / 5000."""
+
+
+def quantize_depth(depth: np.ndarray, scale: float = DEPTH_SCALE) -> np.ndarray:
+    """Metres -> ``uint16`` PNG values (0 stays invalid; beyond 65535/scale becomes invalid)."""
+    q = np.round(np.asarray(depth, np.float64) * scale)
+    q[(q > 65535) | ~np.isfinite(q)] = 0
+    return q.astype(np.uint16)
+
+
+def dequantize_depth(raw: np.ndarray, scale: float = DEPTH_SCALE) -> np.ndarray:
+    """``uint16`` PNG values -> metres as ``float32`` (0 = invalid). The one conversion used by
+    the renderer and every reader, so a write/read round trip is exact."""
+    return raw.astype(np.float32) / np.float32(scale)
+
 
 def _open(path: Path) -> Image.Image:
     if not path.is_file():

@@ -21,9 +21,16 @@ import numpy as np
 from evsmap.data import Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.geometry import interpolate_poses, matrix_to_quat
-from evsmap.readers.images import read_rgb, read_uint8_labels, read_uint16, write_png
+from evsmap.readers.images import (
+    DEPTH_SCALE,
+    dequantize_depth,
+    quantize_depth,
+    read_rgb,
+    read_uint8_labels,
+    read_uint16,
+    write_png,
+)
 from evsmap.registry import READERS
-from evsmap.synth.render import DEPTH_SCALE, dequantize_depth, quantize_depth
 
 # Published intrinsics of the TUM RGB-D cameras (640x480), from the dataset's documentation.
 TUM_CAMERAS: dict[str, Intrinsics] = {

@@ -190,6 +190,17 @@ def _map_labels(tables: Mapping[str, PaperTable], records: list[CellRecord]) -> 
 
 
 # ------------------------------------------------------------------------------- index
+def _lock_text(lock: Mapping) -> str:
+    """``constraints.txt`` sha256 and whether the installed versions matched its pins."""
+    head = f"`{lock.get('file', 'constraints.txt')}` sha256 {str(lock.get('sha256', ''))[:12]}"
+    differs = lock.get("differs") or {}
+    if not differs:
+        return (f"{head}; the {lock.get('installed_pins', '?')} installed pinned packages match "
+                f"the lock")
+    listed = ", ".join(f"{_md(n)} {v[1]} (lock {v[0]})" for n, v in sorted(differs.items()))
+    return f"{head}; **installed outside the lock**: {listed}"
+
+
 def _md(text: Any) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
@@ -224,8 +235,12 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
         if isinstance(versions, Mapping):
             for lib, version in versions.items():
                 out.append(f"| {_md(lib)} | {_md(version if version else 'not installed')} |")
+        lock = env.get("lock")
+        if isinstance(lock, Mapping):
+            out.append(f"| lock | {_lock_text(lock)} |")
         for key, value in env.items():
-            if key not in ("cpu", "cpus", "threads", "python", "host", "git_commit", "versions"):
+            if key not in ("cpu", "cpus", "threads", "python", "host", "git_commit", "versions",
+                           "lock"):
                 out.append(f"| {_md(key)} | {_md(value)} |")
         out.append("")
 

@@ -58,6 +58,9 @@ def environment(threads: int | None = None) -> dict[str, Any]:
         except PackageNotFoundError:
             pass
     env["git_commit"] = git_commit()
+    from evsmap.lock import lock_status
+
+    env["lock"] = lock_status()
     return env
 
 

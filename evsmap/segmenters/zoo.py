@@ -5,31 +5,35 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from os import PathLike
+from typing import TYPE_CHECKING
 
 from evsmap.classes import class_names_for
-from evsmap.models import feagnet as fg
 from evsmap.registry import SEGMENTERS
-from evsmap.segmenters.network import INDOOR, NetworkSegmenter, Normalization
+from evsmap.segmenters.normalization import INDOOR, Normalization
+
+if TYPE_CHECKING:
+    from evsmap.segmenters.network import NetworkSegmenter
 
 CITYSCAPES = Normalization(depth_mean=0.0, depth_std=1.0)
 """ImageNet RGB statistics (the S/L variants read no depth)."""
 
-_VARIANTS: dict[str, tuple[Callable[..., fg.FEAGNet], int, tuple[int, int], bool, str]] = {
-    "feagnet-v1": (fg.feagnet_v1, 40, (480, 640), True,
+# name -> (builder in evsmap.models.feagnet, classes, paper size, reads depth, description); the
+# builders are looked up when a network is made, so naming the networks does not import torch
+_VARIANTS: dict[str, tuple[str, int, tuple[int, int], bool, str]] = {
+    "feagnet-v1": ("feagnet_v1", 40, (480, 640), True,
                    "FEAGNet-V1 (EVSMaP): RGB-D, strided init layer; NYUv2 40 classes"),
-    "feagnet-v2": (fg.feagnet_v2, 40, (480, 640), True,
+    "feagnet-v2": ("feagnet_v2", 40, (480, 640), True,
                    "FEAGNet-V2 (EVSMaP): RGB-D; NYUv2 40 classes"),
-    "feagnet-s": (fg.feagnet_s, 19, (512, 1024), False,
+    "feagnet-s": ("feagnet_s", 19, (512, 1024), False,
                   "FEAGNet-S (EVSMaP): RGB only, strided init layer; Cityscapes 19 classes"),
-    "feagnet-l": (fg.feagnet_l, 19, (512, 1024), False,
+    "feagnet-l": ("feagnet_l", 19, (512, 1024), False,
                   "FEAGNet-L (EVSMaP): RGB only; Cityscapes 19 classes"),
 }
 
 
 def _register(name: str) -> None:
-    build, classes, size, depth, description = _VARIANTS[name]
+    builder, classes, size, depth, description = _VARIANTS[name]
 
     def factory(
         *,
@@ -42,10 +46,13 @@ def _register(name: str) -> None:
         attention: bool = True,
         multiscale: bool = True,
     ) -> NetworkSegmenter:
+        from evsmap.models import feagnet
+        from evsmap.segmenters.network import NetworkSegmenter
+
         switches = dict(dappf=dappf, attention=attention, multiscale=multiscale)
         if depth:
             switches["cfim"] = cfim
-        module = build(num_classes=num_classes, **switches)
+        module = getattr(feagnet, builder)(num_classes=num_classes, **switches)
         return NetworkSegmenter(
             name=name, module=module, num_classes=num_classes,
             class_names=class_names_for(num_classes, outdoor=not depth), uses_depth=depth,

@@ -12,26 +12,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from evsmap.data import Intrinsics
+from evsmap.open3d_loader import load_open3d
+from evsmap.readers.images import (  # noqa: F401  (re-exported: the renderer's depth encoding)
+    DEPTH_SCALE,
+    dequantize_depth,
+    quantize_depth,
+)
 from evsmap.synth.scene import BOX_TRIANGLES, Room
-
-DEPTH_SCALE = 5000.0
-"""TUM RGB-D depth PNG scale: metres = value / 5000."""
-
-
-def quantize_depth(depth: np.ndarray, scale: float = DEPTH_SCALE) -> np.ndarray:
-    """Metres -> ``uint16`` PNG values (0 stays invalid; beyond 65535/scale becomes invalid)."""
-    q = np.round(np.asarray(depth, np.float64) * scale)
-    q[(q > 65535) | ~np.isfinite(q)] = 0
-    return q.astype(np.uint16)
-
-
-def dequantize_depth(raw: np.ndarray, scale: float = DEPTH_SCALE) -> np.ndarray:
-    """``uint16`` PNG values -> metres as ``float32`` (0 = invalid). The one conversion used by
-    the renderer and every reader, so a write/read round trip is exact."""
-    return raw.astype(np.float32) / np.float32(scale)
 
 
 @dataclass(frozen=True)
@@ -48,6 +37,8 @@ class RoomRenderer:
     """Ray-casts one room; build once, render many poses."""
 
     def __init__(self, room: Room) -> None:
+        o3d = load_open3d()
+        self._o3d = o3d
         self.room = room
         self.scene = o3d.t.geometry.RaycastingScene()
         self._geom_to_part = {}
@@ -74,7 +65,7 @@ class RoomRenderer:
         dirs = cam.reshape(-1, 3) @ pose[:3, :3].T
         origin = np.broadcast_to(pose[:3, 3], dirs.shape)
         rays = np.concatenate([origin, dirs], axis=1).astype(np.float32)
-        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        ans = self.scene.cast_rays(self._o3d.core.Tensor(rays))
         t = ans["t_hit"].numpy()
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         hit = np.isfinite(t)

@@ -15,6 +15,7 @@ from baselines.esanet import (
     esanet_r34_nbt1d,
 )
 from evsmap.errors import UnknownNameError
+from evsmap.testing import require_module
 
 # Reference figures (shared/reference/segmentation.md, "ESANet-R34-NBt1D", pretrained=False).
 PARAMS_NYUV2 = 46_955_840
@@ -85,7 +86,7 @@ def test_param_counts(build, expected: int) -> None:
 
 
 def _fvcore_total(model: nn.Module, height: int, width: int) -> tuple[int, set[str]]:
-    fvcore_nn = pytest.importorskip("fvcore.nn")
+    fvcore_nn = require_module("fvcore.nn")
     rgb, depth = _inputs(height, width)
     with torch.no_grad():
         flops = fvcore_nn.FlopCountAnalysis(model.eval(), (rgb, depth))
@@ -237,7 +238,7 @@ def _tame(model: ESANet, rgb: torch.Tensor, depth: torch.Tensor) -> None:
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
 def test_onnx_export_at_480x640_matches_torch(tmp_path) -> None:
-    ort = pytest.importorskip("onnxruntime")
+    ort = require_module("onnxruntime")
     torch.manual_seed(0)
     model = esanet_r34_nbt1d(dataset="nyuv2")
     rgb, depth = _inputs(480, 640)

@@ -20,9 +20,11 @@ from evsmap.mapping.export import (
     export_ply,
     occupied_points,
 )
+from evsmap.open3d_loader import load_open3d
 from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+from evsmap.testing import require_module
 
-o3d = pytest.importorskip("open3d")
+o3d = load_open3d()
 
 RES = 0.1
 
@@ -182,7 +184,7 @@ def test_rgb_without_colours_and_class_without_classes(mcb, orgb, tmp_path):
 def test_not_an_octree_updater(tmp_path):
     with pytest.raises(InvalidDataError, match="octree map updater"):
         occupied_points(object())
-    pytest.importorskip("octomap")
+    require_module("octomap")
     with pytest.raises(InvalidDataError, match="octree map updater"):
         export_ply(UPDATERS.create("octomap-cpp"), tmp_path / "x.ply")
 

@@ -10,8 +10,9 @@ from evsmap.interfaces import FREE, OCCUPIED, UNKNOWN, PointQuery
 from evsmap.mapping.keys import KEY_OFFSET, pack
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate, logodds
 from evsmap.mapping.raycast import frame_points, scan_keys
+from evsmap.testing import require_module
 
-octomap = pytest.importorskip("octomap")
+octomap = require_module("octomap")
 
 RES = 0.05
 MAX_RANGE = 4.0

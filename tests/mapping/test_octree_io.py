@@ -17,6 +17,7 @@ from evsmap.mapping.octree_io import (
     write_ot,
 )
 from evsmap.mapping.tree import Tree, build_color_tree, build_tree, expand_leaves
+from evsmap.testing import require_module
 
 RES = 0.1
 OFFSETS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])
@@ -25,7 +26,7 @@ SEM = np.dtype([("cls", "u1", (3,)), ("conf", ">f4", (3,)), ("others", "<f8")])
 
 @pytest.fixture(scope="module")
 def octomap():
-    return pytest.importorskip("octomap")
+    return require_module("octomap")
 
 
 def octomap_nodes(tree, colour=False):

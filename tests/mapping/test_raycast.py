@@ -11,8 +11,9 @@ import evsmap.mapping.raycast as raycast
 from evsmap.data import Frame, Intrinsics
 from evsmap.mapping.keys import KEY_OFFSET, pack, unpack
 from evsmap.mapping.raycast import ScanKeys, frame_points, octomap_keys, scan_keys
+from evsmap.testing import missing, require_module
 
-octomap = pytest.importorskip("octomap")
+octomap = require_module("octomap")
 
 
 def k(*ijk: int) -> int:
@@ -166,7 +167,7 @@ def test_points_outside_the_key_range_are_skipped_like_octomap():
 def dda(request, monkeypatch):
     """Both ray walkers: the compiled kernel and the pure-numpy merge."""
     if request.param == "kernel" and raycast.trace is None:
-        pytest.skip("numba not installed")
+        missing("numba cannot be imported: the compiled ray walker is untested")
     monkeypatch.setattr(raycast, "USE_KERNEL", request.param == "kernel")
     return request.param
 

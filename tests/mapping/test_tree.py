@@ -11,6 +11,7 @@ from evsmap.mapping.tree import (
     octomap_colour_average,
     unmorton,
 )
+from evsmap.testing import require_module
 
 OFFSETS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])  # child order
 
@@ -234,7 +235,7 @@ def octomap_test_tree(octomap, res=0.1, seed=3):
 
 
 def test_matches_octomap_structure_and_memory():
-    octomap = pytest.importorskip("octomap")
+    octomap = require_module("octomap")
     ot = octomap_test_tree(octomap)
     d, c, v, leaf = octomap_nodes(ot)
     assert d[leaf].min() <= 13
@@ -250,7 +251,7 @@ def test_matches_octomap_structure_and_memory():
 
 
 def test_colour_tree_matches_octomap_colours():
-    octomap = pytest.importorskip("octomap")
+    octomap = require_module("octomap")
     rng = np.random.default_rng(4)
     ct = octomap.ColorOcTree(0.1)
     for _ in range(3):

@@ -10,6 +10,7 @@ from evsmap.data import Frame, Intrinsics
 from evsmap.mapping.keys import pack
 from evsmap.mapping.raycast import octomap_keys
 from evsmap.registry import READERS
+from evsmap.testing import missing
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +29,7 @@ def _both(monkeypatch, frame, resolution, max_range=5.0, discretize=True):
 @pytest.mark.parametrize("resolution", [0.02, 0.05, 0.1])
 def test_kernel_and_numpy_grouping_agree(monkeypatch, tum_frame, resolution):
     if base.group_points is None:
-        pytest.skip("numba not installed")
+        missing("numba cannot be imported: the compiled grouping is untested")
     a, b = _both(monkeypatch, tum_frame, resolution)
     assert np.array_equal(a.voxel_codes, b.voxel_codes)
     assert np.array_equal(a.point_voxel, b.point_voxel)

@@ -8,8 +8,13 @@ import pytest
 import evsmap.mapping.occupancy as occupancy
 import evsmap.updaters.multiclass_bayes as mb
 from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+from evsmap.testing import missing
 
-pytestmark = pytest.mark.skipif(mb.frame_update is None, reason="numba not installed")
+
+@pytest.fixture(autouse=True)
+def _compiled_kernel():
+    if mb.frame_update is None:
+        missing("numba cannot be imported: the compiled multiclass-bayes update is untested")
 
 
 def _maps(monkeypatch, frames, observations, resolution, **options):
