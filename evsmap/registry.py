@@ -30,6 +30,7 @@ _BUILTIN_MODULES = (
     "evsmap.readers.tum",
     "evsmap.readers.synthetic",
     "evsmap.readers.rosbag",
+    "evsmap.readers.sevenscenes",
     "evsmap.datasets.nyuv2",
     "evsmap.datasets.sunrgbd",
     "evsmap.datasets.cityscapes",

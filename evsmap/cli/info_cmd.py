@@ -17,8 +17,9 @@ from evsmap.summary import summarize_sequence
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "info", help="describe a sequence folder (layout, frames, depth, poses, labels)",
-        description="Detect the layout of PATH (TUM RGB-D, evsmap synthetic, ...) and print the "
-                    "number of frames, resolution, depth range, pose span and label classes.")
+        description="Detect the layout of PATH (TUM RGB-D, evsmap synthetic, Microsoft 7-Scenes, "
+                    "...) and print the number of frames, resolution, depth range, pose span and "
+                    "label classes.")
     p.add_argument("path", type=Path, metavar="PATH", help="sequence folder")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
     p.add_argument("--camera", metavar="NAME",
