@@ -50,6 +50,13 @@ def reproduce(session: nox.Session) -> None:
 
 
 @nox.session
+def fetch(session: nox.Session) -> None:
+    """`evsmap datasets fetch`: real sample data (`nox -s fetch -- tum-fr1-xyz`; alone: the list)."""
+    _install(session)
+    session.run("evsmap", "datasets", "fetch", *session.posargs)
+
+
+@nox.session
 def lock(session: nox.Session) -> None:
     """Regenerate constraints.txt: every dependency of every extra resolved afresh (pip-tools).
 

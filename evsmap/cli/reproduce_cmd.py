@@ -108,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
     ctx = RunContext.create(out, data_root=args.data_root, weights_dir=args.weights_dir,
                             quick=args.quick)
     the_plan = plan(ctx, args.tables)
+    if "table4" in args.tables and ctx.dataset_path("tum") is None:
+        print(f"note: no real TUM sample under {ctx.data_root} (or datasets/): Table IV maps the "
+              f"synthetic room only; `evsmap datasets fetch tum-fr1-xyz` adds the sample")
     started = datetime.now(UTC).isoformat(timespec="seconds")
     env = environment(ctx.threads)
     sequences = {"synthetic": {**ctx.synthetic, "labels": "ground truth (oracle segmenter)"}}

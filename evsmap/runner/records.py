@@ -28,12 +28,19 @@ NEEDS_TEXT = {
 }
 
 
+FETCHABLE = {"tum": "tum-fr1-xyz"}
+"""Datasets a missing cell can get from ``evsmap datasets fetch`` (the sample's name)."""
+
+
 def needs_text(needs: list[str] | tuple[str, ...]) -> str:
     """``"n/a - needs the nyuv2 dataset, needs trained weights (feagnet-v2@nyuv2)"``."""
     parts = []
     for need in needs:
         kind, _, what = need.partition(":")
-        parts.append(NEEDS_TEXT.get(kind, "needs {}").format(what or kind))
+        text = NEEDS_TEXT.get(kind, "needs {}").format(what or kind)
+        if kind == "dataset" and what in FETCHABLE:
+            text += f" (`evsmap datasets fetch {FETCHABLE[what]}`)"
+        parts.append(text)
     return "n/a - " + ", ".join(parts) if parts else "n/a"
 
 

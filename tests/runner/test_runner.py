@@ -230,3 +230,9 @@ def test_accuracy_cell_with_a_dataset_and_weights(tmp_path, nyuv2_samples_dir):
     # SUN RGB-D is still missing
     sun = next(s for s in plan.specs if s.key == "table1/feagnet-v1/accuracy/sunrgbd:test[miou]")
     assert "dataset:sunrgbd" in sun.needs
+
+
+def test_a_missing_sample_names_the_fetch_command():
+    assert needs_text(["dataset:tum"]) == (
+        "n/a - needs the tum dataset (`evsmap datasets fetch tum-fr1-xyz`)")
+    assert "fetch" not in needs_text(["dataset:nyuv2"])
