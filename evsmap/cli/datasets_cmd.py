@@ -1,14 +1,15 @@
 """``evsmap datasets``: prepare the segmentation datasets (NYUv2, SUN RGB-D, Cityscapes) from
-their official files, and list the prepared ones."""
+their official files, list the prepared ones, and fetch the real sample data."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
-from evsmap.cli.options import positive_int
+from evsmap.cli.options import nonnegative_int, positive_int
 from evsmap.datasets import DATASETS, get_preparer
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.progress import progress
@@ -59,6 +60,42 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                      help="data root (default: datasets/ under the current folder)")
     lst.add_argument("--json", action="store_true", help="print the list as JSON")
     lst.set_defaults(run=run_list)
+
+    from evsmap.fetch import CACHE_ENV, CONFIRM_BYTES, MIRROR_ENV, RETRIES, format_size
+    from evsmap.samples import SAMPLES
+
+    fetch = dsub.add_parser(
+        "fetch", help="download the real sample data the tests and reproduce use",
+        description="Download a sample's official archive (resuming an interrupted download), "
+                    "extract only the files the tests and `evsmap reproduce` use, check them "
+                    "against the catalogue and put them under --out (default: the data root: "
+                    "$EVSMAP_DATA_ROOT, ../shared/data or ~/.cache/evsmap/data), written "
+                    "completely or not at all, with a manifest (evsmap-sample.json). Without "
+                    f"NAME, or with --list: the samples and whether each is present. "
+                    f"Downloads of {format_size(CONFIRM_BYTES)} or more need --yes. "
+                    f"${MIRROR_ENV}=URL fetches every archive from URL/<file name> instead "
+                    "of its official site.")
+    fetch.add_argument("name", nargs="?", choices=list(SAMPLES), metavar="NAME",
+                       help=f"one of {', '.join(SAMPLES)}")
+    fetch.add_argument("--list", action="store_true",
+                       help="list the samples (source, size, present or not) and stop")
+    fetch.add_argument("--out", type=Path, metavar="DIR",
+                       help="data root to put the sample under (default: the data root)")
+    fetch.add_argument("--yes", "-y", action="store_true",
+                       help=f"go on with a download of {format_size(CONFIRM_BYTES)} or more "
+                            "without asking")
+    fetch.add_argument("--overwrite", action="store_true",
+                       help="replace an existing sample (only once the new one is complete)")
+    fetch.add_argument("--cache-dir", type=Path, metavar="DIR",
+                       help=f"download folder (default: ${CACHE_ENV} or "
+                            "~/.cache/evsmap/downloads)")
+    fetch.add_argument("--keep-archive", action="store_true",
+                       help="keep the downloaded archive in the download folder afterwards")
+    fetch.add_argument("--retries", type=nonnegative_int, default=RETRIES, metavar="N",
+                       help=f"times to resume a transfer that breaks off (default {RETRIES}); "
+                            "a later call resumes too")
+    fetch.add_argument("--json", action="store_true", help="with --list: print JSON")
+    fetch.set_defaults(run=run_fetch)
 
 
 def run_prepare(args: argparse.Namespace) -> int:
@@ -127,4 +164,86 @@ def run_list(args: argparse.Namespace) -> int:
         else:
             detail = d.get("note", "")
         print(f"{d['name'] or '?':<11} {d['path']:<{width}}  {detail}")
+    return 0
+
+
+# -- fetch ----------------------------------------------------------------------------------------
+def _ask(message: str) -> bool:
+    sys.stderr.write(f"{message} [y/N] ")
+    sys.stderr.flush()
+    try:
+        answer = input()
+    except EOFError:
+        return False
+    return answer.strip().lower() in ("y", "yes")
+
+
+def _say(message: str) -> None:
+    print(message, flush=True)
+
+
+def run_fetch(args: argparse.Namespace) -> int:
+    from evsmap.fetch import fetch_sample, summarize
+    from evsmap.paths import default_data_root, shared_data_dir
+
+    if args.list or args.name is None:
+        return _list_samples(args)
+    if args.json:
+        raise EvsmapError("--json applies to the list (--list or no NAME)")
+    root = args.out if args.out is not None else default_data_root()
+    shared = shared_data_dir()
+    if args.overwrite and shared is not None and root.resolve() == shared.resolve():
+        raise EvsmapError(f"{root}: the shared data folder is read-only for evsmap; pass --out "
+                          "DIR to fetch elsewhere")
+    interactive = sys.stdin.isatty() and sys.stderr.isatty()
+    t0 = time.perf_counter()
+    manifest = fetch_sample(args.name, root, overwrite=args.overwrite, yes=args.yes,
+                            cache_dir=args.cache_dir, retries=args.retries,
+                            keep_archive=args.keep_archive,
+                            confirm=_ask if interactive else None, log=_say)
+    from evsmap.samples import SAMPLES
+
+    target = root / SAMPLES[args.name].folder
+    print(f"fetched {args.name} into {target} ({summarize(manifest)}, "
+          f"{time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def _sample_rows(root: Path) -> list[dict]:
+    from evsmap.fetch import read_sample_manifest
+    from evsmap.samples import SAMPLES
+
+    rows = []
+    for sample in SAMPLES.values():
+        path = root / sample.folder
+        manifest = read_sample_manifest(sample, root) if path.exists() else None
+        rows.append({
+            "name": sample.name, "path": str(path), "present": path.exists(),
+            "fetched": manifest.get("date") if manifest else None,
+            "size": sample.size_text(), "description": sample.description,
+            "sources": [{"url": s.url, "file": s.filename, "size": s.size, "sha256": s.sha256}
+                        for s in sample.sources],
+            "checks": sample.checks,
+        })
+    return rows
+
+
+def _list_samples(args: argparse.Namespace) -> int:
+    from evsmap.paths import default_data_root
+
+    root = args.out if args.out is not None else default_data_root()
+    rows = _sample_rows(root)
+    if args.json:
+        print(json.dumps({"root": str(root), "samples": rows}, indent=2))
+        return 0
+    print(f"samples under {root}  (evsmap datasets fetch NAME)")
+    width = max(len(r["name"]) for r in rows)
+    for r in rows:
+        if r["present"]:
+            present = f"yes (fetched {r['fetched'][:10]})" if r["fetched"] else "yes"
+        else:
+            present = "no"
+        more = len(r["sources"]) - 1
+        source = r["sources"][0]["url"] + (f" (+{more} more)" if more else "")
+        print(f"{r['name']:<{width}}  {present:<22}  {r['size']:<22}  {source}")
     return 0
