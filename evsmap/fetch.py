@@ -155,19 +155,19 @@ _OPENER = urllib.request.build_opener(_KeepMethodRedirect)
 
 
 def _open(url: str, *, method: str = "GET", headers: dict[str, str] | None = None,
-          timeout: float = TIMEOUT):
+          timeout: float):
     req = urllib.request.Request(url, method=method, headers={
         "User-Agent": _user_agent(), "Accept-Encoding": "identity", **(headers or {})})
     return _OPENER.open(req, timeout=timeout)
 
 
 # -- HTTP ---------------------------------------------------------------------------------------
-def remote_size(url: str, *, timeout: float = TIMEOUT) -> int | None:
+def remote_size(url: str, *, timeout: float | None = None) -> int | None:
     """The size the server reports for ``url`` (``HEAD``'s Content-Length), ``None`` when it does
     not say. A missing file (404 and other error statuses) or an unreachable host is a
     :class:`FetchError`; a server that refuses ``HEAD`` itself (405, 501) gives ``None``."""
     try:
-        with _open(url, method="HEAD", timeout=timeout) as resp:
+        with _open(url, method="HEAD", timeout=TIMEOUT if timeout is None else timeout) as resp:
             length = resp.headers.get("Content-Length")
     except urllib.error.HTTPError as exc:
         if exc.code in (405, 501):
@@ -194,8 +194,8 @@ def _content_range(value: str | None) -> tuple[int, int | None] | None:
 
 
 def download(url: str, dest: Path, *, size: int | None = None, sha256: str | None = None,
-             retries: int = RETRIES, timeout: float = TIMEOUT, log: Callable[[str], None] | None
-             = None) -> Path:
+             retries: int = RETRIES, timeout: float | None = None,
+             log: Callable[[str], None] | None = None) -> Path:
     """Download ``url`` to ``dest`` through ``dest.part``, resuming a ``.part`` left by an earlier
     call, and check the result.
 
@@ -206,6 +206,7 @@ def download(url: str, dest: Path, *, size: int | None = None, sha256: str | Non
     ``dest`` is kept when it passes the checks (and downloaded again when it does not).
     """
     dest = Path(dest)
+    timeout = TIMEOUT if timeout is None else timeout
     if dest.is_file():
         if _matches(dest, size, sha256):
             return dest
@@ -227,9 +228,9 @@ def download(url: str, dest: Path, *, size: int | None = None, sha256: str | Non
         except urllib.error.HTTPError as exc:
             if exc.code == 416 and offset:
                 # nothing left to send from here: the .part is complete, or not this file
-                if total is None:
-                    total = _content_range(exc.headers.get("Content-Range") or "bytes */")
-                    total = total[1] if total else None
+                if total is None:  # "bytes */TOTAL"
+                    tail = (exc.headers.get("Content-Range") or "").rpartition("/")[2].strip()
+                    total = int(tail) if tail.isdigit() else None
                 if total == offset:
                     break
                 part.unlink()
@@ -398,7 +399,8 @@ def fetch_sample(sample: Sample | str, out_root: str | Path | None = None, *,
                  overwrite: bool = False, yes: bool = False, cache_dir: str | Path | None = None,
                  mirror: str | None = None, retries: int = RETRIES, keep_archive: bool = False,
                  confirm: Callable[[str], bool] | None = None, confirm_above: int | None = None,
-                 log: Callable[[str], None] | None = None, timeout: float = TIMEOUT) -> dict:
+                 log: Callable[[str], None] | None = None, timeout: float | None = None
+                 ) -> dict:
     """Make ``sample`` (a :class:`~evsmap.samples.Sample` or its name) from its official files.
 
     The result goes to ``out_root / sample.folder`` (``out_root``: the data root by default). It is
@@ -417,6 +419,7 @@ def fetch_sample(sample: Sample | str, out_root: str | Path | None = None, *,
             raise FetchError(f"unknown sample {sample!r} (known: {', '.join(SAMPLES)})")
         sample = SAMPLES[sample]
     say = log or (lambda _msg: None)
+    timeout = TIMEOUT if timeout is None else timeout
     root = Path(out_root) if out_root is not None else default_data_root()
     target = root / sample.folder
     if target.exists() and not overwrite:
@@ -458,8 +461,9 @@ def fetch_sample(sample: Sample | str, out_root: str | Path | None = None, *,
     for p in plans:
         if p.to_download == 0:
             say(f"using {p.dest} (downloaded earlier)")
-            continue
-        say(f"downloading {p.url} ({format_size(p.size)}) into {cache}")
+        else:
+            say(f"downloading {p.url} ({format_size(p.size)}) into {cache}")
+        # an earlier download is checked again (and fetched anew when it fails)
         download(p.url, p.dest, size=p.size, sha256=p.sha256, retries=retries, timeout=timeout,
                  log=say)
     archives = {src.filename: p.dest for src, p in zip(sample.sources, plans, strict=True)}
@@ -520,4 +524,5 @@ def summarize(manifest: dict[str, Any]) -> str:
     files = manifest.get("files", [])
     total = sum(f.get("size", 0) for f in files)
     checked = sum(1 for f in files if f.get("check") not in (None, "none"))
-    return f"{len(files)} files, {format_size(total)}, {checked} verified"
+    return (f"{len(files)} file{'' if len(files) == 1 else 's'}, {format_size(total)}, "
+            f"{checked} verified")

@@ -25,9 +25,11 @@ _SOURCES = {
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "datasets", help="prepare segmentation datasets (NYUv2, SUN RGB-D, Cityscapes), list them",
+        "datasets", help="prepare segmentation datasets (NYUv2, SUN RGB-D, Cityscapes), list "
+                         "them; fetch the real sample data",
         description="Convert the official files of a segmentation dataset into the layout "
-                    "evsmap reads (see datasets/README.md), or list the prepared datasets.")
+                    "evsmap reads (see datasets/README.md), list the prepared datasets, or fetch "
+                    "the real sample data the tests and `evsmap reproduce` use.")
     dsub = p.add_subparsers(dest="datasets_command", metavar="SUBCOMMAND",
                             parser_class=type(p))
     dsub.required = True

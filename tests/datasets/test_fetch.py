@@ -30,6 +30,10 @@ from evsmap.testing import require_sample
 
 
 # -- a small HTTP server ------------------------------------------------------------------------
+class _Answered(Exception):
+    """The request was answered (a redirect)."""
+
+
 class FileServer:
     """Files by URL path; per path: cut the connection after N bytes the first time, serve wrong
     bytes, refuse HEAD. Every request is recorded (method, path, Range header)."""
@@ -38,6 +42,7 @@ class FileServer:
         self.files: dict[str, bytes] = {}
         self.cut_once: dict[str, int] = {}
         self.wrong: set[str] = set()
+        self.redirects: dict[str, str] = {}
         self.no_head = False
         self.requests: list[tuple[str, str, str | None]] = []
         self.lock = threading.Lock()
@@ -51,12 +56,22 @@ class FileServer:
                 with server.lock:
                     server.requests.append((self.command, self.path, self.headers.get("Range")))
                     data = server.files.get(self.path)
+                    moved = server.redirects.get(self.path)
+                if moved is not None:
+                    self.send_response(302)
+                    self.send_header("Location", moved)
+                    self.send_header("Content-Length", "0")
+                    self.end_headers()
+                    raise _Answered
                 if data is not None and self.path in server.wrong:
                     data = bytes(b ^ 0x5A for b in data)
                 return data
 
             def do_HEAD(self) -> None:
-                data = self._lookup()
+                try:
+                    data = self._lookup()
+                except _Answered:
+                    return
                 if server.no_head:
                     self.send_error(405)
                 elif data is None:
@@ -68,7 +83,10 @@ class FileServer:
                     self.end_headers()
 
             def do_GET(self) -> None:
-                data = self._lookup()
+                try:
+                    data = self._lookup()
+                except _Answered:
+                    return
                 if data is None:
                     self.send_error(404)
                     return
@@ -182,7 +200,7 @@ def test_fetch_bag_manifest_and_existing_output(capsys, tmp_path, server, bag):
     assert f"downloading {server.url}/mirror/test.bag (300.0 kB)" in out
     assert out.splitlines()[-1].startswith(
         f"fetched lidar-odometry-bag into {tmp_path / 'root' / 'ros' / 'lidar_odometry.bag'} "
-        "(1 files, 300.0 kB, 1 verified")
+        "(1 file, 300.0 kB, 1 verified")
     target = tmp_path / "root" / "ros" / "lidar_odometry.bag"
     assert target.read_bytes() == BAG
     manifest = json.loads((target.parent / "lidar_odometry.bag.evsmap-sample.json").read_text())
@@ -238,6 +256,32 @@ def test_a_broken_transfer_resumes_within_the_call(tmp_path, server, bag):
                                   cache_dir=tmp_path / "cache", retries=2)
     assert server.gets("/mirror/test.bag") == [None, "bytes=12345-"]
     assert manifest["files"][0]["sha256"] == sha(BAG)
+    assert (tmp_path / "root" / "ros" / "lidar_odometry.bag").read_bytes() == BAG
+
+
+def test_redirects_keep_head_and_range(tmp_path, server, bag):
+    server.files["/files/test.bag"] = server.files.pop("/mirror/test.bag")
+    server.redirects["/mirror/test.bag"] = "/files/test.bag"
+    server.cut_once["/files/test.bag"] = 50_000
+    fetch.fetch_sample("lidar-odometry-bag", tmp_path / "root", cache_dir=tmp_path / "cache",
+                       retries=1)
+    assert [(m, p, r) for m, p, r in server.requests] == [
+        ("HEAD", "/mirror/test.bag", None), ("HEAD", "/files/test.bag", None),
+        ("GET", "/mirror/test.bag", None), ("GET", "/files/test.bag", None),
+        ("GET", "/mirror/test.bag", "bytes=50000-"), ("GET", "/files/test.bag", "bytes=50000-")]
+    assert (tmp_path / "root" / "ros" / "lidar_odometry.bag").read_bytes() == BAG
+
+
+def test_a_complete_part_file_is_finished_without_downloading(tmp_path, server, bag,
+                                                               monkeypatch):
+    # size unknown (not catalogued, no HEAD): the server's 416 says the .part is complete
+    use(monkeypatch, "lidar-odometry-bag",
+        sources=(dataclasses.replace(bag.sources[0], size=None),))
+    server.no_head = True
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "test.bag.part").write_bytes(BAG)
+    fetch.fetch_sample("lidar-odometry-bag", tmp_path / "root", cache_dir=tmp_path / "cache")
+    assert server.gets("/mirror/test.bag") == [f"bytes={len(BAG)}-"]
     assert (tmp_path / "root" / "ros" / "lidar_odometry.bag").read_bytes() == BAG
 
 
