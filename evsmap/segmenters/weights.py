@@ -1,9 +1,25 @@
 """Loading trained weights (a state dict saved with ``torch.save``) into a network, with errors
-that name the file and every mismatched key or shape."""
+that name the file and every mismatched key or shape.
+
+Files are read with ``torch.load(..., weights_only=True)``: tensors and plain containers, plus
+an allow-list of exactly the numpy objects that official release files keep in their metadata
+(FC-HarDNet's ``best_iou`` is a ``numpy.float64``): ``numpy.core.multiarray.scalar`` (under
+numpy 1's and numpy 2's module name), ``numpy.dtype`` and its float64 class. Anything else a
+file refers to (a class, a function) is refused with a one-line error; weights are never read
+with ``weights_only=False``.
+
+The state dict may be wrapped (``state_dict``, ``model_state_dict``, ``model_state``, ``model``
+or ``net``) and prefixed by DataParallel (``module.``). Official release layouts (ESANet,
+FC-HarDNet) are recognised by their keys and renamed to evsmap's modules by
+:mod:`evsmap.segmenters.official`; then the keys and shapes must match the network exactly.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import pickle
+import re
+from collections.abc import Mapping
 from os import PathLike
 from pathlib import Path
 
@@ -11,9 +27,65 @@ import torch
 from torch import nn
 
 from evsmap.errors import DataFormatError
+from evsmap.segmenters.official import (
+    EVSMAP,
+    LAYOUTS,
+    PLAIN,
+    Converted,
+    check_fits,
+    convert_state,
+)
 
-_WRAPPER_KEYS = ("state_dict", "model_state_dict", "model", "net")
+_WRAPPER_KEYS = ("state_dict", "model_state_dict", "model_state", "model", "net")
 _SHOW = 8
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def numpy_allowlist() -> list:
+    """The numpy objects admitted by ``torch.load(weights_only=True)``: what a pickled
+    ``numpy.float64`` refers to, under both spellings of numpy's core module."""
+    import numpy as np
+
+    try:
+        from numpy._core.multiarray import scalar
+    except ImportError:  # numpy < 2
+        from numpy.core.multiarray import scalar  # type: ignore[no-redef]
+    allowed: list = [np.dtype,
+                     (scalar, "numpy.core.multiarray.scalar"),
+                     (scalar, "numpy._core.multiarray.scalar")]
+    float64 = type(np.dtype(np.float64))  # numpy.dtypes.Float64DType on numpy >= 1.25
+    if float64 is not np.dtype:
+        allowed.append(float64)
+    return allowed
+
+
+def _reason(exc: BaseException) -> str:
+    """One line out of torch's multi-paragraph weights-only message."""
+    text = _ANSI.sub("", str(exc)).strip()
+    refused = re.search(r"Unsupported global: GLOBAL (\S+)", text)
+    if refused:
+        return (f"it refers to {refused.group(1)}, which a weights file may not hold: evsmap "
+                f"reads tensors, plain containers and numpy scalars only")
+    unpickler = re.search(r"WeightsUnpickler error: ([^\n]+)", text)
+    if unpickler:
+        return unpickler.group(1).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def read_checkpoint(path: str | PathLike[str]) -> object:
+    """The object in a weights file, read with ``weights_only=True`` and the numpy allow-list.
+
+    Raises:
+        DataFormatError: the file is missing or cannot be read (one line).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(f"{path}: weights file not found")
+    try:
+        with torch.serialization.safe_globals(numpy_allowlist()):
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError) as exc:
+        raise DataFormatError(f"{path}: cannot read weights ({_reason(exc)})") from None
 
 
 def _unwrap(obj: object, path: Path) -> dict[str, torch.Tensor]:
@@ -32,27 +104,48 @@ def _unwrap(obj: object, path: Path) -> dict[str, torch.Tensor]:
     return obj
 
 
+def read_weights(path: str | PathLike[str]) -> Converted:
+    """The state dict in ``path`` under evsmap's key names, with its source layout.
+
+    Raises:
+        DataFormatError: the file is missing, unreadable, not a state dict, or in an official
+            layout with keys evsmap has no name for.
+    """
+    path = Path(path)
+    obj = read_checkpoint(path)
+    state = _unwrap(obj, path)
+    card = obj.get("card") if isinstance(obj, dict) else None
+    return convert_state(state, source=str(path), card=card if isinstance(card, dict) else None)
+
+
 def _listing(names: list[str]) -> str:
     more = f" and {len(names) - _SHOW} more" if len(names) > _SHOW else ""
     return ", ".join(names[:_SHOW]) + more
 
 
-def load_weights(module: nn.Module, path: str | PathLike[str]) -> nn.Module:
-    """Load the state dict in ``path`` into ``module`` (strictly) and return ``module``.
+def _context(converted: Converted, state: Mapping[str, torch.Tensor],
+             own: Mapping[str, torch.Tensor]) -> str:
+    """What to add to a list of mismatches: where the file's keys came from."""
+    if converted.layout not in (PLAIN, EVSMAP):
+        return f" (the file is the {converted.describe()}, renamed to evsmap's keys)"
+    if converted.layout == EVSMAP:
+        return f" (the file is an {converted.describe()})"
+    if state and not set(state) & set(own):
+        return (f"; no key of the file is a key of the network, and the file is in none of "
+                f"the official layouts evsmap converts ({LAYOUTS['esanet-release']}; "
+                f"{LAYOUTS['fchardnet-release']})")
+    return ""
+
+
+def load_state(module: nn.Module, converted: Converted, source: str | PathLike[str]) -> nn.Module:
+    """Load a state dict read by :func:`read_weights` into ``module`` (strictly).
 
     Raises:
-        DataFormatError: the file is missing, unreadable, not a state dict, or its keys or
-            shapes do not match the network (the message lists them).
+        DataFormatError: an official checkpoint of another network or configuration, or keys
+            or shapes that do not match the network (the message lists them).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise DataFormatError(f"{path}: weights file not found")
-    try:
-        obj = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise DataFormatError(f"{path}: cannot read weights ({first})") from None
-    state = _unwrap(obj, path)
+    check_fits(converted, module, str(source))
+    state = converted.state
     own = module.state_dict()
     missing = sorted(set(own) - set(state))
     unexpected = sorted(set(state) - set(own))
@@ -68,6 +161,31 @@ def load_weights(module: nn.Module, path: str | PathLike[str]) -> nn.Module:
         problems.append(f"shape mismatch: {_listing(shapes)}")
     if problems:
         raise DataFormatError(
-            f"{path}: weights do not fit {type(module).__name__} - " + "; ".join(problems))
+            f"{source}: weights do not fit {type(module).__name__} - " + "; ".join(problems)
+            + _context(converted, state, own))
     module.load_state_dict(state, strict=True)
     return module
+
+
+def load_weights(module: nn.Module, path: str | PathLike[str]) -> nn.Module:
+    """Load the state dict in ``path`` into ``module`` (strictly) and return ``module``.
+
+    Official release checkpoints (ESANet, FC-HarDNet) are converted on the way.
+
+    Raises:
+        DataFormatError: the file is missing, unreadable, not a state dict, an official
+            checkpoint of another network or configuration, or its keys or shapes do not match
+            the network (the message lists them).
+    """
+    return load_state(module, read_weights(path), path)
+
+
+def tensors_sha256(state: Mapping[str, torch.Tensor]) -> str:
+    """SHA-256 over the tensors of a state dict: for each key in sorted order, the key, dtype,
+    shape and the raw bytes (C order)."""
+    digest = hashlib.sha256()
+    for key in sorted(state):
+        tensor = state[key].detach().cpu().contiguous()
+        digest.update(f"{key}\0{tensor.dtype}\0{tuple(tensor.shape)}\0".encode())
+        digest.update(tensor.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return digest.hexdigest()
