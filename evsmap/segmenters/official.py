@@ -266,14 +266,15 @@ class Converted:
     card: dict[str, Any] | None = None
 
     def describe(self) -> str:
-        """One phrase, e.g. ``official ESANet release (... ) checkpoint, Cityscapes configuration
+        """One phrase, e.g. ``official ESANet release (...) in the cityscapes configuration
         (19 classes, context appm-1-2-4-8)``."""
         text = LAYOUTS[self.layout]
         if self.layout == ESANET:
-            which = f"{self.dataset} configuration" if self.dataset else "configuration"
-            return f"{text}, {which} ({self.num_classes} classes, context {self.context})"
+            which = f"the {self.dataset}" if self.dataset else "a custom"
+            return (f"{text} in {which} configuration ({self.num_classes} classes, context "
+                    f"{self.context})")
         if self.layout == FCHARDNET:
-            return f"{text}, {self.num_classes} classes, BGR input"
+            return f"{text} with {self.num_classes} classes (BGR input)"
         if self.layout == EVSMAP and self.card:
             options = ", ".join(f"{k}={v}" for k, v in (self.card.get("options") or {}).items())
             return f"{text} for {self.card.get('model')}" + (f" ({options})" if options else "")
@@ -411,8 +412,8 @@ def check_fits(converted: Converted, module: Any, source: str) -> None:
     what = converted.describe()
     if have != converted.network:
         raise DataFormatError(
-            f"{source}: {what} - it is for {converted.segmenter} ({converted.network}), "
-            f"not {have}")
+            f"{source}: the file is the {what}, for {converted.segmenter} "
+            f"({converted.network}), not {have}")
     classes = getattr(module, "num_classes", None)
     context = getattr(module, "context_name", None)
     mismatch = classes is not None and classes != converted.num_classes
@@ -426,6 +427,8 @@ def check_fits(converted: Converted, module: Any, source: str) -> None:
     else:
         opts = " ".join(f"-o {k}={v}" for k, v in converted.options.items())
         call = ", ".join(f"{k}={v!r}" for k, v in converted.options.items())
-        hint = f"create {converted.segmenter} with {opts} ({call} in Python)"
+        gives = f"{converted.num_classes} classes" + (
+            f" and context {converted.context}" if converted.context else "")
+        hint = f"create {converted.segmenter} with {opts} ({call} in Python), which gives {gives}"
     raise DataFormatError(
-        f"{source}: {what} does not fit this {have} ({net}): {hint}")
+        f"{source}: the file is the {what}, which does not fit this {have} ({net}): {hint}")

@@ -62,13 +62,18 @@ def numpy_allowlist() -> list:
 def _reason(exc: BaseException) -> str:
     """One line out of torch's multi-paragraph weights-only message."""
     text = _ANSI.sub("", str(exc)).strip()
+    allowed = "evsmap reads tensors, plain containers and numpy float64 scalars only"
     refused = re.search(r"Unsupported global: GLOBAL (\S+)", text)
     if refused:
-        return (f"it refers to {refused.group(1)}, which a weights file may not hold: evsmap "
-                f"reads tensors, plain containers and numpy scalars only")
-    unpickler = re.search(r"WeightsUnpickler error: ([^\n]+)", text)
-    if unpickler:
-        return unpickler.group(1).strip()
+        return f"it refers to {refused.group(1)}, which a weights file may not hold: {allowed}"
+    built = re.search(r"but got <class '([^']+)'>", text)
+    if built:
+        return f"it builds a {built.group(1)}, which a weights file may not hold: {allowed}"
+    if "WeightsUnpickler error:" in text:
+        detail = text.split("WeightsUnpickler error:", 1)[1]
+        detail = " ".join(detail.split("Check the documentation")[0].split())
+        return f"refused by the weights-only reader: {detail}" if detail else \
+            "refused by the weights-only reader"
     return text.splitlines()[0] if text else type(exc).__name__
 
 
