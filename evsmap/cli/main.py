@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
         info_cmd,
         list_cmd,
         map_cmd,
+        predict_cmd,
         report_cmd,
         reproduce_cmd,
         speed_cmd,
@@ -44,7 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd,
-                   map_cmd, datasets_cmd, eval_cmd, report_cmd, weights_cmd):
+                   map_cmd, datasets_cmd, eval_cmd, report_cmd, weights_cmd,
+                   predict_cmd):
         module.add_parser(sub)
     return parser
 

@@ -63,6 +63,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "semantic updaters, rgb otherwise)")
     p.add_argument("-o", "--option", type=key_value, action="append", default=[],
                    metavar="KEY=VALUE", help="an updater option, repeatable (e.g. theta=0.6)")
+    p.add_argument("-s", "--segmenter-option", type=key_value, action="append", default=[],
+                   metavar="KEY=VALUE",
+                   help="a segmenter option, repeatable (e.g. -s accuracy=0.9 for the oracle, "
+                        "-s dataset=cityscapes)")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
     add_sequence_options(p)
     p.set_defaults(run=run)
@@ -103,12 +107,15 @@ def run(args: argparse.Namespace) -> int:
                     f"ground-truth labels for the oracle: pass --segmenter NAME (a network, "
                     f"see `evsmap list`)")
             seg_name = "oracle"
-        seg_config: dict[str, Any] = {}
+        seg_config: dict[str, Any] = dict(args.segmenter_option)
         if args.weights is not None:
             seg_config["weights"] = args.weights
         if args.backend is not None:
             seg_config["backend"] = args.backend
         segmenter = SEGMENTERS.create(seg_name, **seg_config)
+    elif args.segmenter_option:
+        raise EvsmapError(f"-s: updater {args.updater!r} uses no segmenter (pass --segmenter "
+                          f"NAME to run one)")
     record = map_sequence(
         sequence, updater, updater_name=args.updater, segmenter=segmenter,
         segmenter_name=seg_name, frames=args.frames, out=args.out,

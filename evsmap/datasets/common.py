@@ -271,6 +271,12 @@ class SegmentationSequence(Sequence):
     def __len__(self) -> int:
         return len(self.names)
 
+    def frame_stem(self, index: int) -> str:
+        """Frame ``index``'s own file stem, the part its image, depth and label files share
+        (``000433``; a name's last part where it holds a split or city): the name ``evsmap
+        predict`` writes its outputs under."""
+        return self.names[index].rpartition("/")[2]
+
     @abc.abstractmethod
     def load(self, index: int) -> tuple[np.ndarray, np.ndarray, Intrinsics, np.ndarray | None]:
         """(rgb uint8 HxWx3, depth float32 metres HxW, intrinsics, labels uint8 HxW or None)."""

@@ -315,6 +315,11 @@ class SevenScenesSequence(Sequence):
     def __len__(self) -> int:
         return len(self.numbers)
 
+    def frame_stem(self, index: int) -> str:
+        """Frame ``index``'s own file stem, the part its colour, depth and pose files share
+        (``frame-000042``): the name ``evsmap predict`` writes its outputs under."""
+        return f"frame-{int(self.numbers[index]):06d}"
+
     def frame(self, index: int) -> Frame:
         if self._color_missing[index]:
             raise DataFormatError(

@@ -269,6 +269,11 @@ class TumSequence(Sequence):
     def __len__(self) -> int:
         return len(self.timestamps)
 
+    def frame_stem(self, index: int) -> str:
+        """Frame ``index``'s own file stem: its depth image's (the frame's timestamp, e.g.
+        ``1305031102.160407``), the name ``evsmap predict`` writes its outputs under."""
+        return self.depth_files[index].stem
+
     def frame(self, index: int) -> Frame:
         rgb = read_rgb(self.rgb_files[index])
         raw = read_uint16(self.depth_files[index])
