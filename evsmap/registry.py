@@ -34,6 +34,7 @@ _BUILTIN_MODULES = (
     "evsmap.datasets.nyuv2",
     "evsmap.datasets.sunrgbd",
     "evsmap.datasets.cityscapes",
+    "evsmap.datasets.synthrooms",
     "evsmap.segmenters.zoo",
     "evsmap.updaters.orgb",
     "evsmap.updaters.multiclass_bayes",

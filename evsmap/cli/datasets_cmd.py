@@ -1,5 +1,6 @@
 """``evsmap datasets``: prepare the segmentation datasets (NYUv2, SUN RGB-D, Cityscapes) from
-their official files, list the prepared ones, and fetch the real sample data."""
+their official files or render the synthetic one (synthrooms), list the prepared ones, and fetch
+the real sample data."""
 
 from __future__ import annotations
 
@@ -21,6 +22,9 @@ _SOURCES = {
     "sunrgbd": "folder with SUNRGBD/ and SUNRGBDtoolbox/",
     "cityscapes": "folder with leftImg8bit/, gtFine/, disparity/, camera/",
 }
+GENERATED = {"synthrooms": "synthetic rooms of every type rendered by evsmap, NYUv2 40 classes, "
+                           "split into train/val/test by room"}
+"""Datasets that ``prepare`` renders itself (no ``--from``)."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -38,11 +42,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "prepare", help="convert a dataset's official files",
         description="Read the official files of DATASET from --from and write the prepared "
                     "layout to --out (written completely or not at all). Sources: "
-                    + "; ".join(f"{k}: {v}" for k, v in _SOURCES.items()) + ".")
-    prep.add_argument("dataset", choices=sorted(DATASETS), metavar="DATASET",
-                      help=f"one of {', '.join(sorted(DATASETS))}")
-    prep.add_argument("--from", dest="source", required=True, type=Path, metavar="DIR",
-                      help="folder holding the official files")
+                    + "; ".join(f"{k}: {v}" for k, v in _SOURCES.items()) + ". synthrooms "
+                    "takes no --from: it renders --rooms procedural rooms (bedroom, living "
+                    "room, office, kitchen in turn, each its own layout and camera path) with "
+                    "Kinect-like depth noise, --frames-per-room views each, and splits them "
+                    "into train/val/test by room (the same options give the same bytes).")
+    names = sorted([*DATASETS, *GENERATED])
+    prep.add_argument("dataset", choices=names, metavar="DATASET",
+                      help=f"one of {', '.join(names)}")
+    prep.add_argument("--from", dest="source", type=Path, metavar="DIR",
+                      help="folder holding the official files (not for synthrooms)")
     prep.add_argument("--out", type=Path, metavar="DIR",
                       help="output folder (default: datasets/<DATASET> under the current folder)")
     prep.add_argument("--limit", type=positive_int, metavar="N",
@@ -52,6 +61,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     prep.add_argument("--raw-depth", action="store_true",
                       help="sunrgbd only: use the raw depth/ images instead of the refined "
                            "depth_bfx/")
+    from evsmap.datasets import synthrooms as sr
+
+    h, w = sr.DEFAULT_SIZE
+    per_split = ", ".join(f"{len(v)} {k}" for k, v in sr.split_rooms(sr.DEFAULT_ROOMS).items())
+    prep.add_argument("--rooms", type=positive_int, metavar="N",
+                      help=f"synthrooms: number of rooms, at least {sr.MIN_ROOMS} (default "
+                           f"{sr.DEFAULT_ROOMS}: {per_split} rooms)")
+    prep.add_argument("--frames-per-room", type=positive_int, metavar="M",
+                      help=f"synthrooms: views per room over one lap of its camera path "
+                           f"(default {sr.DEFAULT_FRAMES_PER_ROOM})")
+    prep.add_argument("--size", metavar="HxW",
+                      help=f"synthrooms: image height x width in pixels (default {h}x{w}, half "
+                           "the Kinect resolution, what the synth-proxy training uses)")
+    prep.add_argument("--seed", type=nonnegative_int, metavar="S",
+                      help=f"synthrooms: seed of the room layouts, camera paths and noise "
+                           f"(default {sr.DEFAULT_SEED})")
     prep.set_defaults(run=run_prepare)
 
     lst = dsub.add_parser(
@@ -103,6 +128,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run_prepare(args: argparse.Namespace) -> int:
     name = args.dataset
     out = args.out if args.out is not None else DEFAULT_ROOT / name
+    if name in GENERATED:
+        return _run_generate(args, out)
+    given = [f"--{k.replace('_', '-')}" for k in ("rooms", "frames_per_room", "size", "seed")
+             if getattr(args, k) is not None]
+    if given:
+        raise EvsmapError(f"{', '.join(given)} applies to synthrooms only")
+    if args.source is None:
+        raise EvsmapError(f"{name} needs --from DIR ({_SOURCES[name]})")
     options: dict = {"limit": args.limit, "overwrite": args.overwrite}
     if args.raw_depth:
         if name != "sunrgbd":
@@ -122,6 +155,35 @@ def run_prepare(args: argparse.Namespace) -> int:
         print(f"  {split:<6} {count:>6} frames{note}")
     if args.limit:
         print(f"  limited to the first {args.limit} frames of each split")
+    return 0
+
+
+def _run_generate(args: argparse.Namespace, out: Path) -> int:
+    from evsmap.datasets import synthrooms as sr
+
+    for option, value in (("--from", args.source), ("--limit", args.limit),
+                          ("--raw-depth", args.raw_depth or None)):
+        if value is not None:
+            raise EvsmapError(f"{option} does not apply to {args.dataset} (it is rendered, not "
+                              "converted; size it with --rooms and --frames-per-room)")
+    size = sr.parse_size(args.size) if args.size is not None else sr.DEFAULT_SIZE
+    rooms = args.rooms if args.rooms is not None else sr.DEFAULT_ROOMS
+    sr.split_rooms(rooms)  # too few rooms: a one-line error before anything is rendered
+    frames = args.frames_per_room if args.frames_per_room is not None \
+        else sr.DEFAULT_FRAMES_PER_ROOM
+    seed = args.seed if args.seed is not None else sr.DEFAULT_SEED
+    t0 = time.perf_counter()
+    manifest = sr.prepare_synthrooms(
+        out, rooms=rooms, frames_per_room=frames, size=size, seed=seed,
+        overwrite=args.overwrite,
+        progress=lambda items: progress(items, desc=f"rendering {args.dataset}"))
+    dt = time.perf_counter() - t0
+    print(f"prepared {args.dataset} in {out} ({manifest['frames']} frames: {rooms} rooms x "
+          f"{frames} views, {size[0]}x{size[1]}, seed {seed}, {dt:.1f} s)")
+    for split, count in manifest["splits"].items():
+        scenes = ", ".join(f"{t} {n}" for t, n in manifest["split_scenes"][split].items() if n)
+        print(f"  {split:<6} {count:>6} frames, {len(manifest['split_rooms'][split]):>3} rooms "
+              f"({scenes})")
     return 0
 
 

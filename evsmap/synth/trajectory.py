@@ -16,7 +16,7 @@ from evsmap.geometry import look_at, matrix_to_quat
 
 def room_trajectory(
     room_size: tuple[float, float, float], num_frames: int, *, seed: int = 0, turns: float = 1.0,
-    speed: float = 0.5,
+    speed: float = 0.5, inset: float = 1.3, eye_height: float = 1.45, pitch: float = -0.32,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Camera path through a room.
 
@@ -27,6 +27,11 @@ def room_trajectory(
         turns: scales the gaze sweep rate: 2 x ``turns`` side-to-side sweeps per lap.
         speed: walking speed in m/s that sets the timestamps (one lap per sequence, so longer
             sequences are denser in time, not longer in space).
+        inset: distance in metres of the path from the walls (the ellipse's half-axes are the
+            room's half-size minus ``inset``, at least 0.25 m).
+        eye_height: mean camera height in metres (bobbing +-0.08 m, at most 0.5 m below the
+            ceiling).
+        pitch: mean pitch in radians (negative looks down); it swings +-0.18 rad about it.
 
     Returns:
         timestamps (N,), translations (N, 3) and quaternions (N, 4, x y z w) of camera-to-world
@@ -39,15 +44,15 @@ def room_trajectory(
     wobble = rng.uniform(0, 2 * np.pi, 4)
     s = np.linspace(0.0, 1.0, num_frames, endpoint=False) if num_frames > 1 else np.zeros(1)
     angle = phase + direction * 2 * np.pi * s
-    rx, ry = max(L / 2 - 1.3, 0.25), max(W / 2 - 1.3, 0.25)
+    rx, ry = max(L / 2 - inset, 0.25), max(W / 2 - inset, 0.25)
     eye = np.stack([
         L / 2 + rx * np.cos(angle),
         W / 2 + ry * np.sin(angle),
-        np.minimum(1.45 + 0.08 * np.sin(2 * np.pi * 3 * s + wobble[0]), H - 0.5),
+        np.minimum(eye_height + 0.08 * np.sin(2 * np.pi * 3 * s + wobble[0]), H - 0.5),
     ], axis=1)
     yaw = angle + np.pi + 0.85 * np.sin(2 * np.pi * 2 * turns * s + wobble[1])
-    pitch = -0.32 + 0.18 * np.sin(2 * np.pi * 1.5 * s + wobble[2])
-    forward = np.stack([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)], 1)
+    tilt = pitch + 0.18 * np.sin(2 * np.pi * 1.5 * s + wobble[2])
+    forward = np.stack([np.cos(yaw) * np.cos(tilt), np.sin(yaw) * np.cos(tilt), np.sin(tilt)], 1)
     rot = np.stack([look_at(e, e + f) for e, f in zip(eye, forward, strict=True)])
     quats = matrix_to_quat(rot)
     # time from arc length at the walking speed; values survive a "%.6f" text round trip
