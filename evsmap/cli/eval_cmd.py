@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from evsmap.cli.options import key_value, positive_int
+from evsmap.cli.options import key_value, positive_int, refuse_random_weights
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
 
@@ -143,13 +143,9 @@ def run(args: argparse.Namespace) -> int:
     if args.backend is not None:
         config["backend"] = args.backend
     segmenter = SEGMENTERS.create(args.model, **config)
-    network = getattr(segmenter, "module", None) is not None
     weights = getattr(segmenter, "weights", None)
-    random_weights = network and weights is None
-    if random_weights and not args.allow_random:
-        raise EvsmapError(
-            f"{args.model} has no trained weights: pass --weights FILE (or --allow-random to "
-            f"score the random initialisation, whose mIoU is meaningless)")
+    random_weights = refuse_random_weights(segmenter, args.model, allow=args.allow_random,
+                          why="score the random initialisation, whose mIoU is meaningless")
 
     sequence, source = open_dataset(args.dataset, reader=args.reader, split=args.split,
                                     limit=args.limit, options=args.reader_option)

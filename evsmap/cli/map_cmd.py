@@ -94,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
         ply_color = check_color_by(updater, args.ply_color)
     sequence = open_sequence(args.sequence, args.reader, args.reader_option)
     if sequence.meta.get("poses") is False:
+        hint = sequence.meta.get("no_poses_hint")  # e.g. synthrooms: pick one room
         raise EvsmapError(
+            f"{args.sequence}: {hint}" if hint else
             f"{args.sequence}: {sequence.meta.get('layout', 'this dataset')} has no camera poses "
             f"(a segmentation dataset); map a sequence with poses (TUM, a ROS bag, synthetic)")
     segmenter = None

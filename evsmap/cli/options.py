@@ -20,6 +20,22 @@ def _int_at_least(lowest: int, what: str) -> Callable[[str], int]:
     return parse
 
 
+def refuse_random_weights(segmenter: object, model: str, *, allow: bool, why: str) -> bool:
+    """Whether ``segmenter`` is a network with random weights; refused unless ``allow``.
+
+    ``why`` ends the message (what ``--allow-random`` would do, e.g. "run the random
+    initialisation, whose labels are noise").
+    """
+    from evsmap.errors import EvsmapError
+
+    network = getattr(segmenter, "module", None) is not None
+    random_weights = network and getattr(segmenter, "weights", None) is None
+    if random_weights and not allow:
+        raise EvsmapError(f"{model} has no trained weights: pass --weights FILE (or "
+                          f"--allow-random to {why})")
+    return random_weights
+
+
 positive_int = _int_at_least(1, "a positive integer")
 nonnegative_int = _int_at_least(0, "an integer >= 0")
 

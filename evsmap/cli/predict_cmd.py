@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from evsmap.cli.options import key_value, positive_int
+from evsmap.cli.options import key_value, positive_int, refuse_random_weights
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
 
@@ -226,11 +226,8 @@ def run(args: argparse.Namespace) -> int:
     segmenter = SEGMENTERS.create(args.model, **config)
     network = getattr(segmenter, "module", None) is not None
     weights = getattr(segmenter, "weights", None)
-    random_weights = network and weights is None
-    if random_weights and not args.allow_random:
-        raise EvsmapError(
-            f"{args.model} has no trained weights: pass --weights FILE (or --allow-random to "
-            f"run the random initialisation, whose labels are noise)")
+    random_weights = refuse_random_weights(segmenter, args.model, allow=args.allow_random,
+                          why="run the random initialisation, whose labels are noise")
     num_classes = int(segmenter.num_classes)
     if num_classes > 255:
         raise EvsmapError(f"{args.model} predicts {num_classes} classes: the uint8 label images "
