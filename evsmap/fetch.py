@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 from evsmap.errors import EvsmapError
 from evsmap.paths import user_cache_dir
+from evsmap.version import evsmap_version
 
 if TYPE_CHECKING:  # pragma: no cover
     from evsmap.samples import Sample
@@ -122,14 +123,6 @@ def _user_agent() -> str:
     except PackageNotFoundError:
         return "evsmap (datasets fetch)"
 
-
-def evsmap_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("evsmap")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 def _reason(exc: BaseException) -> str:

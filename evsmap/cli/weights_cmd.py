@@ -42,6 +42,7 @@ from typing import Any
 
 from evsmap.cli.options import key_value
 from evsmap.errors import EvsmapError
+from evsmap.version import evsmap_version
 
 CARD_VERSION = 1
 _RESERVED = ("weights", "backend", "input_size")
@@ -80,14 +81,6 @@ def file_sha256(path: Path) -> str:
             digest.update(chunk)
     return digest.hexdigest()
 
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("evsmap")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 def convert(source: Path, out: Path, *, model: str | None = None,
@@ -134,7 +127,7 @@ def convert(source: Path, out: Path, *, model: str | None = None,
         "source_sha256": file_sha256(source),
         "source_layout": converted.layout,
         "conversion": list(converted.notes),
-        "evsmap_version": _version(),
+        "evsmap_version": evsmap_version(),
         "tensors": len(state),
         "tensors_sha256": tensors_sha256(state),
     }

@@ -26,6 +26,7 @@ import numpy as np
 from evsmap.data import VOID, Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError, InvalidDataError
 from evsmap.readers.images import read_uint8_labels
+from evsmap.version import evsmap_version
 
 T = TypeVar("T")
 
@@ -139,7 +140,7 @@ def manifest_name(folder: Path) -> str | None:
 def make_manifest(name: str, *, source: Path, splits: dict[str, int], **extra: Any) -> dict:
     return {
         "format": MANIFEST_FORMAT, "name": name, "version": LAYOUT_VERSION,
-        "evsmap_version": _evsmap_version(), "source": str(Path(source).resolve()),
+        "evsmap_version": evsmap_version(), "source": str(Path(source).resolve()),
         "splits": dict(splits), "frames": int(sum(splits.values())), **extra,
     }
 
@@ -147,14 +148,6 @@ def make_manifest(name: str, *, source: Path, splits: dict[str, int], **extra: A
 def write_manifest(folder: Path, record: dict) -> None:
     write_text_atomic(Path(folder) / MANIFEST, json.dumps(record, indent=2) + "\n")
 
-
-def _evsmap_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("evsmap")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 # -- MATLAB files -------------------------------------------------------------------------------
