@@ -26,6 +26,23 @@ def dequantize_depth(raw: np.ndarray, scale: float = DEPTH_SCALE) -> np.ndarray:
     return raw.astype(np.float32) / np.float32(scale)
 
 
+def check_rgbd_shapes(raw: np.ndarray, rgb: np.ndarray, intrinsics, *, depth_file: Path,
+                      rgb_file: Path, intrinsics_source: str) -> None:
+    """A depth image must match its colour image and the intrinsics in size.
+
+    Raises:
+        DataFormatError: naming the depth file and both sizes.
+    """
+    if raw.shape != rgb.shape[:2]:
+        raise DataFormatError(
+            f"{depth_file}: depth is {raw.shape[1]}x{raw.shape[0]} but "
+            f"{rgb_file.name} is {rgb.shape[1]}x{rgb.shape[0]}")
+    if raw.shape != intrinsics.shape:
+        raise DataFormatError(
+            f"{depth_file}: image is {raw.shape[1]}x{raw.shape[0]} but the intrinsics "
+            f"({intrinsics_source}) are for {intrinsics.width}x{intrinsics.height}")
+
+
 def _open(path: Path) -> Image.Image:
     if not path.is_file():
         raise DataFormatError(f"{path}: file not found")

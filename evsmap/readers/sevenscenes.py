@@ -41,9 +41,8 @@ from PIL import Image
 
 from evsmap.data import Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.readers.images import read_rgb, read_uint16
+from evsmap.readers.images import check_rgbd_shapes, dequantize_depth, read_rgb, read_uint16
 from evsmap.registry import READERS
-from evsmap.synth.render import dequantize_depth
 
 LAYOUT = "sevenscenes"
 INTRINSICS_FILE = "camera-intrinsics.txt"
@@ -328,15 +327,9 @@ class SevenScenesSequence(Sequence):
         pose = read_pose(self.pose_files[index])
         rgb = read_rgb(self.color_files[index])
         raw = read_uint16(self.depth_files[index])
-        if raw.shape != rgb.shape[:2]:
-            raise DataFormatError(
-                f"{self.depth_files[index]}: depth is {raw.shape[1]}x{raw.shape[0]} but "
-                f"{self.color_files[index].name} is {rgb.shape[1]}x{rgb.shape[0]}")
-        if raw.shape != self.intrinsics.shape:
-            raise DataFormatError(
-                f"{self.depth_files[index]}: image is {raw.shape[1]}x{raw.shape[0]} but the "
-                f"intrinsics ({self.meta['intrinsics_source']}) are for "
-                f"{self.intrinsics.width}x{self.intrinsics.height}")
+        check_rgbd_shapes(raw, rgb, self.intrinsics, depth_file=self.depth_files[index],
+                          rgb_file=self.color_files[index],
+                          intrinsics_source=self.meta["intrinsics_source"])
         depth = dequantize_depth(raw, self.depth_scale)
         depth[raw == INVALID_DEPTH] = 0.0
         return Frame(rgb=rgb, depth=depth, intrinsics=self.intrinsics, pose=pose,

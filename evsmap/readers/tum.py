@@ -23,6 +23,7 @@ from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.geometry import interpolate_poses, matrix_to_quat
 from evsmap.readers.images import (
     DEPTH_SCALE,
+    check_rgbd_shapes,
     dequantize_depth,
     quantize_depth,
     read_rgb,
@@ -277,15 +278,9 @@ class TumSequence(Sequence):
     def frame(self, index: int) -> Frame:
         rgb = read_rgb(self.rgb_files[index])
         raw = read_uint16(self.depth_files[index])
-        if raw.shape != rgb.shape[:2]:
-            raise DataFormatError(
-                f"{self.depth_files[index]}: depth is {raw.shape[1]}x{raw.shape[0]} but "
-                f"{self.rgb_files[index].name} is {rgb.shape[1]}x{rgb.shape[0]}")
-        if raw.shape != self.intrinsics.shape:
-            raise DataFormatError(
-                f"{self.depth_files[index]}: image is {raw.shape[1]}x{raw.shape[0]} but the "
-                f"intrinsics ({self.meta['intrinsics_source']}) are for "
-                f"{self.intrinsics.width}x{self.intrinsics.height}")
+        check_rgbd_shapes(raw, rgb, self.intrinsics, depth_file=self.depth_files[index],
+                          rgb_file=self.rgb_files[index],
+                          intrinsics_source=self.meta["intrinsics_source"])
         labels = None
         if self.label_files is not None:
             labels = read_uint8_labels(self.label_files[index])
