@@ -34,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         reproduce_cmd,
         speed_cmd,
         synth_cmd,
+        train_cmd,
         weights_cmd,
     )
 
@@ -46,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd,
                    map_cmd, datasets_cmd, eval_cmd, report_cmd, weights_cmd,
-                   predict_cmd):
+                   predict_cmd, train_cmd):
         module.add_parser(sub)
     return parser
 

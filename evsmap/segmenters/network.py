@@ -30,6 +30,36 @@ from evsmap.segmenters.weights import load_weights
 
 BACKENDS = ("torch", "onnxruntime")
 
+
+def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Normalization,
+                   size: tuple[int, int]) -> tuple[torch.Tensor, ...]:
+    """Normalised network inputs (batch 1, float32) at ``size`` (H, W): ``(rgb,)`` or
+    ``(rgb, depth)`` when ``depth`` is given.
+
+    ``rgb`` (``uint8`` HxWx3) is scaled to [0, 1], resized bilinearly and standardised per
+    channel; ``depth`` (metres, 0 = invalid) is resized by nearest neighbour and standardised,
+    invalid pixels set to 0. What :meth:`NetworkSegmenter.preprocess` feeds the network, and what
+    training feeds it at the randomly scaled size (:mod:`evsmap.train.data`).
+    """
+    n = normalization
+    size = tuple(size)
+    rgb_t = torch.from_numpy(np.array(rgb, copy=True)).permute(2, 0, 1)[None].float()
+    rgb_t = rgb_t / 255.0
+    if tuple(rgb_t.shape[-2:]) != size:
+        rgb_t = F.interpolate(rgb_t, size=size, mode="bilinear", align_corners=False)
+    mean = torch.tensor(n.rgb_mean).view(1, 3, 1, 1)
+    std = torch.tensor(n.rgb_std).view(1, 3, 1, 1)
+    rgb_t = (rgb_t - mean) / std
+    if depth is None:
+        return (rgb_t,)
+    depth_t = torch.from_numpy(np.array(depth, copy=True))[None, None]
+    if tuple(depth_t.shape[-2:]) != size:
+        depth_t = F.interpolate(depth_t, size=size, mode="nearest")
+    valid = depth_t > 0
+    depth_t = torch.where(valid, (depth_t - n.depth_mean) / n.depth_std, torch.zeros(()))
+    return rgb_t, depth_t
+
+
 class NetworkSegmenter(Segmenter):
     """A segmentation network as a segmenter plug-in.
 
@@ -108,23 +138,8 @@ class NetworkSegmenter(Segmenter):
     def preprocess(self, frame: Frame) -> tuple[torch.Tensor, ...]:
         """Normalised, resized network inputs (batch 1, float32) for ``frame``."""
         frame.require_images(f"segmenter {self.name!r}")
-        n = self.normalization
-        size = self.input_size
-        rgb = torch.from_numpy(np.array(frame.rgb, copy=True)).permute(2, 0, 1)[None].float()
-        rgb = rgb / 255.0
-        if tuple(rgb.shape[-2:]) != size:
-            rgb = F.interpolate(rgb, size=size, mode="bilinear", align_corners=False)
-        mean = torch.tensor(n.rgb_mean).view(1, 3, 1, 1)
-        std = torch.tensor(n.rgb_std).view(1, 3, 1, 1)
-        rgb = (rgb - mean) / std
-        if not self.uses_depth:
-            return (rgb,)
-        depth = torch.from_numpy(np.array(frame.depth, copy=True))[None, None]
-        if tuple(depth.shape[-2:]) != size:
-            depth = F.interpolate(depth, size=size, mode="nearest")
-        valid = depth > 0
-        depth = torch.where(valid, (depth - n.depth_mean) / n.depth_std, torch.zeros(()))
-        return rgb, depth
+        return network_inputs(frame.rgb, frame.depth if self.uses_depth else None,
+                              self.normalization, self.input_size)
 
     # -- inference -------------------------------------------------------------------------
 

@@ -1,0 +1,149 @@
+"""``evsmap train``: train a registered network on a labelled dataset with a recipe (the paper's
+by default), one process or DDP under ``torchrun``.
+
+``torchrun --nproc-per-node N -m evsmap train MODEL ...`` runs N processes (gloo on the CPU,
+nccl on CUDA); the recipe's batch is split over them and only rank 0 writes. See
+``docs/training.md`` and :mod:`evsmap.train.loop`. Nothing here imports torch until the command
+runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from evsmap.cli.options import key_value, nonnegative_int, positive_int
+
+
+def _size(text: str) -> str:
+    from evsmap.train.recipe import parse_size
+
+    try:
+        h, w = parse_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return f"{h}x{w}"
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "train", help="train a network on a labelled dataset (the paper's recipe by default)",
+        description="Train MODEL on the training split of a labelled dataset with a recipe "
+                    "(default: paper, EVSMaP section IV: SGD, lr 0.005, batch 8, 500 epochs, "
+                    "poly schedule from epoch 150, random scale/crop/flip, Dice + soft CE on "
+                    "every output head), validating on the split `evsmap eval` scores. Every "
+                    "epoch writes OUT/checkpoint.pt (resume point), OUT/last.pt and OUT/best.pt "
+                    "(weights with a card, for --weights), OUT/log.csv and OUT/run.json. Under "
+                    "`torchrun --nproc-per-node N -m evsmap train ...` the run is distributed "
+                    "(DDP). Each flag below overrides one recipe field.")
+    p.add_argument("model", metavar="MODEL", help="segmenter name (evsmap list)")
+    p.add_argument("--dataset", required=True, metavar="NAME-or-PATH",
+                   help="labelled dataset: a folder, a prepared dataset's name, or a reader "
+                        "that needs no path")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="the run's folder")
+    p.add_argument("--recipe", metavar="NAME-or-FILE",
+                   help="a shipped recipe (paper, synth-proxy) or a TOML file (default: paper; "
+                        "resuming: the checkpoint's)")
+    p.add_argument("--epochs", type=positive_int, metavar="N", help="recipe field epochs")
+    p.add_argument("--batch-size", type=positive_int, metavar="N",
+                   help="recipe field batch_size (global: split over DDP processes)")
+    p.add_argument("--lr", type=_positive_float, metavar="LR", help="recipe field lr")
+    p.add_argument("--crop", type=_size, metavar="HxW", help="recipe field crop")
+    p.add_argument("--workers", type=nonnegative_int, metavar="N",
+                   help="recipe field workers (data-loading processes per training process)")
+    p.add_argument("--amp", action=argparse.BooleanOptionalAction, default=None,
+                   help="recipe field amp: float16 autocast + GradScaler (CUDA only)")
+    p.add_argument("--eval-every", type=nonnegative_int, metavar="N",
+                   help="recipe field eval_every: validate every N epochs and after the last "
+                        "(0: never)")
+    p.add_argument("--seed", type=nonnegative_int, metavar="S", help="recipe field seed")
+    p.add_argument("--set", dest="fields", type=key_value, action="append", default=[],
+                   metavar="FIELD=VALUE",
+                   help="any recipe field, repeatable (e.g. --set poly_start_epoch=0, "
+                        "--set scale=0.5,2.0)")
+    p.add_argument("--device", metavar="cpu|cuda",
+                   help="cpu, cuda or cuda:N (default: cuda when available; under torchrun "
+                        "each process takes cuda:LOCAL_RANK)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its checkpoint (recipe, weights, "
+                        "optimizer, schedule and random states)")
+    p.add_argument("--stop-after", type=positive_int, metavar="N",
+                   help="stop after N epochs of this invocation (continue with --resume)")
+    p.add_argument("--init", type=Path, metavar="FILE",
+                   help="encoder weights to start from (an ImageNet backbone or another "
+                        "network's state dict); prints what was and was not loaded")
+    p.add_argument("-o", "--option", type=key_value, action="append", default=[],
+                   metavar="KEY=VALUE",
+                   help="a segmenter option, repeatable (e.g. -o num_classes=37)")
+    p.add_argument("--train-split", metavar="SPLIT", help="training split (default: train)")
+    p.add_argument("--val-split", metavar="SPLIT",
+                   help="validation split (default: what evsmap eval scores: test; val for "
+                        "cityscapes)")
+    p.add_argument("--limit", type=positive_int, metavar="N",
+                   help="first N frames of each split only")
+    p.add_argument("--reader", metavar="NAME",
+                   help="use this reader instead of detecting one from the path (evsmap list)")
+    p.add_argument("-r", "--reader-option", type=key_value, action="append", default=[],
+                   metavar="KEY=VALUE", help="a reader option, repeatable")
+    p.add_argument("--json", action="store_true",
+                   help="print the summary as JSON (the per-epoch lines go to stderr)")
+    p.set_defaults(run=run)
+
+
+def overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The recipe fields the command line sets (flags, then --set)."""
+    out: dict[str, Any] = {}
+    for flag, key in (("epochs", "epochs"), ("batch_size", "batch_size"), ("lr", "lr"),
+                      ("crop", "crop"), ("workers", "workers"), ("amp", "amp"),
+                      ("eval_every", "eval_every"), ("seed", "seed")):
+        value = getattr(args, flag)
+        if value is not None:
+            out[key] = value
+    for key, value in args.fields:
+        out[key] = value
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    import os
+    import sys
+
+    from evsmap.train.loop import RunOptions, train
+
+    opts = RunOptions(
+        model=args.model, dataset=args.dataset, out=args.out, recipe=args.recipe,
+        overrides=overrides(args), options=dict(args.option), reader=args.reader,
+        reader_options=list(args.reader_option), train_split=args.train_split,
+        val_split=args.val_split, limit=args.limit, device=args.device, resume=args.resume,
+        init=args.init, stop_after=args.stop_after,
+        messages=sys.stderr if args.json else sys.stdout)
+    summary = train(opts)
+    if int(os.environ.get("RANK", "0")) != 0:
+        return 0
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    best = summary["best_val_miou"]
+    state = "finished" if summary["finished"] else "stopped"
+    print(f"{state} after {summary['epochs']} of {summary['epochs_planned']} epochs"
+          + (f"; best val mIoU {100 * best:.2f} % (epoch {summary['best_epoch']})"
+             if best is not None else ""))
+    for name, path in summary["files"].items():
+        print(f"  {name:<14} {path}")
+    if "best.pt" in summary["files"]:
+        print(f"evaluate with: evsmap eval {args.model} --weights {summary['files']['best.pt']} "
+              f"--dataset {args.dataset}"
+              + "".join(f" -o {k}={v}" for k, v in dict(args.option).items()))
+    return 0

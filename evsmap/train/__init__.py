@@ -1,0 +1,8 @@
+"""Training of the segmentation networks (``evsmap train``): recipes as data
+(:mod:`~evsmap.train.recipe`), augmented data over any labelled reader
+(:mod:`~evsmap.train.data`), the loop with DDP and AMP (:mod:`~evsmap.train.loop`), checkpoints
+and weights files with cards (:mod:`~evsmap.train.checkpoint`), encoder initialisation
+(:mod:`~evsmap.train.init`). See ``docs/training.md``.
+
+Importing this package imports no torch; the submodules other than ``recipe`` do.
+"""
