@@ -1,5 +1,16 @@
-"""``evsmap weights convert``: an official release checkpoint (or any state dict) as an evsmap
-weights file with a card.
+"""``evsmap weights``: evsmap weights files and their cards.
+
+``evsmap weights list [PATH ...] [--json]`` lists the weights files under each PATH (a folder,
+searched recursively for ``*.pt`` / ``*.pth``, hidden folders skipped; or a file of any name),
+one line per file: model and options, dataset, classes, measured val/test mIoU and size from its
+card; a file without a card is named by its layout (plain state dict, official release); an
+unreadable file by its one-line reason. Files are opened with ``torch.load(weights_only=True,
+mmap=True)``: only the pickled structure is read, the tensors stay on disk (files in the legacy
+non-zip format, which cannot be memory-mapped, are read whole).
+
+``evsmap weights show FILE [--json]`` prints the whole card and checks the tensors against it:
+the SHA-256 over the tensors is recomputed and compared with the card's ``tensors_sha256``
+(exit status 1 when they differ).
 
 ``evsmap weights convert SRC --out DST [--model NAME] [-o KEY=VALUE ...]`` reads SRC the way
 ``--weights`` does (weights-only, numpy scalars through an allow-list; the official ESANet and
@@ -29,7 +40,10 @@ knows) and is recognised as the ``evsmap`` layout. The card is a flat dict of pl
 ``tensors``         number of tensors
 ``tensors_sha256``  :func:`evsmap.segmenters.weights.tensors_sha256` of the state dict
 
-Later card versions may add keys; readers should ignore keys they do not know.
+Cards written by ``evsmap train`` add the dataset (``dataset``: the folder or name trained on,
+``reader``: its reader), splits, recipe, ``epochs`` and the measured ``val_miou`` /
+``test_miou`` (fractions). Later card versions may add keys; readers ignore keys they do not
+know, and every key but ``model`` may be missing.
 """
 
 from __future__ import annotations
@@ -37,23 +51,48 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
+import textwrap
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import key_value
-from evsmap.errors import EvsmapError
+from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.version import evsmap_version
 
 CARD_VERSION = 1
 _RESERVED = ("weights", "backend", "input_size")
+WEIGHTS_SUFFIXES = (".pt", ".pth")
+"""What ``weights list`` and the runner's weights folder look for."""
+TRAIN_CHECKPOINT = "evsmap-train-checkpoint"
+"""``format`` of ``evsmap train``'s resume point (``checkpoint.pt``), a weights file too."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "weights", help="convert official checkpoints to evsmap weights files",
-        description="Work with segmenter weights files.")
+        "weights", help="list, show and convert segmenter weights files",
+        description="Work with segmenter weights files and their cards.")
     actions = p.add_subparsers(dest="action", metavar="ACTION", parser_class=type(p))
     actions.required = True
+    ls = actions.add_parser(
+        "list", help="list the weights files in a folder with their cards",
+        description="List the weights files under each PATH (a folder, searched recursively "
+                    "for *.pt and *.pth, or a file): model and options, dataset, classes, "
+                    "val/test mIoU and size from the card; files without a card by their "
+                    "layout, unreadable files by their reason. Tensors are not read.")
+    ls.add_argument("paths", nargs="*", type=Path, default=[Path(".")], metavar="PATH",
+                    help="folder or file (default: the current folder)")
+    ls.add_argument("--json", action="store_true", help="one JSON object per file, in a list")
+    ls.set_defaults(run=run_list)
+    show = actions.add_parser(
+        "show", help="print a weights file's card and verify its tensors",
+        description="Print the card of FILE and recompute the SHA-256 of its tensors: exit "
+                    "status 1 when they differ from the card's tensors_sha256.")
+    show.add_argument("file", type=Path, metavar="FILE", help="weights file")
+    show.add_argument("--json", action="store_true", help="print the card and check as JSON")
+    show.set_defaults(run=run_show)
     c = actions.add_parser(
         "convert", help="write an official release checkpoint as an evsmap weights file",
         description="Read SRC (an official ESANet or FC-HarDNet release file, or any state "
@@ -82,7 +121,336 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+# ----------------------------------------------------------------------------- reading files
+@dataclass
+class WeightsFile:
+    """A weights file as ``weights list`` sees it (its tensors not read).
 
+    Attributes:
+        path: the file.
+        size: its size in bytes.
+        card: its card (None: it has none).
+        layout: the state dict's layout (a key of :data:`evsmap.segmenters.official.LAYOUTS`);
+            None when unreadable.
+        tensors: number of tensors of the state dict.
+        checkpoint: the file is ``evsmap train``'s resume point (it also loads as weights).
+        error: why the file cannot be read as weights (one line), else None.
+    """
+
+    path: Path
+    size: int
+    card: dict[str, Any] | None = None
+    layout: str | None = None
+    tensors: int | None = None
+    checkpoint: bool = False
+    error: str | None = None
+
+    def describe(self) -> str:
+        """What the file is, for a file without a card or an unreadable one."""
+        from evsmap.segmenters.official import ESANET, FCHARDNET, LAYOUTS
+
+        if self.error is not None:
+            return f"unreadable: {self.error}"
+        if self.card is not None:
+            return "evsmap training checkpoint with a card" if self.checkpoint else \
+                "evsmap weights file with a card"
+        if self.layout in (ESANET, FCHARDNET):
+            return (f"no card (official release layout {self.layout}: {LAYOUTS[self.layout]}, "
+                    f"{self.tensors} tensors)")
+        return f"no card ({LAYOUTS.get(str(self.layout), self.layout)}, {self.tensors} tensors)"
+
+    def as_dict(self) -> dict[str, Any]:
+        card = self.card
+        return {"file": str(self.path), "size_bytes": self.size, "layout": self.layout,
+                "tensors": self.tensors, "checkpoint": self.checkpoint, "error": self.error,
+                "model": card_get(card, "model"), "options": card_get(card, "options"),
+                "spec": card_spec(card) if card else None, "dataset": card_dataset(card),
+                "num_classes": card_get(card, "num_classes"),
+                "val_miou": card_miou(card, "val"), "test_miou": card_miou(card, "test"),
+                "card": card}
+
+
+def _short(text: str) -> str:
+    """torch's reader messages without their advice paragraphs."""
+    text = " ".join(text.split())
+    for cut in (". This is an internal", ". Check the documentation", ". If you"):
+        if cut in text:
+            text = text.split(cut)[0]
+    return text
+
+
+def load_lazily(path: str | os.PathLike[str]) -> object:
+    """The object in a weights file with its tensors memory-mapped, not read:
+    ``torch.load(weights_only=True, mmap=True)`` with the numpy allow-list of
+    :func:`~evsmap.segmenters.weights.read_checkpoint` (a legacy non-zip file, which cannot be
+    mapped, is read whole).
+
+    Raises:
+        DataFormatError: missing, empty or unreadable (one line).
+    """
+    import torch
+
+    from evsmap.segmenters.weights import _reason, numpy_allowlist
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(f"{path}: weights file not found")
+    if path.stat().st_size == 0:
+        raise DataFormatError(f"{path}: empty file")
+    try:
+        with torch.serialization.safe_globals(numpy_allowlist()):
+            try:
+                return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+            except RuntimeError as exc:
+                if "mmap can only be used" not in str(exc):
+                    raise
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # any file may be given: every failure is one line, no traceback
+        reason = _short(_reason(exc))
+        if " " not in reason:  # a bare KeyError / EOFError out of the legacy reader
+            reason = f"{type(exc).__name__}: {reason}" if reason != type(exc).__name__ else reason
+        raise DataFormatError(f"{path}: cannot read weights ({reason})") from None
+
+
+def open_weights(path: str | os.PathLike[str]) -> tuple[WeightsFile, dict[str, Any]]:
+    """The file's description and its state dict (tensors memory-mapped).
+
+    Raises:
+        DataFormatError: unreadable, or not a state dict.
+    """
+    from evsmap.segmenters.official import detect_layout
+    from evsmap.segmenters.weights import _unwrap
+
+    path = Path(path)
+    obj = load_lazily(path)
+    state = _unwrap(obj, path)
+    card = obj.get("card") if isinstance(obj, dict) else None
+    card = dict(card) if isinstance(card, Mapping) else None
+    info = WeightsFile(path=path, size=path.stat().st_size, card=card,
+                       layout=detect_layout(state, card), tensors=len(state),
+                       checkpoint=isinstance(obj, dict) and obj.get("format") == TRAIN_CHECKPOINT)
+    return info, state
+
+
+def inspect_weights(path: str | os.PathLike[str]) -> WeightsFile:
+    """:func:`open_weights` without the tensors; an unreadable file gets its ``error``."""
+    path = Path(path)
+    try:
+        return open_weights(path)[0]
+    except DataFormatError as exc:
+        size = path.stat().st_size if path.is_file() else 0
+        reason = str(exc)
+        prefix = f"{path}: "
+        return WeightsFile(path=path, size=size,
+                           error=reason[len(prefix):] if reason.startswith(prefix) else reason)
+
+
+def find_weights_files(paths: Iterable[str | os.PathLike[str]]) -> list[Path]:
+    """Each path that is a file, and the ``*.pt`` / ``*.pth`` files under each folder
+    (recursively, in sorted order; hidden files and folders skipped, links to folders not
+    followed).
+
+    Raises:
+        EvsmapError: a path that does not exist.
+    """
+    out: list[Path] = []
+    for given in paths:
+        given = Path(given)
+        if given.is_file():
+            out.append(given)
+            continue
+        if not given.is_dir():
+            raise EvsmapError(f"{given}: no such file or folder")
+        for root, dirs, files in os.walk(given):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            for name in sorted(files):
+                if not name.startswith(".") and name.lower().endswith(WEIGHTS_SUFFIXES):
+                    out.append(Path(root) / name)
+    return out
+
+
+# ----------------------------------------------------------------------------- card fields
+def card_get(card: Mapping[str, Any] | None, key: str) -> Any:
+    return card.get(key) if isinstance(card, Mapping) else None
+
+
+def card_dataset(card: Mapping[str, Any] | None) -> str | None:
+    """The dataset a card's weights were trained on, as the runner names datasets: the reader
+    ``evsmap train`` read it with (``nyuv2``, ``synthrooms``, ...), else the ``dataset`` field
+    (a folder's name when it is a path), else the ``dataset`` option (``convert``'s cards of
+    the official ESANet / FC-HarDNet releases: the configuration the release was trained
+    on)."""
+    reader, dataset = card_get(card, "reader"), card_get(card, "dataset")
+    if isinstance(reader, str) and reader:
+        return reader
+    if isinstance(dataset, str) and dataset:
+        return Path(dataset).name if ("/" in dataset or os.sep in dataset) else dataset
+    options = card_get(card, "options")
+    option = options.get("dataset") if isinstance(options, Mapping) else None
+    return option if isinstance(option, str) and option else None
+
+
+def card_miou(card: Mapping[str, Any] | None, split: str) -> float | None:
+    """The card's measured mIoU on ``split`` (``val`` or ``test``) as a fraction, else None
+    (``<split>_miou``; also read: ``miou_<split>`` and a ``metrics`` table of either)."""
+    if not isinstance(card, Mapping):
+        return None
+    metrics = card.get("metrics") if isinstance(card.get("metrics"), Mapping) else {}
+    for where, key in ((card, f"{split}_miou"), (card, f"miou_{split}"),
+                       (metrics, f"{split}_miou"), (metrics, f"miou_{split}"),
+                       (metrics, split)):
+        value = where.get(key)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == value:
+            return float(value)
+    return None
+
+
+def _option_text(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def format_options(options: Any) -> str:
+    """``k=v,...`` in sorted order (bools as true/false), as in the runner's specs."""
+    if not isinstance(options, Mapping):
+        return ""
+    return ",".join(f"{k}={_option_text(v)}" for k, v in sorted(options.items()))
+
+
+def card_spec(card: Mapping[str, Any] | None) -> str:
+    """``model`` or ``model(k=v,...)`` from the card's options."""
+    model = str(card_get(card, "model") or "?")
+    opts = format_options(card_get(card, "options"))
+    return f"{model}({opts})" if opts else model
+
+
+def format_size(size: int) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if size >= scale:
+            return f"{size / scale:.1f} {unit}"
+    return f"{size} B"
+
+
+def _percent(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f} %"
+
+
+# ----------------------------------------------------------------------------- list, show
+def run_list(args: argparse.Namespace) -> int:
+    files = [inspect_weights(p) for p in find_weights_files(args.paths)]
+    if args.json:
+        print(json.dumps([f.as_dict() for f in files], indent=2, default=str))
+        return 0
+    if not files:
+        where = ", ".join(str(p) for p in args.paths)
+        print(f"no weights files (*.pt, *.pth) under {where}")
+        return 0
+    header = ["FILE", "MODEL", "DATASET", "CLASSES", "VAL mIoU", "TEST mIoU", "SIZE"]
+    rows: list[list[str] | tuple[str, str]] = []
+    for f in files:
+        if f.card is not None and f.error is None:
+            classes = card_get(f.card, "num_classes")
+            rows.append([str(f.path), card_spec(f.card) + (" [checkpoint]" if f.checkpoint
+                                                           else ""),
+                         card_dataset(f.card) or "-", "-" if classes is None else str(classes),
+                         _percent(card_miou(f.card, "val")),
+                         _percent(card_miou(f.card, "test")), format_size(f.size)])
+        else:
+            rows.append((str(f.path), f"{f.describe()}, {format_size(f.size)}"))
+    table = [header] + [r for r in rows if isinstance(r, list)]
+    widths = [max(len(r[i]) for r in table) for i in range(len(header))]
+    widths[0] = max(widths[0], *(len(r[0]) for r in rows))
+    right = {3, 4, 5, 6}
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(c.rjust(w) if i in right else c.ljust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
+
+    print(line(header))
+    for r in rows:
+        print(line(r) if isinstance(r, list) else f"{r[0].ljust(widths[0])}  {r[1]}")
+    carded = sum(f.card is not None and f.error is None for f in files)
+    broken = sum(f.error is not None for f in files)
+    print(f"{len(files)} files: {carded} with a card, {len(files) - carded - broken} without, "
+          f"{broken} unreadable")
+    return 0
+
+
+def verify_tensors(card: Mapping[str, Any] | None,
+                   state: Mapping[str, Any]) -> tuple[bool | None, str, str]:
+    """``(verified, message, sha256)``: the state dict's :func:`tensors_sha256` against the
+    card's ``tensors_sha256`` (``verified`` None when there is nothing to compare with)."""
+    from evsmap.segmenters.weights import tensors_sha256
+
+    digest = tensors_sha256(state)
+    expected = card_get(card, "tensors_sha256")
+    if card is None:
+        return None, f"{len(state)} tensors, sha256 {digest} (no card to check against)", digest
+    if not isinstance(expected, str):
+        return None, (f"{len(state)} tensors, sha256 {digest} (the card holds no "
+                      f"tensors_sha256 to check against)"), digest
+    if digest == expected:
+        return True, f"tensors match the card ({len(state)} tensors, sha256 {digest})", digest
+    count = card_get(card, "tensors")
+    counted = (f"; the card counts {count} tensors, the file holds {len(state)}"
+               if isinstance(count, int) and count != len(state) else "")
+    return False, (f"tensors differ from the card: the file was changed after it was written "
+                   f"(card sha256 {expected}, tensors {digest}{counted})"), digest
+
+
+def _value_text(key: str, value: Any) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and "miou" in key.lower():
+        return f"{value:.4f} ({100 * value:.2f} %)"
+    if isinstance(value, (list, tuple)):
+        return ", ".join(_value_text(key, v) for v in value) if value else "(none)"
+    if isinstance(value, Mapping):
+        return format_options(value).replace(",", ", ") or "{}"
+    return str(value)
+
+
+def pretty_card(card: Mapping[str, Any], indent: int = 2, width: int = 100) -> list[str]:
+    """The card as aligned ``key  value`` lines; nested tables indented below their key, long
+    values wrapped."""
+    lines: list[str] = []
+    if not card:
+        return [" " * indent + "(empty)"]
+    keys = max(len(str(k)) for k in card)
+    for key, value in card.items():
+        head = " " * indent + str(key).ljust(keys) + "  "
+        nested = isinstance(value, Mapping) and bool(value) and (
+            len(value) > 4 or any(isinstance(v, (Mapping, list, tuple)) for v in value.values()))
+        if nested:
+            lines.append(" " * indent + str(key))
+            lines += pretty_card(value, indent + 2, width)
+            continue
+        text = _value_text(str(key), value)
+        lines += textwrap.wrap(text, width=max(40, width - len(head)), initial_indent=head,
+                               subsequent_indent=" " * len(head), break_on_hyphens=False) \
+            or [head.rstrip()]
+    return lines
+
+
+def run_show(args: argparse.Namespace) -> int:
+    info, state = open_weights(args.file)
+    verified, message, digest = verify_tensors(info.card, state)
+    if args.json:
+        print(json.dumps({**info.as_dict(), "tensors_sha256": digest, "verified": verified,
+                          "verification": message}, indent=2, default=str))
+        return 1 if verified is False else 0
+    print(f"{info.path} ({format_size(info.size)}): {info.describe()}")
+    if info.card is not None:
+        print("card:")
+        print("\n".join(pretty_card(info.card)))
+    print(message)
+    return 1 if verified is False else 0
+
+
+# ----------------------------------------------------------------------------- convert
 def convert(source: Path, out: Path, *, model: str | None = None,
             options: dict[str, Any] | None = None, force: bool = False) -> dict[str, Any]:
     """Convert ``source`` to an evsmap weights file ``out``; returns the card.

@@ -3,9 +3,13 @@ and which requirements (datasets, weights, hardware) are satisfied on this machi
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import re
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -35,8 +39,8 @@ class RunContext:
         out: the run folder (records, artifacts, cache).
         data_root: where datasets and sequences are looked up (besides ``datasets/`` in the
             repository and ``../shared/data``).
-        weights_dir: trained weights, ``<segmenter spec>@<dataset>.pt`` or
-            ``<segmenter name>@<dataset>.pt``.
+        weights_dir: trained weights: ``<segmenter spec>@<dataset>.pt``, any file whose card
+            is for the cell (:meth:`weights_choice`), or ``<segmenter name>@<dataset>.pt``.
         quick: smoke-test settings (fewer frames and runs, smaller synthetic frames, torch
             backend for speed).
         synthetic: options of the built-in synthetic sequence.
@@ -109,16 +113,69 @@ class RunContext:
         return None
 
     def weights_path(self, spec: str, dataset: str) -> Path | None:
-        """``<spec>@<dataset>.pt`` (or ``<name>@<dataset>.pt``) in the weights folder."""
+        """The weights file of ``spec`` on ``dataset`` (see :meth:`weights_choice`)."""
+        choice = self.weights_choice(spec, dataset)
+        return None if choice is None else choice.path
+
+    def weights_choice(self, spec: str, dataset: str) -> WeightsChoice | None:
+        """The weights file of segmenter ``spec`` (``name`` or ``name(k=v,...)``) for a cell on
+        ``dataset``, and how it was found, in this order:
+
+        1. ``<spec>@<dataset>.pt`` (or ``.pth``) in the weights folder;
+        2. a file anywhere under the folder (``*.pt`` / ``*.pth``) whose card is for the same
+           model, the same options as the factory takes them (defaults filled in, so a card
+           with ``options = {}`` matches the bare name; ``num_classes`` compared with the
+           card's classes) and ``dataset``. Several: the best ``val_miou``, then the newest
+           (the card's ``created``, else the file's time), then weights files before training
+           checkpoints, then the path;
+        3. ``<name>@<dataset>.pt`` (or ``.pth``), the name without options.
+        """
         if not self.weights_dir:
             return None
         folder = Path(self.weights_dir)
         name = re.sub(r"\(.*\)$", "", spec)
-        for candidate in (f"{spec}@{dataset}", f"{name}@{dataset}"):
-            for ext in (".pt", ".pth"):
-                if (folder / (candidate + ext)).is_file():
-                    return folder / (candidate + ext)
+        for ext in (".pt", ".pth"):
+            if (folder / f"{spec}@{dataset}{ext}").is_file():
+                return self._by_name(folder / f"{spec}@{dataset}{ext}", spec, dataset)
+        model, options = parse_spec(spec)
+        matches = [e for e in self.weights_index() if e.get("card") is not None
+                   and card_mismatch(e["card"], model, options, dataset) is None]
+        if matches:
+            matches.sort(key=_rank)
+            return WeightsChoice(path=folder / matches[0]["file"], file=matches[0]["file"],
+                                 found_by="card", card=matches[0]["card"],
+                                 candidates=tuple(e["file"] for e in matches))
+        for ext in (".pt", ".pth"):
+            if (folder / f"{name}@{dataset}{ext}").is_file():
+                return self._by_name(folder / f"{name}@{dataset}{ext}", spec, dataset)
         return None
+
+    def _by_name(self, path: Path, spec: str, dataset: str) -> WeightsChoice:
+        rel = path.name
+        entry = next((e for e in self.weights_index() if e["file"] == rel), None)
+        card = entry.get("card") if entry else None
+        mismatch = None
+        if card is not None:
+            model, options = parse_spec(spec)
+            mismatch = card_mismatch(card, model, options, dataset)
+        return WeightsChoice(path=path, file=rel, found_by="name", card=card, mismatch=mismatch)
+
+    def weights_index(self) -> list[dict[str, Any]]:
+        """The cards of every ``*.pt`` / ``*.pth`` file under the weights folder, read once per
+        run: kept on the context, and in ``<out>/cache/weights-cards.json`` for the cells' own
+        processes (an entry is read again only when its file's size or time changed). Each
+        entry: ``file`` (relative to the folder), ``size``, ``mtime_ns``, ``checkpoint``,
+        ``error`` and ``card`` (:func:`card_summary`, None without a card)."""
+        if not self.weights_dir:
+            return []
+        cached = getattr(self, "_weights_index", None)
+        if cached is not None and cached[0] == self.weights_dir:
+            return cached[1]
+        out = Path(self.out)
+        entries = index_weights(Path(self.weights_dir),
+                                out / "cache" / WEIGHTS_INDEX if out.is_dir() else None)
+        self._weights_index = (self.weights_dir, entries)
+        return entries
 
     def available(self, requires: list[str] | tuple[str, ...]) -> list[str]:
         """The requirements among ``requires`` that are satisfied here."""
@@ -133,3 +190,197 @@ class RunContext:
                     have.append(req)
             # hardware (a Jetson with TensorRT) is never available to this harness
         return have
+
+
+# ----------------------------------------------------------------------------- weights by card
+WEIGHTS_INDEX = "weights-cards.json"
+"""The run's index of the weights folder's cards, under ``<out>/cache/``."""
+
+_NOT_OPTIONS = ("weights", "backend", "input_size")
+"""Segmenter options that say how weights are used, not which network they fit."""
+
+_SUMMARY_KEYS = ("model", "options", "num_classes", "epochs", "created", "tensors_sha256")
+
+
+@dataclass(frozen=True)
+class WeightsChoice:
+    """The weights file of a cell and how it was found.
+
+    Attributes:
+        path: the file.
+        file: its path relative to the weights folder.
+        found_by: ``name`` (``<spec>@<dataset>.pt`` or ``<name>@<dataset>.pt``) or ``card``.
+        card: :func:`card_summary` of its card, None when it has none.
+        candidates: found by card: every matching file, the chosen one first.
+        mismatch: found by name: how its card disagrees with the cell, else None.
+    """
+
+    path: Path
+    file: str
+    found_by: str
+    card: dict[str, Any] | None = None
+    candidates: tuple[str, ...] = ()
+    mismatch: str | None = None
+
+    def note(self) -> str:
+        """``weights: FILE (card: model, dataset, epochs, val mIoU, sha256 prefix)`` and how the
+        file was chosen, for the record's notes."""
+        from evsmap.cli.weights_cmd import format_options
+
+        if self.card is None:
+            text = f"weights: {self.file} (no card)"
+        else:
+            c = self.card
+            opts = format_options(c.get("options"))
+            parts = [f"{c.get('model') or '?'}" + (f"({opts})" if opts else ""),
+                     str(c.get("dataset") or "dataset not on the card")]
+            if isinstance(c.get("epochs"), int):
+                parts.append(f"{c['epochs']} epochs")
+            if isinstance(c.get("val_miou"), (int, float)):
+                parts.append(f"val mIoU {100 * c['val_miou']:.1f} %")
+            if isinstance(c.get("test_miou"), (int, float)):
+                parts.append(f"test mIoU {100 * c['test_miou']:.1f} %")
+            if isinstance(c.get("tensors_sha256"), str):
+                parts.append(f"sha256 {c['tensors_sha256'][:8]}")
+            text = f"weights: {self.file} (card: {', '.join(parts)})"
+        if self.found_by == "card":
+            text += "; found by its card"
+            others = self.candidates[1:]
+            if others:
+                text += (f", the first of {len(self.candidates)} matching files by val mIoU, "
+                         f"then the newest (also matching: {', '.join(others)})")
+        elif self.mismatch:
+            text += f"; named for this cell, but its card {self.mismatch}"
+        return text
+
+
+def parse_spec(spec: str) -> tuple[str, dict[str, Any]]:
+    """``name(k=v,...)`` (:attr:`evsmap.tables.schema.Component.spec`) as ``(name, options)``;
+    values read as ``-o KEY=VALUE`` reads them (true/false, int, float, else text)."""
+    from evsmap.cli.options import key_value
+
+    match = re.fullmatch(r"\s*([^()]+?)\s*(?:\((.*)\))?\s*", spec)
+    if match is None:
+        return spec, {}
+    options = dict(key_value(part) for part in (match.group(2) or "").split(",")
+                   if part.strip())
+    return match.group(1), options
+
+
+def _factory_options(model: str, options: Mapping[str, Any]) -> tuple[dict[str, Any], Any]:
+    """``(options, num_classes)`` as the segmenter's factory takes them: its defaults updated
+    with ``options``, without the options that do not choose the network; ``num_classes``
+    apart (None: the network's count follows from other options, e.g. ESANet's dataset)."""
+    import inspect
+
+    from evsmap.errors import EvsmapError
+    from evsmap.registry import SEGMENTERS
+
+    full: dict[str, Any] = {}
+    try:
+        params = SEGMENTERS.get(model).parameters()
+    except EvsmapError:
+        params = {}
+    for key, param in params.items():
+        if param.default is not inspect.Parameter.empty:
+            full[key] = param.default
+    full.update(options)
+    for key in _NOT_OPTIONS:
+        full.pop(key, None)
+    return full, full.pop("num_classes", None)
+
+
+def card_mismatch(card: Mapping[str, Any], model: str, options: Mapping[str, Any],
+                  dataset: str) -> str | None:
+    """None when ``card`` (:func:`card_summary`) is for ``model`` with ``options`` on
+    ``dataset``; else what differs, e.g. ``is for dataset sunrgbd``."""
+    from evsmap.cli.weights_cmd import card_spec
+
+    if card.get("model") != model:
+        return f"is for {card_spec(card)}"
+    if card.get("dataset") != dataset:
+        return f"is for dataset {card.get('dataset') or '(not on the card)'}"
+    raw = card.get("options")
+    theirs, their_classes = _factory_options(model, raw if isinstance(raw, Mapping) else {})
+    ours, our_classes = _factory_options(model, options)
+    if isinstance(card.get("num_classes"), int):
+        their_classes = card["num_classes"]
+    if theirs != ours:
+        return f"is for {card_spec(card)}"
+    if None not in (our_classes, their_classes) and our_classes != their_classes:
+        return f"has {their_classes} classes, not {our_classes}"
+    return None
+
+
+def card_summary(card: Mapping[str, Any]) -> dict[str, Any]:
+    """What the runner keeps of a card: model, options, classes, dataset (as the runner names
+    datasets), epochs, val/test mIoU, created, tensors_sha256 - as plain JSON data, so that an
+    index read back from disk compares as one just read."""
+    from evsmap.cli.weights_cmd import card_dataset, card_miou
+
+    out = {k: card.get(k) for k in _SUMMARY_KEYS}
+    out.update(dataset=card_dataset(card), val_miou=card_miou(card, "val"),
+               test_miou=card_miou(card, "test"))
+    return json.loads(json.dumps(out, default=str))
+
+
+def _timestamp(entry: Mapping[str, Any]) -> float:
+    created = (entry.get("card") or {}).get("created")
+    if isinstance(created, str):
+        try:
+            return datetime.fromisoformat(created).timestamp()
+        except ValueError:
+            pass
+    return float(entry.get("mtime_ns") or 0) / 1e9
+
+
+def _rank(entry: Mapping[str, Any]) -> tuple:
+    val = entry["card"].get("val_miou")
+    val = val if isinstance(val, (int, float)) and math.isfinite(val) else -math.inf
+    return (-val, -_timestamp(entry), bool(entry.get("checkpoint")), entry["file"])
+
+
+def index_weights(folder: Path, cache: Path | None = None) -> list[dict[str, Any]]:
+    """One entry per weights file under ``folder`` (see :meth:`RunContext.weights_index`),
+    reusing ``cache`` entries whose file is unchanged and rewriting ``cache`` when needed."""
+    from evsmap.cli.weights_cmd import find_weights_files, inspect_weights
+
+    if not folder.is_dir():
+        return []
+    key = str(folder.resolve())
+    known: dict[str, Any] = {}
+    if cache is not None and cache.is_file():
+        try:
+            stored = json.loads(cache.read_text())
+            if isinstance(stored, dict) and stored.get("folder") == key:
+                known = stored.get("files") or {}
+        except (OSError, ValueError):
+            known = {}
+    entries, changed = [], False
+    for path in find_weights_files([folder]):
+        rel = path.relative_to(folder).as_posix()
+        try:
+            stat = path.stat()
+        except OSError:
+            continue
+        old = known.get(rel)
+        if isinstance(old, dict) and old.get("size") == stat.st_size and \
+                old.get("mtime_ns") == stat.st_mtime_ns:
+            entries.append(old)
+            continue
+        info = inspect_weights(path)
+        entries.append({"file": rel, "size": stat.st_size, "mtime_ns": stat.st_mtime_ns,
+                        "checkpoint": info.checkpoint, "error": info.error,
+                        "card": card_summary(info.card) if info.card is not None
+                        and info.error is None else None})
+        changed = True
+    if cache is not None and (changed or len(entries) != len(known)):
+        try:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            tmp = cache.with_name(f".{cache.name}.{os.getpid()}.tmp")
+            tmp.write_text(json.dumps({"folder": key, "files": {e["file"]: e for e in entries}},
+                                      indent=1))
+            tmp.replace(cache)
+        except OSError:  # a read-only run folder: the index is kept in memory only
+            pass
+    return entries

@@ -170,9 +170,10 @@ def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
 
     dataset = spec.datasets[0]
     path = ctx.dataset_path(dataset)
-    weights = ctx.weights_path(spec.segmenter.spec, dataset)
-    if path is None or weights is None:  # guarded by the caller's needs check
+    choice = ctx.weights_choice(spec.segmenter.spec, dataset)
+    if path is None or choice is None:  # guarded by the caller's needs check
         raise EvsmapError(f"{spec.key}: dataset or weights missing")
+    weights = choice.path
     segmenter = build_segmenter(spec.segmenter, input_size=spec.input_size,
                                 backend=ctx.speed_backend, weights=str(weights))
     config: dict[str, Any] = {"path": str(path), "split": spec.split or "test"}
@@ -191,7 +192,8 @@ def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
         matrix.update(segmenter.predict(frame).argmax, frame.labels)
     result = matrix.result(class_names=names)
     values = {col: float(result.miou) for col in spec.metrics}
-    notes = [f"{dataset} {config['split']} split, {len(sequence)} images, weights {weights.name}"]
+    notes = [f"{dataset} {config['split']} split, {len(sequence)} images, weights "
+             f"{choice.file}", choice.note()]
     return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
                       details=result.as_dict())
 
@@ -270,7 +272,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                        "updater": run.updater.spec, "sequence": run.sequence,
                        "voxel_size": run.voxel_size}}
     semantic = run.segmenter is not None
-    weights = ctx.weights_path(run.segmenter.spec, MAPPING_WEIGHTS) if semantic else None
+    choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) if semantic else None
+    weights = choice.path if choice is not None else None
     if run.sequence != "synthetic" and ctx.dataset_path(run.sequence) is None:
         return CellRecord(**base, status="na", needs=[f"dataset:{run.sequence}"],
                           reason=needs_text([f"dataset:{run.sequence}"]), started=_now())
@@ -283,13 +286,14 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     segment_ms: list[float] = []
     if semantic:
         labelled = n > 0 and sequence.frame(0).labels is not None
-        if weights is not None:
+        if choice is not None:
             net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
             observations, segment_ms, _ = cache.observations(
                 net, sequence, indices, key={"segmenter": run.segmenter.spec,
                                              "weights": str(weights), "sequence": sequence.name})
-            notes.append(f"labels from {run.segmenter.spec} with weights {weights.name} "
+            notes.append(f"labels from {run.segmenter.spec} with weights {choice.file} "
                          f"(onnxruntime)")
+            notes.append(choice.note())
         elif labelled:
             from evsmap.registry import SEGMENTERS
 
