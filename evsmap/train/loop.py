@@ -350,7 +350,7 @@ def train(opts: RunOptions) -> dict[str, Any]:
             dist.destroy_process_group()
 
 
-def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:  # noqa: C901
+def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
     from torch.utils.data import DataLoader, DistributedSampler
 
     from evsmap.metrics import ConfusionMatrix
@@ -387,9 +387,11 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:  # noqa: C901
                           "eval scores, at the segmenter's own input size (use --crop and "
                           "--set scale=MIN,MAX for the training resolution)")
 
-    # the network, seeded: the same initial weights in every process
+    # the network, seeded: the same initial weights in every process (a resumed run takes its
+    # weights from the checkpoint, not from a -o weights= file it started from)
     seed_everything(recipe.seed)
-    segmenter = SEGMENTERS.create(opts.model, **options)
+    build = {k: v for k, v in options.items() if not (saved and k == "weights")}
+    segmenter = SEGMENTERS.create(opts.model, **build)
     module = getattr(segmenter, "module", None)
     if module is None:
         raise EvsmapError(f"{opts.model} is not a network segmenter: there is nothing to train")
