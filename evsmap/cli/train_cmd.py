@@ -47,7 +47,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "epoch writes OUT/checkpoint.pt (resume point), OUT/last.pt and OUT/best.pt "
                     "(weights with a card, for --weights), OUT/log.csv and OUT/run.json. Under "
                     "`torchrun --nproc-per-node N -m evsmap train ...` the run is distributed "
-                    "(DDP). Each flag below overrides one recipe field.")
+                    "(DDP). --epochs, --batch-size, --lr, --crop, --workers, --amp, "
+                    "--eval-every, --seed and --set each override one recipe field.")
     p.add_argument("model", metavar="MODEL", help="segmenter name (evsmap list)")
     p.add_argument("--dataset", required=True, metavar="NAME-or-PATH",
                    help="labelled dataset: a folder, a prepared dataset's name, or a reader "
