@@ -23,8 +23,9 @@ them), loads the tensors into it strictly, and writes with ``torch.save``::
      "card": {...}}
 
 DST then loads wherever ``--weights`` is taken (the ``state_dict`` wrapper is one the loader
-knows) and is recognised as the ``evsmap`` layout. The card is a flat dict of plain values
-(str, int, float, bool, lists), readable with ``weights_only=True``:
+knows) and is recognised as the ``evsmap`` layout. The card
+(:func:`evsmap.segmenters.cards.make_card`) is a flat dict of plain values (str, int, float,
+bool, None, lists), readable with ``weights_only=True``:
 
 ``card_version``    1
 ``model``           registered segmenter name, e.g. ``"fchardnet-70"``
@@ -37,6 +38,8 @@ knows) and is recognised as the ``evsmap`` layout. The card is a flat dict of pl
 ``source_layout``   ``esanet-release``, ``fchardnet-release``, ``evsmap`` or ``plain``
 ``conversion``      what the conversion did besides renaming (list of sentences)
 ``evsmap_version``  version of evsmap that wrote the file
+``git_commit``      commit of the evsmap checkout that wrote it (``+dirty`` with uncommitted
+                    changes; None outside a git checkout)
 ``tensors``         number of tensors
 ``tensors_sha256``  :func:`evsmap.segmenters.weights.tensors_sha256` of the state dict
 
@@ -60,7 +63,6 @@ from typing import Any
 
 from evsmap.cli.options import key_value
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.version import evsmap_version
 
 CARD_VERSION = 1
 _RESERVED = ("weights", "backend", "input_size")
@@ -372,8 +374,8 @@ def run_list(args: argparse.Namespace) -> int:
         print(line(r) if isinstance(r, list) else f"{r[0].ljust(widths[0])}  {r[1]}")
     carded = sum(f.card is not None and f.error is None for f in files)
     broken = sum(f.error is not None for f in files)
-    print(f"{len(files)} files: {carded} with a card, {len(files) - carded - broken} without, "
-          f"{broken} unreadable")
+    print(f"{len(files)} file{'s' if len(files) != 1 else ''}: {carded} with a card, "
+          f"{len(files) - carded - broken} without, {broken} unreadable")
     return 0
 
 
@@ -462,6 +464,7 @@ def convert(source: Path, out: Path, *, model: str | None = None,
     import torch
 
     from evsmap.registry import SEGMENTERS
+    from evsmap.segmenters.cards import make_card
     from evsmap.segmenters.weights import load_state, read_weights, tensors_sha256
 
     if out.exists() and not force:
@@ -485,20 +488,10 @@ def convert(source: Path, out: Path, *, model: str | None = None,
         raise EvsmapError(f"{name} is not a network segmenter: it takes no weights")
     load_state(module, converted, source)
     state = {k: converted.state[k] for k in module.state_dict()}
-    card = {
-        "card_version": CARD_VERSION,
-        "model": name,
-        "options": config,
-        "num_classes": int(segmenter.num_classes),
-        "class_names": list(getattr(segmenter, "class_names", ())),
-        "source_file": source.name,
-        "source_sha256": file_sha256(source),
-        "source_layout": converted.layout,
-        "conversion": list(converted.notes),
-        "evsmap_version": evsmap_version(),
-        "tensors": len(state),
-        "tensors_sha256": tensors_sha256(state),
-    }
+    card = make_card(model=name, options=config, num_classes=int(segmenter.num_classes),
+                     class_names=list(getattr(segmenter, "class_names", ())), state_dict=state,
+                     source_file=source.name, source_sha256=file_sha256(source),
+                     source_layout=converted.layout, conversion=list(converted.notes))
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.save({"state_dict": state, "card": card}, out)
     written = read_weights(out)  # the file reads back through the --weights path

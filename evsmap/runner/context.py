@@ -238,7 +238,8 @@ class WeightsChoice:
                 parts.append(f"{c['epochs']} epochs")
             if isinstance(c.get("val_miou"), (int, float)):
                 parts.append(f"val mIoU {100 * c['val_miou']:.1f} %")
-            if isinstance(c.get("test_miou"), (int, float)):
+            if isinstance(c.get("test_miou"), (int, float)) and c["test_miou"] != c.get(
+                    "val_miou"):  # train validates on test where a dataset has no val split
                 parts.append(f"test mIoU {100 * c['test_miou']:.1f} %")
             if isinstance(c.get("tensors_sha256"), str):
                 parts.append(f"sha256 {c['tensors_sha256'][:8]}")

@@ -15,6 +15,7 @@ import torch
 from evsmap.cli import weights_cmd
 from evsmap.runner import context as context_module
 from evsmap.runner.context import RunContext, WeightsChoice, parse_spec
+from evsmap.segmenters.cards import make_card
 from evsmap.segmenters.weights import tensors_sha256
 
 ABLATION = "feagnet-v2(attention=false,cfim=false,dappf=false,multiscale=false)"
@@ -27,10 +28,9 @@ def _save(path: Path, *, model: str = "feagnet-v2", options: dict | None = None,
     if state is None:
         gen = torch.Generator().manual_seed(seed)
         state = {"head.weight": torch.randn(3, 3, generator=gen)}
-    card = {"card_version": 1, "model": model, "options": dict(options or {}),
-            "num_classes": fields.pop("num_classes", 40), "class_names": [],
-            "evsmap_version": "0.1.0", "git_commit": None, "tensors": len(state),
-            "tensors_sha256": tensors_sha256(state), **fields}
+    n = fields.pop("num_classes", 40)
+    card = make_card(model=model, options=options or {}, num_classes=n,
+                     class_names=[f"c{i}" for i in range(n)], state_dict=state, **fields)
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save({"state_dict": state, "card": card}, path)
     return path
@@ -211,3 +211,10 @@ def test_weights_choice_note_without_optional_fields():
                            card={"model": "feagnet-s", "options": {}, "dataset": "cityscapes"},
                            candidates=("x.pt",))
     assert choice.note() == "weights: x.pt (card: feagnet-s, cityscapes); found by its card"
+    both = WeightsChoice(path=Path("w/y.pt"), file="y.pt", found_by="card",
+                         card={"model": "feagnet-v2", "options": {"cfim": False},
+                               "dataset": "nyuv2", "epochs": 3, "val_miou": 0.25,
+                               "test_miou": 0.2, "tensors_sha256": "ab" * 32},
+                         candidates=("y.pt",))
+    assert both.note() == ("weights: y.pt (card: feagnet-v2(cfim=false), nyuv2, 3 epochs, val "
+                           "mIoU 25.0 %, test mIoU 20.0 %, sha256 abababab); found by its card")
