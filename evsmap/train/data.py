@@ -196,6 +196,11 @@ class Splits:
                 "train_frames": len(self.train), "val_frames": len(self.val)}
 
 
+VALIDATION_SPLIT = {"cityscapes": "val", "synthrooms": "val"}
+"""The split a training run validates on (and picks ``best.pt`` by) when none is named: the
+dataset's labelled validation split where it has one; elsewhere ``test``."""
+
+
 def open_splits(dataset: str, *, reader: str | None = None,
                 reader_options: list[tuple[str, object]] | None = None,
                 train_split: str | None = None, val_split: str | None = None,
@@ -203,12 +208,13 @@ def open_splits(dataset: str, *, reader: str | None = None,
     """Open the training and validation splits of ``dataset`` (a folder, a prepared dataset's
     name or a reader that needs no path), found and opened as ``evsmap eval`` opens it.
 
-    Readers with splits: ``train_split`` (default ``train``) and ``val_split`` (default what
-    ``evsmap eval`` scores: ``test``; ``val`` for Cityscapes). Readers without: both are every
-    frame of the sequence, and naming a split is an error. ``limit`` keeps the first N frames of
-    each.
+    Readers with splits: ``train_split`` (default ``train``) and ``val_split`` (default
+    :data:`VALIDATION_SPLIT`: ``val`` where the dataset has a labelled validation split -
+    Cityscapes, synthrooms - else ``test``, as the paper validates NYUv2 and SUN RGB-D). Readers
+    without splits: both are every frame of the sequence, and naming a split is an error.
+    ``limit`` keeps the first N frames of each.
     """
-    from evsmap.cli.eval_cmd import DEFAULT_SPLIT, _find_dataset, _reader_name, dataset_classes
+    from evsmap.cli.eval_cmd import _find_dataset, _reader_name, dataset_classes
     from evsmap.cli.sequence_args import open_sequence
     from evsmap.registry import READERS
 
@@ -219,7 +225,7 @@ def open_splits(dataset: str, *, reader: str | None = None,
     if "split" in config:
         raise EvsmapError("choose the splits with --train-split / --val-split, not -r split=")
     if "split" in params:
-        splits = (train_split or "train", val_split or DEFAULT_SPLIT.get(name, "test"))
+        splits = (train_split or "train", val_split or VALIDATION_SPLIT.get(name, "test"))
     else:
         given = train_split or val_split
         if given is not None:
