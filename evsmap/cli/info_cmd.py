@@ -7,8 +7,9 @@ import json
 from pathlib import Path
 
 from evsmap.cli.sequence_args import add_sequence_options
-from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.errors import EvsmapError
 from evsmap.progress import progress
+from evsmap.readers.detect import detect_reader, open_sequence
 from evsmap.readers.skipping import SkippedFrames
 from evsmap.registry import READERS
 from evsmap.summary import summarize_sequence
@@ -29,21 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def detect_reader(path: Path) -> str:
-    """Name of the first registered reader whose ``detect`` accepts ``path``."""
-    if not path.exists():
-        raise DataFormatError(f"{path}: no such file or folder")
-    for entry in READERS.entries():
-        detect = entry.extras.get("detect")
-        if detect is not None and detect(path):
-            return entry.name
-    known = [e.name for e in READERS.entries() if e.extras.get("detect")]
-    raise DataFormatError(f"{path}: layout not recognised (readers tried: {', '.join(known)})")
-
-
 def run(args: argparse.Namespace) -> int:
-    from evsmap.cli.sequence_args import open_sequence
-
     name = args.reader or detect_reader(args.path)
     options = list(args.reader_option)
     if args.camera:

@@ -8,8 +8,9 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import key_value, positive_int
-from evsmap.cli.sequence_args import add_sequence_options, open_sequence
+from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
+from evsmap.readers.detect import open_sequence
 from evsmap.readers.skipping import SkippedFrames
 
 

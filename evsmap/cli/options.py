@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
+from evsmap.options import parse_key_value
+
 
 def _int_at_least(lowest: int, what: str) -> Callable[[str], int]:
     def parse(text: str) -> int:
@@ -42,23 +44,8 @@ nonnegative_int = _int_at_least(0, "an integer >= 0")
 
 def key_value(text: str) -> tuple[str, object]:
     """``KEY=VALUE`` for a plug-in option; VALUE is read as a bool (true/false), an int, a float
-    or else kept as a string."""
-    key, sep, raw = text.partition("=")
-    key = key.strip().replace("-", "_")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    raw = raw.strip()
-    value: object
-    if raw.lower() in ("true", "yes", "on"):
-        value = True
-    elif raw.lower() in ("false", "no", "off"):
-        value = False
-    else:
-        try:
-            value = int(raw)
-        except ValueError:
-            try:
-                value = float(raw)
-            except ValueError:
-                value = raw
-    return key, value
+    or else kept as a string (:func:`evsmap.options.parse_key_value`, its error as argparse's)."""
+    try:
+        return parse_key_value(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

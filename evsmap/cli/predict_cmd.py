@@ -189,10 +189,10 @@ def _write_png(path: Path, array) -> None:
 
 # -- the command ------------------------------------------------------------------------------
 def _open(args: argparse.Namespace):
-    from evsmap.cli.eval_cmd import _find_dataset
-    from evsmap.cli.sequence_args import open_sequence
+    from evsmap.datasets.lookup import find_dataset
+    from evsmap.readers.detect import open_sequence
 
-    text, reader = _find_dataset(args.sequence, args.reader)
+    text, reader = find_dataset(args.sequence, args.reader)
     return open_sequence(text, reader, args.reader_option), text
 
 
@@ -268,7 +268,7 @@ def predict_sequence(sequence, segmenter, out: Path, *, model: str, count: int,
     import numpy as np
 
     from evsmap.classes import class_names_for
-    from evsmap.cli.eval_cmd import dataset_classes
+    from evsmap.datasets.lookup import dataset_classes
     from evsmap.fileio import staging_folder
     from evsmap.progress import progress
     from evsmap.readers.skipping import SkippedFrames, read_frames

@@ -3,19 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
-from evsmap.classes import NYU40_CLASSES
 from evsmap.cli.options import nonnegative_int, positive_int
-from evsmap.fileio import staging_folder
-from evsmap.progress import progress
-from evsmap.readers.images import DEPTH_SCALE
-from evsmap.readers.tum import METADATA_FILE, write_tum
 from evsmap.synth.scene import DEFAULT_SCENE, SCENES
-from evsmap.synth.sequence import GENERATOR_VERSION, SyntheticSequence
+from evsmap.synth.sequence import SyntheticSequence
+from evsmap.synth.write import write_synthetic
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -41,28 +36,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace DIR if it exists (only after the new sequence is complete)")
     p.set_defaults(run=run)
-
-
-def metadata(seq: SyntheticSequence) -> dict:
-    from evsmap.cli.main import _version
-
-    return {
-        "format": "evsmap-synthetic", "format_version": 1,
-        "generator_version": GENERATOR_VERSION, "evsmap_version": _version(),
-        "scene": seq.scene, "seed": seq.seed, "frames": len(seq), "noise": seq.noise,
-        "width": seq.intrinsics.width, "height": seq.intrinsics.height,
-        "intrinsics": seq.intrinsics.as_dict(), "depth_scale": DEPTH_SCALE,
-        "room_size_m": list(seq.room.size), "classes": list(NYU40_CLASSES), "void_label": 255,
-    }
-
-
-def write_synthetic(seq: SyntheticSequence, out: Path, *, overwrite: bool = False) -> None:
-    """Render ``seq`` into ``out`` atomically: a partial folder is renamed into place only when
-    complete, so an existing ``out`` is never left half-replaced."""
-    with staging_folder(Path(out), overwrite=overwrite, what="--out ") as partial:
-        write_tum(seq, partial, quaternions=seq.quaternions,
-                  progress=lambda frames: progress(frames, total=len(seq), desc="rendering"))
-        (partial / METADATA_FILE).write_text(json.dumps(metadata(seq), indent=2) + "\n")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -96,8 +96,8 @@ class RunContext:
 
     def dataset_path(self, name: str) -> Path | None:
         """The prepared dataset (or mapping sequence) ``name``, if present."""
-        from evsmap.cli.info_cmd import detect_reader
         from evsmap.errors import EvsmapError
+        from evsmap.readers.detect import detect_reader
 
         names = MAPPING_SEQUENCES[name]["names"] if name in MAPPING_SEQUENCES else (name,)
         for root in self.roots():
@@ -225,7 +225,7 @@ class WeightsChoice:
     def note(self) -> str:
         """``weights: FILE (card: model, dataset, epochs, val mIoU, sha256 prefix)`` and how the
         file was chosen, for the record's notes."""
-        from evsmap.cli.weights_cmd import format_options
+        from evsmap.segmenters.cards import format_options
 
         if self.card is None:
             text = f"weights: {self.file} (no card)"
@@ -258,12 +258,12 @@ class WeightsChoice:
 def parse_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """``name(k=v,...)`` (:attr:`evsmap.tables.schema.Component.spec`) as ``(name, options)``;
     values read as ``-o KEY=VALUE`` reads them (true/false, int, float, else text)."""
-    from evsmap.cli.options import key_value
+    from evsmap.options import parse_key_value
 
     match = re.fullmatch(r"\s*([^()]+?)\s*(?:\((.*)\))?\s*", spec)
     if match is None:
         return spec, {}
-    options = dict(key_value(part) for part in (match.group(2) or "").split(",")
+    options = dict(parse_key_value(part) for part in (match.group(2) or "").split(",")
                    if part.strip())
     return match.group(1), options
 
@@ -295,7 +295,7 @@ def card_mismatch(card: Mapping[str, Any], model: str, options: Mapping[str, Any
                   dataset: str) -> str | None:
     """None when ``card`` (:func:`card_summary`) is for ``model`` with ``options`` on
     ``dataset``; else what differs, e.g. ``is for dataset sunrgbd``."""
-    from evsmap.cli.weights_cmd import card_spec
+    from evsmap.segmenters.cards import card_spec
 
     if card.get("model") != model:
         return f"is for {card_spec(card)}"
@@ -317,7 +317,7 @@ def card_summary(card: Mapping[str, Any]) -> dict[str, Any]:
     """What the runner keeps of a card: model, options, classes, dataset (as the runner names
     datasets), epochs, val/test mIoU, created, tensors_sha256 - as plain JSON data, so that an
     index read back from disk compares as one just read."""
-    from evsmap.cli.weights_cmd import card_dataset, card_miou
+    from evsmap.segmenters.cards import card_dataset, card_miou
 
     out = {k: card.get(k) for k in _SUMMARY_KEYS}
     out.update(dataset=card_dataset(card), val_miou=card_miou(card, "val"),
@@ -344,7 +344,7 @@ def _rank(entry: Mapping[str, Any]) -> tuple:
 def index_weights(folder: Path, cache: Path | None = None) -> list[dict[str, Any]]:
     """One entry per weights file under ``folder`` (see :meth:`RunContext.weights_index`),
     reusing ``cache`` entries whose file is unchanged and rewriting ``cache`` when needed."""
-    from evsmap.cli.weights_cmd import find_weights_files, inspect_weights
+    from evsmap.segmenters.cards import find_weights_files, inspect_weights
 
     if not folder.is_dir():
         return []

@@ -164,7 +164,7 @@ def _onnx_cache(ctx: RunContext) -> Path | None:
 
 
 def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
-    from evsmap.cli.eval_cmd import dataset_classes
+    from evsmap.datasets.lookup import dataset_classes
     from evsmap.metrics import ConfusionMatrix
     from evsmap.registry import READERS
 
@@ -243,8 +243,8 @@ def open_mapping_sequence(ctx: RunContext, name: str):
     if name == "synthetic":
         # rendered once per run into the cache (TUM layout, read back bit-identical), so the
         # mapping runs, the segmentation cache and the timings all read the same frames cheaply
-        from evsmap.cli.synth_cmd import write_synthetic
         from evsmap.readers.tum import METADATA_FILE
+        from evsmap.synth.write import write_synthetic
 
         o = ctx.synthetic
         folder = Path(ctx.out) / "cache" / "sequences" / (

@@ -23,7 +23,7 @@ A weights file is recognised by its key names (:func:`detect_layout`):
     converted network gives the official output on evsmap's RGB input.
 ``evsmap``
     a file written by ``evsmap weights convert``: ``{'state_dict': ..., 'card': {...}}`` with
-    evsmap's key names (see :mod:`evsmap.cli.weights_cmd` for the card).
+    evsmap's key names (see :mod:`evsmap.segmenters.cards` for the card).
 ``plain``
     any other state dict, loaded as it is.
 

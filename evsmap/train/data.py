@@ -214,12 +214,12 @@ def open_splits(dataset: str, *, reader: str | None = None,
     without splits: both are every frame of the sequence, and naming a split is an error.
     ``limit`` keeps the first N frames of each.
     """
-    from evsmap.cli.eval_cmd import _find_dataset, _reader_name, dataset_classes
-    from evsmap.cli.sequence_args import open_sequence
+    from evsmap.datasets.lookup import dataset_classes, find_dataset, reader_name
+    from evsmap.readers.detect import open_sequence
     from evsmap.registry import READERS
 
-    text, named = _find_dataset(str(dataset), reader)
-    name = _reader_name(text, named)
+    text, named = find_dataset(str(dataset), reader)
+    name = reader_name(text, named)
     params = READERS.get(name).parameters()
     config = dict(reader_options or [])
     if "split" in config:

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from evsmap.cli import weights_cmd
 from evsmap.cli.main import main
+from evsmap.segmenters import cards
 from evsmap.segmenters.cards import make_card
 from evsmap.segmenters.weights import tensors_sha256
 
@@ -113,14 +113,14 @@ def test_list_maps_the_tensors_instead_of_reading_them(folder, monkeypatch):
         return load(*args, **kwargs)
 
     monkeypatch.setattr(torch, "load", spy)
-    info = weights_cmd.inspect_weights(folder / "runs" / "v2" / "best.pt")
+    info = cards.inspect_weights(folder / "runs" / "v2" / "best.pt")
     assert info.card is not None and calls == [True]
     # a legacy (non-zip) file cannot be mapped: it is read whole
     legacy = folder / "legacy.pt"
     torch.save({"state_dict": _state(), "card": _card(_state())}, legacy,
                _use_new_zipfile_serialization=False)
     calls.clear()
-    info = weights_cmd.inspect_weights(legacy)
+    info = cards.inspect_weights(legacy)
     assert info.card is not None and info.error is None and calls == [True, None]
 
 
@@ -163,13 +163,13 @@ def test_show_without_a_card_and_unreadable(capsys, folder):
 
 
 def test_card_dataset_and_miou_fields():
-    assert weights_cmd.card_dataset({"dataset": "/data/sets/nyuv2"}) == "nyuv2"
-    assert weights_cmd.card_dataset({"dataset": "/x/rooms", "reader": "synthrooms"}) == \
+    assert cards.card_dataset({"dataset": "/data/sets/nyuv2"}) == "nyuv2"
+    assert cards.card_dataset({"dataset": "/x/rooms", "reader": "synthrooms"}) == \
         "synthrooms"
-    assert weights_cmd.card_dataset({"options": {"dataset": "cityscapes"}}) == "cityscapes"
-    assert weights_cmd.card_dataset({"model": "x"}) is None
-    assert weights_cmd.card_miou({"metrics": {"miou_val": 0.3}}, "val") == 0.3
-    assert weights_cmd.card_miou({"val_miou": None}, "val") is None
+    assert cards.card_dataset({"options": {"dataset": "cityscapes"}}) == "cityscapes"
+    assert cards.card_dataset({"model": "x"}) is None
+    assert cards.card_miou({"metrics": {"miou_val": 0.3}}, "val") == 0.3
+    assert cards.card_miou({"val_miou": None}, "val") is None
 
 
 def test_list_and_show_start_without_torch():

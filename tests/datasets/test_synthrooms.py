@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evsmap.cli.info_cmd import detect_reader
 from evsmap.cli.main import main
 from evsmap.datasets import synthrooms as sr
 from evsmap.datasets.common import read_manifest
 from evsmap.errors import EvsmapError
+from evsmap.readers.detect import detect_reader
 from evsmap.readers.images import read_uint8_labels
 from evsmap.registry import get_reader
 

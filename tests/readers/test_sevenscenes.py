@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evsmap.cli.info_cmd import detect_reader
 from evsmap.cli.main import main
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.interfaces import FREE, OCCUPIED, UNKNOWN
 from evsmap.mapping.keys import TREE_DEPTH, pack, unpack
 from evsmap.mapping.octree_io import read_ot
+from evsmap.readers.detect import detect_reader
 from evsmap.readers.images import read_uint16, write_png
 from evsmap.readers.sevenscenes import (
     INTRINSICS_FILE,

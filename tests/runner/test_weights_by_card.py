@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from evsmap.cli import weights_cmd
 from evsmap.runner import context as context_module
 from evsmap.runner.context import RunContext, WeightsChoice, parse_spec
+from evsmap.segmenters import cards
 from evsmap.segmenters.cards import make_card
 from evsmap.segmenters.weights import tensors_sha256
 
@@ -142,13 +142,13 @@ def test_names_come_first_then_cards_then_the_bare_name(ctx, weights):
 
 def test_the_folder_is_indexed_once_per_run(ctx, weights, monkeypatch):
     read = []
-    inspect = weights_cmd.inspect_weights
+    inspect = cards.inspect_weights
 
     def counting(path):
         read.append(Path(path).relative_to(weights).as_posix())
         return inspect(path)
 
-    monkeypatch.setattr(weights_cmd, "inspect_weights", counting)
+    monkeypatch.setattr(cards, "inspect_weights", counting)
     for _ in range(3):
         ctx.weights_path("feagnet-v2", "nyuv2")
         ctx.weights_path(ABLATION, "nyuv2")

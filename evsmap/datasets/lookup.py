@@ -1,0 +1,96 @@
+"""A labelled dataset named as the commands name one: a folder (its reader detected), a prepared
+dataset's name (looked up in ``datasets/NAME`` and the data root) or a reader that needs no
+path (e.g. ``synthetic``); its split, and its classes (``evsmap eval``, ``predict``, ``train``
+and the runner find datasets here)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from evsmap.errors import EvsmapError
+
+DEFAULT_SPLIT = {"cityscapes": "val"}
+"""Split evaluated when ``--split`` is not given, by reader (Table II uses Cityscapes' val, the
+test labels are not public); every other reader with splits: ``test``."""
+
+
+def find_dataset(text: str, reader: str | None) -> tuple[str, str | None]:
+    """``(path or reader name, reader)``: a prepared dataset's name becomes its folder.
+
+    Raises:
+        EvsmapError: ``text`` names a reader that reads a folder and no prepared folder of that
+            name was found.
+    """
+    from evsmap.paths import default_data_root
+    from evsmap.registry import READERS
+
+    path = Path(text)
+    if path.exists() or reader is not None or text not in READERS.names():
+        return text, reader
+    if "path" not in READERS.get(text).parameters():
+        return text, None  # e.g. synthetic: built from options
+    roots = [Path("datasets")]
+    data_root = default_data_root()
+    if data_root is not None:
+        roots.append(data_root)
+    for root in roots:
+        if (root / text).is_dir():
+            return str(root / text), text
+    looked = ", ".join(str(r / text) for r in roots)
+    raise EvsmapError(f"reader {text!r} reads a folder and none was found (looked in {looked}): "
+                      f"pass --dataset PATH, or prepare it with `evsmap datasets prepare {text}`")
+
+
+def reader_name(text: str, reader: str | None) -> str:
+    """The reader of ``text`` (as :func:`find_dataset` returns it): ``reader`` when named, the
+    reader ``text`` names when it is not a path, else the detected one."""
+    from evsmap.readers.detect import detect_reader
+    from evsmap.registry import READERS
+
+    if reader is not None:
+        return reader
+    path = Path(text)
+    if not path.exists() and text in READERS.names():
+        return text
+    return detect_reader(path)
+
+
+def open_dataset(text: str, *, reader: str | None = None, split: str | None = None,
+                 limit: int | None = None, options: list[tuple[str, object]] | None = None):
+    """The labelled sequence to score and a description ``{reader, split, limit_applied}``.
+
+    ``split`` and ``limit`` go to readers that take them (``READERS.get(name).parameters()``);
+    a reader without splits refuses an explicit ``split``; ``limit`` is applied while reading
+    otherwise.
+    """
+    from evsmap.readers.detect import open_sequence
+    from evsmap.registry import READERS
+
+    text, reader = find_dataset(text, reader)
+    name = reader_name(text, reader)
+    params = READERS.get(name).parameters()
+    config = dict(options or [])
+    if "split" in params:
+        config.setdefault("split", split or DEFAULT_SPLIT.get(name, "test"))
+    elif split is not None:
+        raise EvsmapError(f"reader {name!r} has no splits: leave out --split")
+    if limit is not None and "limit" in params:
+        config.setdefault("limit", limit)
+    sequence = open_sequence(text, reader, list(config.items()))
+    return sequence, {"reader": name, "split": config.get("split")}
+
+
+def dataset_classes(sequence) -> tuple[int | None, tuple[str, ...]]:
+    """The dataset's class count and names, from the reader's metadata or attributes (an
+    ``evsmap synth`` folder keeps them in ``meta['synthetic']['classes']``); ``(None, ())``
+    when the reader does not say."""
+    meta = getattr(sequence, "meta", {}) or {}
+    names = meta.get("class_names") or getattr(sequence, "class_names", None) \
+        or (meta.get("synthetic") or {}).get("classes") or ()
+    names = tuple(str(n) for n in names)
+    count = meta.get("num_classes") or getattr(sequence, "num_classes", None) \
+        or (len(names) or None)
+    return (int(count) if count else None), names
+
+
+__all__ = ["DEFAULT_SPLIT", "dataset_classes", "find_dataset", "open_dataset", "reader_name"]
