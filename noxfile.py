@@ -51,7 +51,7 @@ def reproduce(session: nox.Session) -> None:
 
 @nox.session
 def fetch(session: nox.Session) -> None:
-    """`evsmap datasets fetch`: real sample data (`nox -s fetch -- tum-fr1-xyz`; alone: the list)."""
+    """`evsmap datasets fetch`: real sample data (`nox -s fetch -- tum-fr1-xyz`; alone: a list)."""
     _install(session)
     session.run("evsmap", "datasets", "fetch", *session.posargs)
 

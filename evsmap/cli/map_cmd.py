@@ -7,21 +7,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from evsmap.cli.options import key_value, positive_int
+from evsmap.cli.options import key_value, positive_float, positive_int
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
 from evsmap.readers.detect import open_sequence
 from evsmap.readers.skipping import SkippedFrames
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not value > 0 or value != value or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
 
 
 def _range(text: str) -> float:
@@ -50,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--weights", type=Path, metavar="FILE", help="segmenter weights (state dict)")
     p.add_argument("--backend", choices=("torch", "onnxruntime"),
                    help="inference backend of a network segmenter (default torch)")
-    p.add_argument("--resolution", type=_positive_float, default=0.05, metavar="R",
+    p.add_argument("--resolution", type=positive_float, default=0.05, metavar="R",
                    help="leaf size in metres (default 0.05)")
     p.add_argument("--max-range", type=_range, default=5.0, metavar="M",
                    help="sensor max range in metres, negative for unlimited (default 5)")

@@ -38,6 +38,30 @@ def refuse_random_weights(segmenter: object, model: str, *, allow: bool, why: st
     return random_weights
 
 
+def positive_float(text: str) -> float:
+    """A finite number above 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value > 0 or value != value or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def image_size(text: str) -> tuple[int, int]:
+    """``HEIGHTxWIDTH`` in pixels (``480x640``)."""
+    h, sep, w = text.lower().partition("x")
+    try:
+        size = (int(h), int(w)) if sep else (0, 0)
+    except ValueError:
+        size = (0, 0)
+    if min(size) < 1:
+        raise argparse.ArgumentTypeError(f"expected HEIGHTxWIDTH in pixels (e.g. 480x640), "
+                                         f"got {text!r}")
+    return size
+
+
 positive_int = _int_at_least(1, "a positive integer")
 nonnegative_int = _int_at_least(0, "an integer >= 0")
 

@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from evsmap.cli.options import key_value, positive_int, refuse_random_weights
+from evsmap.cli.options import image_size, key_value, positive_int, refuse_random_weights
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
 
@@ -44,17 +44,6 @@ RECORD_FILE = "predict.json"
 
 _UNSAFE_NAME = re.compile(r"[/\\\x00-\x1f]")
 
-
-def _size(text: str) -> tuple[int, int]:
-    h, sep, w = text.lower().partition("x")
-    try:
-        size = (int(h), int(w)) if sep else (0, 0)
-    except ValueError:
-        size = (0, 0)
-    if min(size) < 1:
-        raise argparse.ArgumentTypeError(f"expected HEIGHTxWIDTH in pixels (e.g. 480x640), "
-                                         f"got {text!r}")
-    return size
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -79,7 +68,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "noise; for checking the pipeline)")
     p.add_argument("--backend", choices=("torch", "onnxruntime"),
                    help="inference backend of a network segmenter (default torch)")
-    p.add_argument("--size", type=_size, metavar="HxW",
+    p.add_argument("--size", type=image_size, metavar="HxW",
                    help="network input size, e.g. 240x320 (default: each frame's own "
                         "resolution); the outputs are at the frame's resolution either way")
     p.add_argument("--frames", type=positive_int, metavar="N", help="first N frames only")

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from evsmap.cli.options import key_value, nonnegative_int, positive_int
+from evsmap.cli.options import key_value, nonnegative_int, positive_float, positive_int
 
 
 def _size(text: str) -> str:
@@ -26,15 +26,6 @@ def _size(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return f"{h}x{w}"
 
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = -1.0
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -60,7 +51,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--epochs", type=positive_int, metavar="N", help="recipe field epochs")
     p.add_argument("--batch-size", type=positive_int, metavar="N",
                    help="recipe field batch_size (global: split over DDP processes)")
-    p.add_argument("--lr", type=_positive_float, metavar="LR", help="recipe field lr")
+    p.add_argument("--lr", type=positive_float, metavar="LR", help="recipe field lr")
     p.add_argument("--crop", type=_size, metavar="HxW", help="recipe field crop")
     p.add_argument("--workers", type=nonnegative_int, metavar="N",
                    help="recipe field workers (data-loading processes per training process)")
