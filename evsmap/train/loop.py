@@ -25,6 +25,11 @@
   a ``GradScaler``; the losses compute in float32.
 * **Files** (rank 0, after every epoch, each atomically): ``best.pt``, ``last.pt``, ``log.csv``,
   ``run.json``, then ``checkpoint.pt`` (see :mod:`evsmap.train.checkpoint`).
+* **Final test pass** (rank 0, after the last epoch, when the run validated on a split other
+  than ``test`` and the dataset has a labelled ``test`` split - synthrooms; not Cityscapes, whose
+  test labels are all void): ``best.pt``'s weights predict the test split as in validation, and
+  ``test_miou``, ``test_split`` and ``test_frames`` go into its card and ``run.json``
+  (:func:`final_test`).
 """
 
 from __future__ import annotations
@@ -276,6 +281,78 @@ def validate(segmenter, sequence, procs: Processes, *, bar: bool = False) -> np.
     counts = torch.from_numpy(matrix.matrix).to(procs.device if procs.backend == "nccl"
                                                  else "cpu")
     return procs.sum_(counts).cpu().numpy()
+
+
+# -- the final test pass --------------------------------------------------------------------------
+
+TEST_SPLIT = "test"
+
+
+def open_test_split(opts: RunOptions, splits) -> tuple[Any, str | None]:
+    """The split a run that validated on another one is finally scored on: (sequence, None);
+    (None, why) when the dataset has no usable test split (Cityscapes: its test labels are all
+    void); (None, None) when there is nothing to do (the run validated on ``test``, or the
+    reader has no splits)."""
+    from evsmap.train.data import open_splits
+
+    if splits.val_split in (None, TEST_SPLIT):
+        return None, None
+    try:
+        test = open_splits(opts.dataset, reader=opts.reader, reader_options=opts.reader_options,
+                           train_split=TEST_SPLIT, val_split=TEST_SPLIT, limit=opts.limit).val
+    except EvsmapError as exc:
+        return None, f"no {TEST_SPLIT} split to score ({exc})"
+    meta = getattr(test, "meta", None) or {}
+    if TEST_SPLIT in (meta.get("void_label_splits") or ()):
+        return None, f"the {TEST_SPLIT} labels of {splits.reader} are all void"
+    return test, None
+
+
+def final_test(opts: RunOptions, splits, segmenter, out: Path, *, device: torch.device,
+               bar: bool = False) -> dict[str, Any] | None:
+    """Score ``best.pt``'s weights on the test split (rank 0, after the last epoch, through
+    :func:`validate` as validation does, so ``evsmap eval`` gives the same mIoU), write
+    ``test_miou``, ``test_split`` and ``test_frames`` into its card (the file rewritten
+    atomically, its tensors unchanged) and return them; None when there is no test pass (see
+    :func:`open_test_split`; a note says why). The network keeps ``best.pt``'s weights."""
+    from evsmap.metrics import ConfusionMatrix
+    from evsmap.segmenters.weights import read_checkpoint
+
+    def note(text: str) -> None:
+        print(f"note: no final test pass: {text}", file=opts.messages or sys.stdout, flush=True)
+
+    sequence, why = open_test_split(opts, splits)
+    if sequence is None:
+        if why:
+            note(why)
+        return None
+    t0 = time.perf_counter()
+    saved = read_checkpoint(out / BEST)
+    state, card = saved["state_dict"], dict(saved["card"])
+    segmenter.module.load_state_dict(state, strict=True)
+    segmenter.module.eval()
+    try:
+        counts = validate(segmenter, sequence, Processes(0, 1, 0, device, None, False), bar=bar)
+    except EvsmapError as exc:
+        note(str(exc))
+        return None
+    if not counts.sum():
+        note(f"every label of the {TEST_SPLIT} split is void")
+        return None
+    miou = ConfusionMatrix.from_matrix(counts).result().miou
+    fields = {"test_miou": None if math.isnan(miou) else float(miou), "test_split": TEST_SPLIT,
+              "test_frames": len(sequence)}
+    card.update(fields)
+    save_weights(out / BEST, state, card)
+    print(f"test mIoU {_pct(fields['test_miou'])} ({_best_text(card)}, {len(sequence)} frames of "
+          f"split {TEST_SPLIT}, {time.perf_counter() - t0:.1f} s)",
+          file=opts.messages or sys.stdout, flush=True)
+    return fields
+
+
+def _best_text(card: dict[str, Any]) -> str:
+    epoch = card.get("val_epoch") or card.get("epochs")
+    return f"best.pt, epoch {epoch}" if epoch else "best.pt"
 
 
 # -- the run --------------------------------------------------------------------------------------
@@ -612,12 +689,18 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
                           f"{train_seconds + val_seconds:.1f} s  {row['images_per_s']} img/s")
 
     epochs_done = start + done_here
+    test = None
+    if procs.main and done_here and epochs_done >= recipe.epochs and best is not None:
+        test = final_test(opts, splits, segmenter, out, device=procs.device, bar=tty)
+        if test is not None:
+            run.update(test)
+            atomic_write_text(out / RUN, json.dumps(run, indent=2) + "\n")
     summary = {
         "out": str(out), "model": opts.model, "epochs": epochs_done,
         "epochs_planned": recipe.epochs, "finished": epochs_done >= recipe.epochs,
         "best_epoch": best["epoch"] if best else None,
         "best_val_miou": best["val_miou"] if best else None, "last_val_miou": last_val,
-        "world_size": procs.world,
+        "test_miou": (test or {}).get("test_miou"), "world_size": procs.world,
         "files": {name: str(out / name) for name in (CHECKPOINT, LAST, BEST, LOG, RUN)
                   if (out / name).exists()},
     }
@@ -626,5 +709,5 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
     return summary
 
 
-__all__ = ["EpochSchedule", "Processes", "RunOptions", "TrainingLoss", "predict_classes",
-           "start_processes", "train", "validate"]
+__all__ = ["EpochSchedule", "Processes", "RunOptions", "TrainingLoss", "final_test",
+           "open_test_split", "predict_classes", "start_processes", "train", "validate"]
