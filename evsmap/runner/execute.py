@@ -10,6 +10,7 @@ records, beyond the paper's tables); Table IV's cells are then read from those r
 
 from __future__ import annotations
 
+import hashlib
 import os
 import socket
 import subprocess
@@ -260,6 +261,43 @@ def open_mapping_sequence(ctx: RunContext, name: str):
     return READERS.create(info["reader"], path=str(path), **info["options"])
 
 
+_WEIGHTS_IDS: dict[tuple[str, int, int, int], str] = {}
+
+
+def weights_identity(path: str | os.PathLike[str]) -> str:
+    """What a weights file's tensors are, for cache keys: ``tensors:<sha256>`` from the card's
+    ``tensors_sha256`` when the file has a card, else ``file:<sha256>`` of its bytes. Computed
+    once per (path, inode, size, modification time) in this process."""
+    path = Path(path)
+    st = path.stat()
+    memo = (str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns)
+    found = _WEIGHTS_IDS.get(memo)
+    if found is None:
+        from evsmap.segmenters.cards import inspect_weights
+
+        card = inspect_weights(path).card
+        sha = card.get("tensors_sha256") if card is not None else None
+        if isinstance(sha, str) and sha:
+            found = f"tensors:{sha}"
+        else:
+            digest = hashlib.sha256()
+            with open(path, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    digest.update(chunk)
+            found = f"file:{digest.hexdigest()}"
+        _WEIGHTS_IDS[memo] = found
+    return found
+
+
+def observations_key(segmenter: str, weights: str | os.PathLike[str],
+                     sequence: str) -> dict[str, Any]:
+    """The segmentation cache's key of a network's observations: the segmenter, the weights
+    file's path and its tensors (:func:`weights_identity`: a file replaced under the same name
+    gets a new key), the sequence."""
+    return {"segmenter": segmenter, "weights": str(weights),
+            "weights_id": weights_identity(weights), "sequence": sequence}
+
+
 def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     """Map ``run.sequence`` with ``run``'s system; time each update, add the segmentation time
     per frame, measure the map file and (on the synthetic sequence) its 3D quality."""
@@ -289,8 +327,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         if choice is not None:
             net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
             observations, segment_ms, _ = cache.observations(
-                net, sequence, indices, key={"segmenter": run.segmenter.spec,
-                                             "weights": str(weights), "sequence": sequence.name})
+                net, sequence, indices,
+                key=observations_key(run.segmenter.spec, weights, sequence.name))
             notes.append(f"labels from {run.segmenter.spec} with weights {choice.file} "
                          f"(onnxruntime)")
             notes.append(choice.note())
