@@ -27,6 +27,18 @@ def _tables(text: str) -> list[str]:
     return out
 
 
+def _models(text: str) -> list[str]:
+    from evsmap.registry import SEGMENTERS
+
+    out = [m.strip() for m in text.split(",") if m.strip()]
+    for m in out:
+        if m not in SEGMENTERS.names():
+            raise argparse.ArgumentTypeError(f"unknown segmenter {m!r}")
+    if not out:
+        raise argparse.ArgumentTypeError("no model given")
+    return list(dict.fromkeys(out))
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reproduce", help="measure the paper's Tables I-IV and write a report folder",
@@ -59,6 +71,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="continue the run in --out: keep its finished cells, run the rest")
     p.add_argument("--force", action="store_true",
                    help="with --resume: run every cell again")
+    p.add_argument("--train", action="store_true",
+                   help="opt-in, long: train the missing proxy weights on evsmap's synthetic "
+                        "rooms (synthrooms, prepared if missing) and report their mIoU and, "
+                        "with Table IV, TFEAGMap's and EVSMap's maps made with the trained "
+                        "network, in 'Synthetic proxy' sections (never in the paper's columns); "
+                        "weights go to --weights-dir (default ~/.cache/evsmap/weights; with "
+                        "--quick, the run's cache)")
+    p.add_argument("--proxy-models", type=_models, default=None, metavar="LIST",
+                   help="with --train: networks to train (default "
+                        "feagnet-v1,feagnet-v2,fchardnet-70)")
+    p.add_argument("--proxy-recipe", default=None, metavar="NAME",
+                   help="with --train: training recipe (default synth-proxy)")
     p.set_defaults(run=run)
 
 
@@ -99,6 +123,14 @@ def run(args: argparse.Namespace) -> int:
                           f"continue a run there)")
     if args.tables is None:
         args.tables = list(TABLE_NAMES.values())
+    if not args.train and (args.proxy_models is not None or args.proxy_recipe is not None):
+        raise EvsmapError("--proxy-models and --proxy-recipe only apply with --train")
+    if args.train and args.weights_dir is None:
+        from evsmap.runner.proxy import default_weights_dir
+
+        # a --quick run's 1-epoch weights stay in its own folder
+        args.weights_dir = (out / "cache" / "weights" if args.quick else default_weights_dir())
+        args.weights_dir.mkdir(parents=True, exist_ok=True)
     if args.weights_dir is not None and not args.weights_dir.is_dir():
         raise EvsmapError(f"--weights-dir {args.weights_dir}: no such folder")
     if args.data_root is not None and not args.data_root.is_dir():
@@ -131,6 +163,14 @@ def run(args: argparse.Namespace) -> int:
 
     records = run_matrix(ctx, the_plan, workers=args.workers, resume=args.resume,
                          force=args.force, on_record=tick)
+    if args.train:
+        from evsmap.runner.proxy import PROXY_MODELS, PROXY_RECIPE, run_proxy
+
+        models = args.proxy_models or list(PROXY_MODELS)
+        recipe = args.proxy_recipe or PROXY_RECIPE
+        fields["train"] = {"models": models, "recipe": recipe}
+        records += run_proxy(ctx, models, recipe, tables=args.tables, resume=args.resume,
+                             force=args.force)
     fields["finished"] = datetime.now(UTC).isoformat(timespec="seconds")
     write_run_file(ctx, the_plan, out / "run.json", **fields)
     written = build_report(out)

@@ -25,6 +25,7 @@ from evsmap.report.tables import (
     STATUSES,
     extra_frame,
     extra_records,
+    proxy_accuracy_markdown,
     table_frame,
     table_markdown,
 )
@@ -140,6 +141,10 @@ def build_report(run_dir: str | Path) -> list[Path]:
         frames[tid] = frame
         md = table_markdown(table, by_key, specs, frame=frame,
                             extras=extras if tid == "table4" else None)
+        if tid in ("table1", "table3"):  # reproduce --train's networks, beside the table
+            proxy = proxy_accuracy_markdown(extras)
+            if proxy:
+                md = md + "\n" + "\n".join(proxy).rstrip() + "\n"
         written.append(_write(run_dir / f"{tid}.md", md))
         written.append(_write_csv(run_dir / f"{tid}.csv", frame))
     extra_path = run_dir / "extra.csv"

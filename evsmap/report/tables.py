@@ -30,8 +30,11 @@ missing); the run failed; no record; a record without a value for the column; a 
 not implement."""
 
 EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "memory_bytes", "precision", "recall",
-                "semantic_accuracy", "map_miou", "frames")
-"""Value keys of the ``extra`` mapping records (base units)."""
+                "semantic_accuracy", "map_miou", "frames", "miou")
+"""Value keys of the ``extra`` records (base units; ``miou``: the synthrooms proxy networks')."""
+
+PROXY_SECTION = "Synthetic proxy (evsmap's synthrooms, not the paper's datasets)"
+"""Title of the ``reproduce --train`` sections (``extra/proxy...`` records)."""
 
 EXTRA_COLUMNS = ("key", "row", "label", "sequence", "voxel_size", "status", *EXTRA_VALUES,
                  "note")
@@ -349,10 +352,13 @@ def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
 
 def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
     """The "Measured beyond the paper" section: one table per sequence (and voxel size)."""
-    extras = extra_records(records)
+    extras = [r for r in extra_records(records) if not _is_proxy(r)]
+    proxy = [r for r in extra_records(records) if r.key.startswith("extra/proxy-mapping/")]
     out = ["## Measured beyond the paper", ""]
-    if not extras:
+    if not extras and not proxy:
         return out + ["No measurements beyond the paper in this run.", ""]
+    if not extras:
+        return out + proxy_mapping_markdown(proxy)
     out += ["Every mapping system on the sequences this run had, with the map update rate alone "
             "and end-to-end (segmentation + update), the size of the written map file, the "
             "memory the map holds, and the map's quality against the ground truth (occupancy "
@@ -394,4 +400,79 @@ def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
         out.append("")
         if notes.texts:
             out += notes.markdown() + [""]
+    return out + (proxy_mapping_markdown(proxy) if proxy else [])
+
+
+def _is_proxy(record: CellRecord) -> bool:
+    return record.key.startswith(("extra/proxy/", "extra/proxy-mapping/"))
+
+
+def _pct_text(value: Any) -> str:
+    number = _number(value)
+    return "-" if number is None else format_number(100 * number, 1)
+
+
+def _status_text(rec: CellRecord) -> str | None:
+    return {"na": "n/a", "error": "error"}.get(rec.status)
+
+
+def proxy_accuracy_markdown(records: Iterable[CellRecord]) -> list[str]:
+    """The "Synthetic proxy" section of Tables I and III: each network trained by
+    ``reproduce --train`` on synthrooms (``extra/proxy/...`` records), never the paper's
+    columns."""
+    recs = [r for r in extra_records(records) if r.key.startswith("extra/proxy/")]
+    if not recs:
+        return []
+    out = [f"## {PROXY_SECTION}", "",
+           "Networks trained by `evsmap reproduce --train` on evsmap's synthetic rooms "
+           "(`synthrooms`, NYUv2's 40 classes), NOT on the paper's datasets: these values are "
+           "no measurement of the paper's columns above. Test mIoU: measured on the synthrooms "
+           "test split as the accuracy cells measure; val mIoU, epochs and recipe: from the "
+           "weights card.", "",
+           "| Network | Test mIoU (%) | Val mIoU (%) | Epochs | Recipe | Weights card |",
+           "|---|---:|---:|---:|---|---|"]
+    for rec in recs:
+        d = rec.details
+        status = _status_text(rec)
+        test = status or _pct_text(rec.values.get("miou"))
+        card = (rec.notes[-1] if rec.status == "ok" and rec.notes else
+                rec.reason or rec.error or "")
+        out.append("| " + " | ".join(_md_escape(str(x)) for x in (
+            rec.row, test, _pct_text(d.get("val_miou")), d.get("epochs") or "-",
+            d.get("recipe") or "-", card)) + " |")
+    return out + [""]
+
+
+def proxy_mapping_markdown(records: Iterable[CellRecord]) -> list[str]:
+    """Table IV's part of the "Synthetic proxy" section: TFEAGMap's and EVSMap's maps of one
+    synthrooms test room with a trained network's labels, scored against the room's ground
+    truth."""
+    recs = list(records)
+    out = [f"### {PROXY_SECTION}", "",
+           "TFEAGMap's (classic-semantic) and EVSMap's (multiclass-bayes) updaters on one "
+           "synthrooms test room with the labels of a network trained by `evsmap reproduce "
+           "--train` (real network errors, not the oracle's), each map's occupied voxels scored "
+           "against the room's ground truth.", ""]
+    notes = Footnotes()
+    out += ["| System | Sequence | Frames | Semantic accuracy (%) | Map mIoU (%) | Occupancy "
+            "precision (%) | Occupancy recall (%) | Update (Hz) |",
+            "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for rec in recs:
+        label = _md_escape(rec.label or rec.row)
+        note = record_note(rec, sequence=False)
+        if note:
+            label += f" {notes.ref(note)}"
+        status = _status_text(rec)
+        v = rec.values
+        frames = _number(v.get("frames"))
+        hz = _number(v.get("update_hz"))
+        cells = [status or (str(int(frames)) if frames is not None else "-")] + [
+            status or _pct_text(v.get(k))
+            for k in ("semantic_accuracy", "map_miou", "precision", "recall")] + [
+            status or ("-" if hz is None else format_number(hz, 1))]
+        out.append("| " + " | ".join([label, _md_escape(str(rec.inputs.get("sequence", ""))),
+                                      *cells]) + " |")
+    out.append("")
+    if notes.texts:
+        out += notes.markdown() + [""]
     return out

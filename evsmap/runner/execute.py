@@ -165,38 +165,48 @@ def _onnx_cache(ctx: RunContext) -> Path | None:
 
 
 def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
-    from evsmap.datasets.lookup import dataset_classes
-    from evsmap.metrics import ConfusionMatrix
-    from evsmap.registry import READERS
-
     dataset = spec.datasets[0]
     path = ctx.dataset_path(dataset)
     choice = ctx.weights_choice(spec.segmenter.spec, dataset)
     if path is None or choice is None:  # guarded by the caller's needs check
         raise EvsmapError(f"{spec.key}: dataset or weights missing")
-    weights = choice.path
-    segmenter = build_segmenter(spec.segmenter, input_size=spec.input_size,
-                                backend=ctx.speed_backend, weights=str(weights))
-    config: dict[str, Any] = {"path": str(path), "split": spec.split or "test"}
-    if spec.input_size and "resolution" in READERS.get(dataset).parameters():
-        config["resolution"] = f"{spec.input_size[1]}x{spec.input_size[0]}"
-    if ctx.quick:
-        config["limit"] = 10
+    split = spec.split or "test"
+    result, frames = dataset_miou(spec.segmenter, dataset, path, split, choice.path,
+                                  input_size=spec.input_size, backend=ctx.speed_backend,
+                                  limit=10 if ctx.quick else None)
+    values = {col: float(result.miou) for col in spec.metrics}
+    notes = [f"{dataset} {split} split, {frames} images, weights {choice.file}", choice.note()]
+    return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
+                      details=result.as_dict())
+
+
+def dataset_miou(component: Component, dataset: str, path: str | os.PathLike[str], split: str,
+                 weights: str | os.PathLike[str], *, input_size=None,
+                 backend: str | None = None, limit: int | None = None):
+    """``(result, frames)``: one dataset-level confusion matrix of ``component`` with
+    ``weights`` over ``dataset``'s ``split`` (:class:`~evsmap.metrics.ConfusionMatrix`'s
+    result; its ``miou`` over the classes present in ground truth or prediction)."""
+    from evsmap.datasets.lookup import dataset_classes
+    from evsmap.metrics import ConfusionMatrix
+    from evsmap.registry import READERS
+
+    segmenter = build_segmenter(component, input_size=input_size, backend=backend,
+                                weights=str(weights))
+    config: dict[str, Any] = {"path": str(path), "split": split}
+    if input_size and "resolution" in READERS.get(dataset).parameters():
+        config["resolution"] = f"{input_size[1]}x{input_size[0]}"
+    if limit is not None:
+        config["limit"] = limit
     sequence = READERS.create(dataset, **config)
     n_data, names = dataset_classes(sequence)
     if n_data is not None and n_data != segmenter.num_classes:
-        raise EvsmapError(f"{spec.segmenter.spec} predicts {segmenter.num_classes} classes, "
+        raise EvsmapError(f"{component.spec} predicts {segmenter.num_classes} classes, "
                           f"{dataset} has {n_data}")
     matrix = ConfusionMatrix(segmenter.num_classes)
     for i in range(len(sequence)):
         frame = sequence.frame(i)
         matrix.update(segmenter.predict(frame).argmax, frame.labels)
-    result = matrix.result(class_names=names)
-    values = {col: float(result.miou) for col in spec.metrics}
-    notes = [f"{dataset} {config['split']} split, {len(sequence)} images, weights "
-             f"{choice.file}", choice.note()]
-    return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
-                      details=result.as_dict())
+    return matrix.result(class_names=names), len(sequence)
 
 
 def _quantities(spec: CellSpec) -> dict[str, str]:
