@@ -154,7 +154,9 @@ def mapping_entries(records: Iterable[CellRecord],
     a value."""
     entries: dict[tuple[str, float | None, str], dict[str, Any]] = {}
     records = list(records)
-    extras = [r for r in records if r.status == "ok" and r.key.startswith("extra/")]
+    # the mapping runs only: the proxy maps (``extra/proxy-mapping/``, a trained network on a
+    # synthrooms room) have their own table in table4.md and would read as a second system here
+    extras = [r for r in records if r.status == "ok" and r.key.startswith("extra/mapping/")]
     table4 = [r for r in records if r.status == "ok" and r.table == "table4"
               and not r.key.startswith("extra/")]
     columns = {c.id: c for c in tables["table4"].columns} if tables and "table4" in tables else {}

@@ -132,3 +132,20 @@ def test_split_map_name(tmp_path):
                                                                           "synthetic")
     assert split_map_name(tmp_path / "map-evsmap-tum.npz") == ("evsmap", "tum")
     assert split_map_name(tmp_path / "map-other-seq.npz") == ("other", "seq")
+
+
+def test_proxy_maps_stay_out_of_the_mapping_plot():
+    from conftest import extra
+
+    from evsmap.report.plots import mapping_entries
+    from evsmap.runner.records import CellRecord
+
+    base = extra("evsmap", "EVSMap", "synthetic", "ok", values={"update_hz": 20.0})
+    proxy = CellRecord.from_dict({**base.as_dict(),
+                                  "key": "extra/proxy-mapping/evsmap/synthrooms-room20",
+                                  "label": "EVSMap + proxy feagnet-v1",
+                                  "inputs": {"sequence": "synthrooms-room20",
+                                             "voxel_size": 0.05},
+                                  "values": {"update_hz": 58.0}})
+    entries = mapping_entries([base, proxy])
+    assert [(e["sequence"], e["update_hz"]) for e in entries] == [("synthetic", 20.0)]
