@@ -135,12 +135,13 @@ def test_split_map_name(tmp_path):
 
 
 def test_proxy_maps_stay_out_of_the_mapping_plot():
-    from conftest import extra
-
     from evsmap.report.plots import mapping_entries
     from evsmap.runner.records import CellRecord
 
-    base = extra("evsmap", "EVSMap", "synthetic", "ok", values={"update_hz": 20.0})
+    base = CellRecord(key="extra/mapping/evsmap/synthetic@0.05m", table="extra", row="evsmap",
+                      label="EVSMap", kind="mapping", metrics=[], status="ok",
+                      inputs={"sequence": "synthetic", "voxel_size": 0.05},
+                      values={"update_hz": 20.0})
     proxy = CellRecord.from_dict({**base.as_dict(),
                                   "key": "extra/proxy-mapping/evsmap/synthrooms-room20",
                                   "label": "EVSMap + proxy feagnet-v1",
