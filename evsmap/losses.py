@@ -94,6 +94,41 @@ def _prepare(logits: torch.Tensor, labels: torch.Tensor) -> tuple[torch.Tensor, 
     return logits, labels, valid
 
 
+def _dice_terms(probs: torch.Tensor, labels: torch.Tensor, valid: torch.Tensor, *,
+                smooth: float, eps: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eq. 2's per-class terms from softmax ``probs`` ``(B, C, H, W)``, void-free ``labels`` and
+    the ``valid`` mask, without a one-hot tensor: ``sum_i p_ci y_ci`` is the probability of each
+    pixel's own class added into its class's slot, and ``sum_i y_ci^2`` the pixel count of each
+    class."""
+    num_classes = probs.shape[1]
+    mask = valid.to(probs.dtype)
+    own = probs.gather(1, labels[:, None])[:, 0] * mask
+    flat = labels.reshape(-1)
+    zeros = torch.zeros(num_classes, dtype=probs.dtype, device=probs.device)
+    intersection = zeros.index_add(0, flat, own.reshape(-1))
+    support = zeros.index_add(0, flat, mask.reshape(-1))
+    squares = (probs * probs * mask[:, None]).sum((0, 2, 3))
+    denominator = squares + support + smooth
+    terms = 1.0 - (2.0 * intersection + smooth) / denominator.clamp_min(eps)
+    return terms, support > 0
+
+
+def _dice_mean(terms: torch.Tensor, present: torch.Tensor) -> torch.Tensor:
+    """The mean of the present classes' terms (0 when none is present)."""
+    weights = present.to(terms.dtype)
+    return (terms * weights).sum() / weights.sum().clamp_min(1.0)
+
+
+def _soft_cross_entropy(log_probs: torch.Tensor, labels: torch.Tensor, valid: torch.Tensor,
+                        smooth_factor: float) -> torch.Tensor:
+    """Eq. 3 from log-probabilities: the mean over valid pixels of the label-smoothed NLL."""
+    nll = -log_probs.gather(1, labels[:, None])[:, 0]
+    if smooth_factor > 0.0:
+        nll = (1.0 - smooth_factor) * nll + smooth_factor * (-log_probs.mean(dim=1))
+    mask = valid.to(nll.dtype)
+    return (nll * mask).sum() / mask.sum().clamp_min(1.0)
+
+
 def _describe(value: object) -> object:
     """A tensor's shape, or the type name of anything else, for error messages."""
     return tuple(value.shape) if isinstance(value, torch.Tensor) else type(value).__name__
@@ -133,23 +168,13 @@ class DiceLoss(nn.Module):
 
     def per_class(self, logits: torch.Tensor, labels: torch.Tensor) -> tuple[torch.Tensor,
                                                                              torch.Tensor]:
-        """Per-class Dice terms ``(C,)`` and the bool mask ``(C,)`` of classes present."""
+        """Per-class Dice terms ``(C,)`` and whether each class is present ``(C,)`` bool."""
         logits, labels, valid = _prepare(logits, labels)
-        num_classes = logits.shape[1]
-        mask = valid[:, None].to(logits.dtype)
-        probs = torch.softmax(logits, dim=1) * mask
-        onehot = F.one_hot(labels, num_classes).movedim(-1, 1).to(logits.dtype) * mask
-        dims = (0, 2, 3)
-        intersection = (probs * onehot).sum(dims)
-        support = onehot.sum(dims)  # sum_i y_ci^2 == sum_i y_ci for a one-hot y
-        denominator = (probs * probs).sum(dims) + support + self.smooth
-        terms = 1.0 - (2.0 * intersection + self.smooth) / denominator.clamp_min(self.eps)
-        return terms, support > 0
+        return _dice_terms(torch.softmax(logits, dim=1), labels, valid, smooth=self.smooth,
+                           eps=self.eps)
 
     def forward(self, logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
-        terms, present = self.per_class(logits, labels)
-        weights = present.to(terms.dtype)
-        return (terms * weights).sum() / weights.sum().clamp_min(1.0)
+        return _dice_mean(*self.per_class(logits, labels))
 
 
 class SoftCrossEntropyLoss(nn.Module):
@@ -169,13 +194,8 @@ class SoftCrossEntropyLoss(nn.Module):
 
     def forward(self, logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
         logits, labels, valid = _prepare(logits, labels)
-        log_probs = torch.log_softmax(logits, dim=1)
-        nll = -log_probs.gather(1, labels[:, None])[:, 0]
-        if self.smooth_factor > 0.0:
-            uniform = -log_probs.mean(dim=1)
-            nll = (1.0 - self.smooth_factor) * nll + self.smooth_factor * uniform
-        mask = valid.to(nll.dtype)
-        return (nll * mask).sum() / mask.sum().clamp_min(1.0)
+        return _soft_cross_entropy(torch.log_softmax(logits, dim=1), labels, valid,
+                                   self.smooth_factor)
 
 
 class HybridLoss(nn.Module):
@@ -198,7 +218,14 @@ class HybridLoss(nn.Module):
         self.sce = SoftCrossEntropyLoss(smooth_factor=smooth_factor)
 
     def forward(self, logits: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
-        return self.alpha * self.dice(logits, labels) + self.beta * self.sce(logits, labels)
+        # one validation and one log-softmax serve both terms (the same values as calling
+        # self.dice and self.sce, up to float rounding, at about a third of the cost)
+        logits, labels, valid = _prepare(logits, labels)
+        log_probs = torch.log_softmax(logits, dim=1)
+        dice = _dice_mean(*_dice_terms(log_probs.exp(), labels, valid, smooth=self.dice.smooth,
+                                       eps=self.dice.eps))
+        sce = _soft_cross_entropy(log_probs, labels, valid, self.sce.smooth_factor)
+        return self.alpha * dice + self.beta * sce
 
 
 def downsample_labels(labels: torch.Tensor, size: Sequence[int]) -> torch.Tensor:

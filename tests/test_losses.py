@@ -440,3 +440,24 @@ def test_downsample_labels_errors():
         downsample_labels(torch.zeros(1, 4, 4, dtype=torch.uint8), (2, 2))
     with pytest.raises(ValueError, match="size must be two positive integers"):
         downsample_labels(torch.zeros(1, 4, 4, dtype=torch.int64), (0, 2))
+
+
+def test_hybrid_shared_softmax_equals_its_two_terms_called_apart():
+    """HybridLoss computes one log-softmax for both terms; value and gradient must equal
+    alpha * DiceLoss + beta * SoftCrossEntropyLoss called separately (void pixels included)."""
+    g = torch.Generator().manual_seed(5)
+    logits = torch.randn(3, 6, 9, 11, generator=g, dtype=torch.float64)
+    labels = torch.randint(0, 6, (3, 9, 11), generator=g)
+    labels[1, :4] = VOID
+    labels[labels == 2] = 0  # class 2 absent: left out of the Dice mean
+    fused_in = logits.clone().requires_grad_()
+    apart_in = logits.clone().requires_grad_()
+    hybrid = HybridLoss(alpha=0.7, beta=1.3, smooth_factor=0.1, dice_smooth=0.25)
+    fused = hybrid(fused_in, labels)
+    apart = 0.7 * DiceLoss(smooth=0.25)(apart_in, labels) + 1.3 * SoftCrossEntropyLoss(
+        smooth_factor=0.1)(apart_in, labels)
+    fused.backward()
+    apart.backward()
+    assert float(fused) == pytest.approx(float(apart), rel=1e-12)
+    assert torch.allclose(fused_in.grad, apart_in.grad, rtol=1e-10, atol=1e-14)
+    assert float(fused_in.grad[1, :, :4].abs().sum()) == 0.0
