@@ -9,7 +9,12 @@ from typing import TYPE_CHECKING
 from evsmap.classes import class_names_for
 from evsmap.errors import UnknownNameError
 from evsmap.registry import SEGMENTERS
-from evsmap.segmenters.normalization import INDOOR, Normalization
+from evsmap.segmenters.normalization import (
+    CITYSCAPES_ESANET,
+    INDOOR,
+    SUNRGBD_ESANET,
+    Normalization,
+)
 
 if TYPE_CHECKING:  # the networks import torch: only when one is made
     from evsmap.segmenters.network import NetworkSegmenter
@@ -18,6 +23,9 @@ _SIZES = {"nyuv2": (480, 640), "sunrgbd": (480, 640), "cityscapes": (512, 1024)}
 _CLASSES = {"nyuv2": 40, "sunrgbd": 37, "cityscapes": 19}
 RGB_ONLY = Normalization(depth_mean=0.0, depth_std=1.0)
 """ImageNet RGB statistics (FC-HarDNet reads no depth)."""
+_ESANET_DEPTH = {"nyuv2": INDOOR, "sunrgbd": SUNRGBD_ESANET, "cityscapes": CITYSCAPES_ESANET}
+"""ESANet's depth statistics per training set, each in the units of the depth files it reads
+(``src/datasets/<dataset>/pytorch_dataset.py`` of the official code)."""
 
 
 def _dataset(name: str, dataset: str) -> str:
@@ -38,7 +46,8 @@ def _network(name: str, dataset: str, num_classes: int | None, build, *, uses_de
         name=name, module=build(classes, key), num_classes=classes,
         class_names=class_names_for(classes, outdoor=key == "cityscapes"),
         uses_depth=uses_depth, default_size=_SIZES[key],
-        normalization=INDOOR if uses_depth else RGB_ONLY, backend=backend, weights=weights,
+        normalization=_ESANET_DEPTH[key] if uses_depth else RGB_ONLY, backend=backend,
+        weights=weights,
         input_size=input_size, config={"num_classes": classes, "dataset": key})
 
 

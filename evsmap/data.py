@@ -130,6 +130,10 @@ class Frame:
         name: optional identifier for messages (a file name, an index).
         points: ``float32`` Nx3 points in the sensor frame, finite (point-cloud frames only).
         point_colors: optional ``uint8`` Nx3 colours of ``points``.
+        disparity_scale: for depth computed from a rectified stereo pair, baseline x focal
+            length (metres x pixels of the disparity image), so that ``disparity = scale /
+            depth``; None otherwise. Networks trained on a dataset's disparity files use it
+            (:mod:`evsmap.segmenters.normalization`).
     """
 
     rgb: np.ndarray | None
@@ -141,6 +145,7 @@ class Frame:
     name: str = ""
     points: np.ndarray | None = None
     point_colors: np.ndarray | None = None
+    disparity_scale: float | None = None
 
     @classmethod
     def from_points(cls, points: np.ndarray, pose: np.ndarray, timestamp: float, *,
@@ -201,6 +206,12 @@ class Frame:
                     f"images are {rgb.shape[1]}x{rgb.shape[0]}"
                 )
             self._check_pose_and_time()
+            if self.disparity_scale is not None and not (
+                    isinstance(self.disparity_scale, (int, float, np.floating))
+                    and not isinstance(self.disparity_scale, bool)
+                    and np.isfinite(self.disparity_scale) and self.disparity_scale > 0):
+                raise InvalidDataError(f"disparity_scale must be a positive number, got "
+                                       f"{self.disparity_scale!r}")
             if self.labels is not None:
                 labels = _array("labels", self.labels, np.uint8, 2)
                 if labels.shape != rgb.shape[:2]:

@@ -228,6 +228,13 @@ class CityscapesSequence(SegmentationSequence):
         base = self.prepared if kind == LABEL_DIR and self.prepared is not None else self.source
         return base / kind / split / city / f"{stem}{suffix}"
 
+    def disparity_scale(self, index: int) -> float:
+        """Baseline x native fx from the frame's camera file: the disparity PNG is in native
+        (2048-wide) pixels at any reading resolution."""
+        baseline, camera = read_camera(self._path(CAMERA_DIR, self.entries[index],
+                                                  CAMERA_SUFFIX))
+        return baseline * camera.fx
+
     def load(self, index: int):
         entry = self.entries[index]
         native = (NATIVE_HEIGHT, NATIVE_WIDTH)

@@ -274,7 +274,13 @@ class SegmentationSequence(Sequence):
     def load(self, index: int) -> tuple[np.ndarray, np.ndarray, Intrinsics, np.ndarray | None]:
         """(rgb uint8 HxWx3, depth float32 metres HxW, intrinsics, labels uint8 HxW or None)."""
 
+    def disparity_scale(self, index: int) -> float | None:
+        """Frame ``index``'s stereo baseline x focal length (:attr:`Frame.disparity_scale`)
+        where its depth came from disparity; None here."""
+        return None
+
     def frame(self, index: int) -> Frame:
         rgb, depth, intrinsics, labels = self.load(index)
         return Frame(rgb=rgb, depth=depth, intrinsics=intrinsics, pose=_IDENTITY.copy(),
-                     timestamp=float(index), labels=labels, name=self.names[index])
+                     timestamp=float(index), labels=labels, name=self.names[index],
+                     disparity_scale=self.disparity_scale(index))

@@ -37,9 +37,10 @@ def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Nor
     ``(rgb, depth)`` when ``depth`` is given.
 
     ``rgb`` (``uint8`` HxWx3) is scaled to [0, 1], resized bilinearly and standardised per
-    channel; ``depth`` (metres, 0 = invalid) is resized by nearest neighbour and standardised,
-    invalid pixels set to 0. What :meth:`NetworkSegmenter.preprocess` feeds the network, and what
-    training feeds it at the randomly scaled size (:mod:`evsmap.train.data`).
+    channel; ``depth`` (in the normalisation's depth units - see
+    :meth:`Normalization.encode_depth` - 0 = invalid) is resized by nearest neighbour and
+    standardised, invalid pixels set to 0. What :meth:`NetworkSegmenter.preprocess` feeds the
+    network, and what training feeds it at the randomly scaled size (:mod:`evsmap.train.data`).
     """
     n = normalization
     size = tuple(size)
@@ -138,8 +139,9 @@ class NetworkSegmenter(Segmenter):
     def preprocess(self, frame: Frame) -> tuple[torch.Tensor, ...]:
         """Normalised, resized network inputs (batch 1, float32) for ``frame``."""
         frame.require_images(f"segmenter {self.name!r}")
-        return network_inputs(frame.rgb, frame.depth if self.uses_depth else None,
-                              self.normalization, self.input_size)
+        depth = self.normalization.encode_depth(frame.depth, frame) if self.uses_depth \
+            else None
+        return network_inputs(frame.rgb, depth, self.normalization, self.input_size)
 
     # -- inference -------------------------------------------------------------------------
 

@@ -98,8 +98,9 @@ class TrainingFrames(Dataset):
         frame.require_images("training")
         d = self.draws(epoch, index)
         size = scaled_size(self.input_size, d["scale"])
-        inputs = network_inputs(frame.rgb, frame.depth if self.uses_depth else None,
-                                self.normalization, size)
+        depth = self.normalization.encode_depth(frame.depth, frame) if self.uses_depth \
+            else None
+        inputs = network_inputs(frame.rgb, depth, self.normalization, size)
         labels = torch.from_numpy(np.asarray(frame.labels, dtype=np.uint8).astype(np.int64))
         bad = (labels >= self.num_classes) & (labels != VOID)
         if bool(bad.any()):

@@ -195,3 +195,26 @@ def test_prepared_folder_needs_its_source(city_prepared, tmp_path):
     (moved / MANIFEST).write_text(json.dumps(manifest))
     with pytest.raises(DataFormatError, match="prepare it again"):
         CityscapesSequence(path=moved)
+
+
+@pytest.mark.parametrize("resolution", ["2048x1024", "1024x512"])
+def test_frames_carry_the_disparity_scale_esanet_reads_back(city_tree, resolution):
+    """A frame's disparity scale is baseline x native fx at any resolution, and ESANet's
+    Cityscapes encoding turns the frame's metres back into the disparity PNG's values."""
+    from baselines.segmenters import _ESANET_DEPTH
+
+    root, truth = city_tree
+    seq = CityscapesSequence(path=root, split="train", resolution=resolution)
+    frame = seq[1]
+    cam = truth[frame.name]["camera"]
+    assert frame.disparity_scale == pytest.approx(
+        cam["extrinsic"]["baseline"] * cam["intrinsic"]["fx"], rel=1e-12)
+    encoding = _ESANET_DEPTH["cityscapes"]
+    assert encoding.depth_encoding == "cityscapes-disparity"
+    png = encoding.encode_depth(frame.depth, frame)
+    disp = truth[frame.name]["disp"].astype(np.float32)
+    if resolution == "1024x512":
+        disp = disp[::2, ::2]
+    measured = disp > 1  # 0: no measurement, 1: zero disparity; both read as invalid depth
+    assert np.array_equal(png[measured], disp[measured])
+    assert np.all(png[~measured] == 0)
