@@ -454,12 +454,43 @@ def mcb_miss(state: MCBState, *, phi: float = PHI, min_logodds: float = MIN_LOGO
     return MCBState(state.classes, lo, others)
 
 
+def mcb_observe(state: MCBState, cls: np.ndarray, *, psi: float = PSI, phi: float = PHI,
+                max_logodds: float = MAX_LOGODDS, min_logodds: float = MIN_LOGODDS) -> MCBState:
+    """Eq. 7 with eq. 9's occupied case for M voxels, one observation each: :func:`mcb_hit`
+    with class ``cls[m]``; a voxel observed occupied without a class (``cls[m] < 0``: its points
+    carried no class) takes the hit on ``others`` (``+= psi``, capped) and ``phi`` on its stored
+    classes (floored)."""
+    cls = np.asarray(cls).astype(np.int64)
+    if cls.shape != (len(state),):
+        raise ValueError(f"mcb_observe needs one class per voxel ({len(state)}), got {cls.shape}")
+    known = cls >= 0
+    out = mcb_hit(state, np.where(known, cls, 0), psi=psi, phi=phi, max_logodds=max_logodds,
+                  min_logodds=min_logodds)
+    if known.all():
+        return out
+    lo = state.logodds.astype(np.float64)
+    blind_lo = np.where(state.valid, np.maximum(lo + phi, min_logodds), 0.0)
+    blind_ot = np.minimum(state.others.astype(np.float64) + psi, max_logodds)
+    return MCBState(np.where(known[:, None], out.classes, state.classes),
+                    np.where(known[:, None], out.logodds, blind_lo),
+                    np.where(known, out.others, blind_ot))
+
+
 def mcb_occupancy(state: MCBState) -> np.ndarray:
-    """Occupancy log-odds ``log(exp(others) + sum_i exp(l_i))``, ``float32`` (M,)."""
-    lo = np.concatenate([state.logodds.astype(np.float64),
-                         state.others.astype(np.float64)[:, None]], axis=1)
-    mask = np.concatenate([state.valid, np.ones((len(state), 1), bool)], axis=1)
-    return _logsumexp_masked(lo, mask, axis=1).astype(np.float32)
+    """Occupancy log-odds of eq. 5's vector: ``log(exp(others) + sum_i exp(l_i))`` (every
+    class against free), ``float32`` (M,). Summed in a fixed order (largest term's shift, then
+    slots 0, 1, 2 and others) so the compiled kernel repeats it exactly."""
+    lo = state.logodds.astype(np.float64)
+    ot = state.others.astype(np.float64)
+    valid = state.valid
+    top = ot.copy()
+    for s in range(lo.shape[1]):
+        top = np.where(valid[:, s] & (lo[:, s] > top), lo[:, s], top)
+    acc = np.zeros(len(state))
+    for s in range(lo.shape[1]):
+        acc = acc + np.where(valid[:, s], np.exp(lo[:, s] - top), 0.0)
+    acc = acc + np.exp(ot - top)
+    return (np.log(acc) + top).astype(np.float32)
 
 
 def mcb_probabilities(state: MCBState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -477,9 +508,17 @@ def mcb_probabilities(state: MCBState) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return p[:, 1:1 + SLOTS], p[:, -1], p[:, 0]
 
 
+PAIRINGS = ("printed", "ssmi")
+"""How Algorithm 1 pairs a class held by one node only with a punished others (see the notes)."""
+
+
 def _merge(g: MCBState, c: MCBState, punish_g: np.ndarray, punish_c: np.ndarray,
-           max_logodds: float, min_logodds: float) -> MCBState:
-    """Shared merge: a class missing from one node takes that node's punished others."""
+           max_logodds: float, min_logodds: float, pairing: str = "ssmi") -> MCBState:
+    """Shared merge. A class held by one node only is averaged with a punished others: that of
+    the node lacking it (``pairing="ssmi"``) or, as Algorithm 1 is printed, that of the node
+    holding it (``"printed"``)."""
+    if pairing not in PAIRINGS:
+        raise ValueError(f"pairing must be one of {PAIRINGS}, got {pairing!r}")
     ga, ca = g.classes.astype(np.int64), c.classes.astype(np.int64)
     gl, cl = g.logodds.astype(np.float64), c.logodds.astype(np.float64)
     gv, cv = ga >= 0, ca >= 0
@@ -489,8 +528,11 @@ def _merge(g: MCBState, c: MCBState, punish_g: np.ndarray, punish_c: np.ndarray,
     cl_for_g = np.where(match, cl[:, None, :], 0.0).sum(axis=2)
     delta_g = g.others.astype(np.float64) - punish_g
     delta_c = c.others.astype(np.float64) - punish_c
-    val_g = np.where(g_in_c, (gl + cl_for_g) / 2.0, (gl + delta_c[:, None]) / 2.0)
-    val_c = (cl + delta_g[:, None]) / 2.0
+    own = pairing == "printed"
+    g_alone = (delta_g if own else delta_c)[:, None]
+    c_alone = (delta_c if own else delta_g)[:, None]
+    val_g = np.where(g_in_c, (gl + cl_for_g) / 2.0, (gl + g_alone) / 2.0)
+    val_c = (cl + c_alone) / 2.0
     cand_cls = np.concatenate([ga, ca], axis=1)
     cand_lo = np.concatenate([val_g, val_c], axis=1)
     cand_valid = np.concatenate([gv, cv & ~c_in_g], axis=1)
@@ -512,18 +554,58 @@ def _union_size(g: MCBState, c: MCBState) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def merge_algorithm1(global_state: MCBState, local_state: MCBState, theta: float = THETA, *,
-                     max_logodds: float = MAX_LOGODDS,
+                     pairing: str = "printed", max_logodds: float = MAX_LOGODDS,
                      min_logodds: float = MIN_LOGODDS) -> MCBState:
-    """EVSMaP Algorithm 1 for M voxels present in both maps (aligned states), in the reading
-    given in the module notes: ``Delta = xi - theta log(1 + |Z|)``; a class missing from one node
-    is averaged with that node's Delta; shared classes are averaged; top 3 kept; the rest folded
-    with ``(Delta_G + Delta_C) / 2`` into others; everything clamped."""
+    """EVSMaP Algorithm 1 for M node pairs (aligned states), in the reading given in the module
+    notes: ``Delta = xi - theta log(1 + |Z|)``; a class held by one node only is averaged with
+    a Delta (``pairing``: ``"printed"`` that node's own, ``"ssmi"`` the other node's); shared
+    classes are averaged; top 3 kept; the rest folded with ``(Delta_G + Delta_C) / 2`` into
+    others; everything clamped."""
     if len(global_state) != len(local_state):
         raise ValueError(f"merge_algorithm1: {len(global_state)} global voxels but "
                          f"{len(local_state)} local ones")
     n_z, _, _ = _union_size(global_state, local_state)
     punish = theta * np.log1p(n_z.astype(np.float64))
-    return _merge(global_state, local_state, punish, punish, max_logodds, min_logodds)
+    return _merge(global_state, local_state, punish, punish, max_logodds, min_logodds, pairing)
+
+
+def fold_algorithm1(children: MCBState, group: np.ndarray, n_groups: int,
+                    theta: float = THETA, *, pairing: str = "printed") -> MCBState:
+    """An inner node's state from its children's (Algorithm 1 "where two nodes merge"): the
+    children of each group that hold classes are merged pairwise in child order,
+    ``((c_0 + c_1) + c_2) + ...`` with :func:`merge_algorithm1`. Children without classes are
+    skipped, as semantic_slam's inner-node fusion skips them; a group where no child has a class
+    takes the child with the highest ``others`` (its occupancy log-odds: OctoMap's max).
+
+    Args:
+        children: the states of all children, grouped (``group`` ascending, child order within).
+        group: (N,) the parent of each child, in ``[0, n_groups)``; every group has a child.
+    """
+    group = np.asarray(group, dtype=np.int64)
+    has = children.has_semantics
+    # fallback: the child with the highest others in each group (first on ties)
+    order = np.lexsort((-children.others.astype(np.float64), group))
+    first = np.r_[True, group[order][1:] != group[order][:-1]]
+    out = children.take(order[first])
+    classes, logodds, others = (out.classes.copy(), out.logodds.copy(), out.others.copy())
+    idx = np.flatnonzero(has)
+    if idx.size:
+        g = group[idx]
+        rank = np.arange(idx.size) - np.searchsorted(g, g, side="left")
+        acc = children.take(idx[rank == 0])
+        owner = g[rank == 0]
+        slot = np.full(n_groups, -1, dtype=np.int64)
+        slot[owner] = np.arange(owner.size)
+        for r in range(1, int(rank.max()) + 1):
+            at = rank == r
+            pos = slot[g[at]]
+            merged = merge_algorithm1(acc.take(pos), children.take(idx[at]), theta,
+                                      pairing=pairing)
+            acc.classes[pos] = merged.classes
+            acc.logodds[pos] = merged.logodds
+            acc.others[pos] = merged.others
+        classes[owner], logodds[owner], others[owner] = acc.classes, acc.logodds, acc.others
+    return MCBState(classes, logodds, others)
 
 
 def merge_ssmi(a: MCBState, b: MCBState, *, max_logodds: float = MAX_LOGODDS,
@@ -620,6 +702,7 @@ def build_local(voxel_index: np.ndarray, classes: np.ndarray, probs: np.ndarray,
 __all__ = [
     "ALPHA", "BETA", "EMPTY", "EPSILON", "MAX_LOGODDS", "MIN_LOGODDS", "PHI", "PSI", "SLOTS",
     "THETA", "MCBState", "average_color", "average_node_color", "build_local", "color_is_set",
-    "fuse_bayes", "fuse_max", "integrate_color", "mcb_hit", "mcb_miss", "mcb_occupancy",
-    "mcb_probabilities", "merge_algorithm1", "merge_ssmi",
+    "PAIRINGS", "fold_algorithm1", "fuse_bayes", "fuse_max", "integrate_color", "mcb_hit",
+    "mcb_miss", "mcb_observe", "mcb_occupancy", "mcb_probabilities", "merge_algorithm1",
+    "merge_ssmi",
 ]

@@ -2,11 +2,13 @@
 
 One pass per voxel instead of numpy's whole-array passes, doing exactly what the numpy path in
 :mod:`evsmap.updaters.multiclass_bayes` does with :func:`evsmap.mapping.fusion.mcb_miss`,
-:func:`~evsmap.mapping.fusion.build_local` and :func:`~evsmap.mapping.fusion.merge_algorithm1`,
-operation for operation in the same float32/float64 types and order (sums in the same order,
-stable top-3 selection, numpy's ``logaddexp``), so both give the same stored ``int8`` steps; the
-tests compare them frame by frame. Only the dense local-map case is compiled (voxels x classes up
-to ``fusion._DENSE_LIMIT``); the caller falls back to numpy beyond it.
+:func:`~evsmap.mapping.fusion.build_local`, :func:`~evsmap.mapping.fusion.mcb_observe` (the
+default eq. 7 leaf update) or :func:`~evsmap.mapping.fusion.merge_algorithm1` (the ``average``
+variant) and :func:`~evsmap.mapping.fusion.mcb_occupancy`, operation for operation in the same
+float32/float64 types and order (sums in the same order, stable top-3 selection, numpy's
+``logaddexp``), so both store the same float32 values; the tests compare them frame by frame.
+Only the dense local-map case is compiled (voxels x classes up to ``fusion._DENSE_LIMIT``);
+the caller falls back to numpy beyond it.
 """
 
 from __future__ import annotations
@@ -35,15 +37,6 @@ def _logaddexp(x, y):
     return tmp
 
 
-def _quantize(value32, q, steps):
-    s = np.rint(np.float64(value32) / q)
-    if s > steps:
-        s = np.float64(steps)
-    elif s < -steps:
-        s = -np.float64(steps)
-    return np.int8(s)
-
-
 def _clip(x, lo, hi):
     if x < lo:
         return lo
@@ -65,28 +58,128 @@ def _rank(keys, n, out):
             j -= 1
 
 
-def _frame_update(classes, lodds, others, free, voxels, local_index, pixels, obs_cls, obs_p,
-                  span, q, steps, psi, phi, theta, min_lo, max_lo, prob_min):
+_LOG_ALPHA = math.log(0.8)
+_LOG_ALPHA_REST = math.log(1.0 - 0.8)
+_LOG_BETA = math.log(0.1)
+_LOG_BETA_REST = math.log(1.0 - 0.1)
+
+
+def _occupancy(classes, lodds, others, i):
+    """``mcb_occupancy`` of leaf ``i`` (same order of operations)."""
+    ot = np.float64(others[i])
+    top = ot
+    for s in range(3):
+        if classes[i, s] >= 0 and np.float64(lodds[i, s]) > top:
+            top = np.float64(lodds[i, s])
+    acc = 0.0
+    for s in range(3):
+        if classes[i, s] >= 0:
+            acc = acc + math.exp(np.float64(lodds[i, s]) - top)
+        else:
+            acc = acc + 0.0
+    acc = acc + math.exp(ot - top)
+    return np.float32(math.log(acc) + top)
+
+
+def _observe(classes, lodds, others, g, y, psi, phi, min_lo, max_lo, cand_cls, cand_lo,
+             cand_ok, keys4, rank4):
+    """``mcb_observe`` of leaf ``g`` with class ``y`` (-1: no class)."""
+    ot = np.float64(others[g])
+    if classes[g, 0] < 0:  # no classes yet: initSemantics (or a blind hit on others)
+        if y >= 0:
+            first = _clip((_LOG_BETA + ot) + psi, min_lo, max_lo)
+            rest = (_LOG_BETA_REST + ot) + phi
+            if rest < min_lo:
+                rest = min_lo
+            classes[g, 0] = y
+            classes[g, 1] = -1
+            classes[g, 2] = -1
+            lodds[g, 0] = np.float32(first)
+            lodds[g, 1] = np.float32(0.0)
+            lodds[g, 2] = np.float32(0.0)
+            others[g] = np.float32(rest)
+        else:
+            v = ot + psi
+            others[g] = np.float32(v if v < max_lo else max_lo)
+        return
+    if y < 0:
+        for s in range(3):
+            if classes[g, s] >= 0:
+                v = np.float64(lodds[g, s]) + phi
+                lodds[g, s] = np.float32(v if v > min_lo else min_lo)
+        v = ot + psi
+        others[g] = np.float32(v if v < max_lo else max_lo)
+        return
+    found = False
+    for s in range(3):
+        c = classes[g, s]
+        cand_cls[s] = c
+        cand_ok[s] = c >= 0
+        if c >= 0:
+            lo = np.float64(lodds[g, s])
+            if c == y:
+                found = True
+                v = lo + psi
+                cand_lo[s] = v if v < max_lo else max_lo
+            else:
+                v = lo + phi
+                cand_lo[s] = v if v > min_lo else min_lo
+        else:
+            cand_lo[s] = 0.0
+    entering = (ot + _LOG_ALPHA) + psi
+    cand_cls[3] = y
+    cand_lo[3] = entering if entering < max_lo else max_lo
+    cand_ok[3] = not found
+    if found:
+        new_ot = ot + phi
+    else:
+        new_ot = (ot + _LOG_ALPHA_REST) + phi
+    for i in range(4):
+        keys4[i] = -cand_lo[i] if cand_ok[i] else np.inf
+    _rank(keys4, 4, rank4)
+    fourth = rank4[3]
+    if cand_ok[fourth]:
+        new_ot = _logaddexp(new_ot, cand_lo[fourth])
+    new_ot = _clip(new_ot, min_lo, max_lo)
+    for s in range(3):
+        i = rank4[s]
+        if cand_ok[i]:
+            classes[g, s] = cand_cls[i]
+            lodds[g, s] = np.float32(cand_lo[i])
+        else:
+            classes[g, s] = -1
+            lodds[g, s] = np.float32(0.0)
+    others[g] = np.float32(new_ot)
+
+
+def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, pixels, obs_cls,
+                  obs_p, span, psi, phi, theta, min_lo, max_lo, prob_min, empty_floor, bayes,
+                  printed, semantic):
     """``obs_cls`` / ``obs_p``: the observation's (H*W, k) classes and probabilities; point ``p``
     is pixel ``pixels[p]`` and lies in local voxel ``local_index[p]`` (map leaf
-    ``voxels[local_index[p]]``)."""
-    q32 = np.float32(q)
-    # ---- rays: fuseObsFree on traversed voxels holding semantics (mcb_miss)
+    ``voxels[local_index[p]]``). ``bayes``: eq. 7 leaf update (else the average variant);
+    ``printed``: Algorithm 1's printed pairing (else SSMI's); ``semantic``: write each touched
+    leaf's occupancy log-odds from its class vector."""
+    # ---- rays: fuseObsFree on traversed voxels (mcb_miss)
     for f in free:
         if classes[f, 0] < 0:
+            if not semantic:
+                continue
+            v = np.float64(others[f]) + phi
+            others[f] = np.float32(v if v > empty_floor else empty_floor)
             continue
         for s in range(3):
             if classes[f, s] >= 0:
-                v = np.float64(np.float32(lodds[f, s]) * q32) + phi
+                v = np.float64(lodds[f, s]) + phi
                 if v < min_lo:
                     v = min_lo
-                lodds[f, s] = _quantize(np.float32(v), q, steps)
+                lodds[f, s] = np.float32(v)
             else:
-                lodds[f, s] = _quantize(np.float32(0.0), q, steps)
-        v = np.float64(np.float32(others[f]) * q32) + phi
+                lodds[f, s] = np.float32(0.0)
+        v = np.float64(others[f]) + phi
         if v < min_lo:
             v = min_lo
-        others[f] = _quantize(np.float32(v), q, steps)
+        others[f] = np.float32(v)
 
     # ---- local map (build_local): per voxel, its points in their original order (a stable
     # counting sort), summed slot by slot as numpy's per-slot bincount does
@@ -109,6 +202,8 @@ def _frame_update(classes, lodds, others, free, voxels, local_index, pixels, obs
     touched = np.empty(span, dtype=np.int64)
     keys6 = np.empty(6)
     rank6 = np.empty(6, dtype=np.int64)
+    keys4 = np.empty(4)
+    rank4 = np.empty(4, dtype=np.int64)
     cand_cls = np.empty(6, dtype=np.int64)
     cand_lo = np.empty(6)
     cand_ok = np.empty(6, dtype=np.bool_)
@@ -174,12 +269,16 @@ def _frame_update(classes, lodds, others, free, voxels, local_index, pixels, obs
         loc_ot = np.float32(_clip(psi + math.log(rest), min_lo, max_lo))
 
         g = voxels[m]
+        if bayes:
+            _observe(classes, lodds, others, g, loc_cls[0], psi, phi, min_lo, max_lo, cand_cls,
+                     cand_lo, cand_ok, keys4, rank4)
+            continue
         if classes[g, 0] < 0 and classes[g, 1] < 0 and classes[g, 2] < 0:
             # first semantic observation: the local node
             for s in range(3):
                 classes[g, s] = loc_cls[s]
-                lodds[g, s] = _quantize(loc_lo[s], q, steps)
-            others[g] = _quantize(loc_ot, q, steps)
+                lodds[g, s] = loc_lo[s]
+            others[g] = loc_ot
             continue
 
         # ---- Algorithm 1 (merge_algorithm1 -> _merge)
@@ -207,21 +306,21 @@ def _frame_update(classes, lodds, others, free, voxels, local_index, pixels, obs
                     acc += 0.0
             cl_for_g[i] = acc
         punish = theta * math.log1p(np.float64(n_z))
-        g_ot = np.float64(np.float32(others[g]) * q32)
+        g_ot = np.float64(others[g])
         delta_g = g_ot - punish
         delta_c = np.float64(loc_ot) - punish
         for i in range(3):
-            gl = np.float64(np.float32(lodds[g, i]) * q32)
+            gl = np.float64(lodds[g, i])
             cand_cls[i] = classes[g, i]
             cand_ok[i] = classes[g, i] >= 0
             if g_in_c[i]:
                 cand_lo[i] = (gl + cl_for_g[i]) / 2.0
             else:
-                cand_lo[i] = (gl + delta_c) / 2.0
+                cand_lo[i] = (gl + (delta_g if printed else delta_c)) / 2.0
         for j in range(3):
             cand_cls[3 + j] = loc_cls[j]
             cand_ok[3 + j] = loc_cls[j] >= 0 and not c_in_g[j]
-            cand_lo[3 + j] = (np.float64(loc_lo[j]) + delta_g) / 2.0
+            cand_lo[3 + j] = (np.float64(loc_lo[j]) + (delta_c if printed else delta_g)) / 2.0
         for i in range(6):
             keys6[i] = -cand_lo[i] if cand_ok[i] else np.inf
         _rank(keys6, 6, rank6)
@@ -254,19 +353,27 @@ def _frame_update(classes, lodds, others, free, voxels, local_index, pixels, obs
             i = rank6[s]
             if cand_ok[i]:
                 classes[g, s] = cand_cls[i]
-                lodds[g, s] = _quantize(np.float32(cand_lo[i]), q, steps)
+                lodds[g, s] = np.float32(cand_lo[i])
             else:
                 classes[g, s] = -1
-                lodds[g, s] = _quantize(np.float32(0.0), q, steps)
-        others[g] = _quantize(np.float32(new_ot), q, steps)
+                lodds[g, s] = np.float32(0.0)
+        others[g] = np.float32(new_ot)
+
+    # ---- occupancy from the class vector (mcb_occupancy) on every touched leaf
+    if semantic:
+        for f in free:
+            occupancy[f] = _occupancy(classes, lodds, others, f)
+        for m in range(n):
+            occupancy[voxels[m]] = _occupancy(classes, lodds, others, voxels[m])
 
 
 if numba is not None:
     _opts = {"cache": True, "nogil": True}
     _logaddexp = numba.njit(**_opts)(_logaddexp)
-    _quantize = numba.njit(**_opts)(_quantize)
     _clip = numba.njit(**_opts)(_clip)
     _rank = numba.njit(**_opts)(_rank)
+    _occupancy = numba.njit(**_opts)(_occupancy)
+    _observe = numba.njit(**_opts)(_observe)
     frame_update = numba.njit(**_opts)(_frame_update)
 else:  # pragma: no cover
     frame_update = None

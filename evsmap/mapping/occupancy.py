@@ -189,6 +189,13 @@ class OccupancyMap:
         v.flags.writeable = False
         return v
 
+    def logodds_for_writing(self) -> np.ndarray:
+        """The ``float32`` log-odds array itself (writable), for an updater that derives a
+        leaf's occupancy from its own state (``multiclass-bayes``: from the class vector)
+        instead of OctoMap's hit/miss update. Valid until the next :meth:`apply` grows the
+        arrays."""
+        return self._logodds
+
     def payload(self, name: str) -> np.ndarray:
         """The per-leaf array registered as ``name`` (writable, aligned with :attr:`codes`)."""
         try:

@@ -1,16 +1,29 @@
 """``multiclass-bayes`` - EVSMaP's volumetric-semantic map (Section III-B, eqs. 5-10, Alg. 1).
 
-Occupancy follows OctoMap (hit/miss log-odds, clamping), so the geometry is directly comparable
-with every other row of Table IV. Each leaf also holds the multi-class log-odds state of SSMI's
-lineage (:class:`evsmap.mapping.fusion.MCBState`): the 3 most likely classes with log-odds
-against free, plus "others". A frame is first built as a local map (one node per hit voxel,
-:func:`~evsmap.mapping.fusion.build_local`: the mean of its points' top-3 distributions) and
-merged into the global map with Algorithm 1 (:func:`~evsmap.mapping.fusion.merge_algorithm1`,
-punishment theta = 0.6); a voxel seen for the first time takes the local node. Voxels a ray
-passes through have their semantic log-odds lowered by phi (eq. 9's free case, SSMI's
-``fuseObsFree``). A node is pruned when its 8 children hold identical occupancy and identical
-semantics. The ``.ot`` file's node payload is the full state (layout in ``docs/mapping.md``), so
-a saved map reloads into the same state (:func:`load_multiclass_bayes`).
+Each leaf holds eq. 5's log-odds vector as SSMI keeps it (:class:`evsmap.mapping.fusion.MCBState`):
+the 3 most likely classes with log-odds against free, plus "others", in ``float32``. Per frame
+(the defaults, the paper's method):
+
+* **Eq. 7 on every observed leaf.** A voxel the frame's rays traverse gets eq. 9's free case,
+  ``phi`` on every entry (SSMI ``fuseObsFree``); a voxel holding end points gets one occupied
+  observation with its points' majority class (the top class of their mean top-k
+  distribution): ``psi`` to that class, ``phi`` to the rest, a new class entering from others
+  (SSMI ``fuseObs`` / ``initSemantics``). Evidence accumulates to the clamps (+-9.21).
+* **Occupancy from the class vector** (``occupancy="semantic"``): a leaf's occupancy log-odds is
+  ``log(exp(others) + sum_i exp(l_i))``, the log-odds of "any class" against free (class 0 of
+  eq. 5), so it is occupied exactly when ``p(free) < 0.5`` - OctoMap's threshold 0.5. A voxel
+  without classes keeps its occupancy in ``others``, floored at OctoMap's clamping minimum as
+  SSMI does (free space saturates and prunes).
+* **Algorithm 1 where two nodes merge**: inner nodes take their children's states merged
+  pairwise (:func:`~evsmap.mapping.fusion.fold_algorithm1`, theta = 0.6); 8 identical children
+  are pruned into one node.
+
+Options keep the alternatives measurable: ``leaf_update="average"`` merges a per-frame local
+map into each leaf with Algorithm 1 (evsmap's earlier reading), ``pairing="ssmi"`` pairs a
+class held by one node with the other node's punished others, ``occupancy="octomap"`` keeps
+OctoMap's separate hit/miss log-odds. The ``.ot`` node payload is the full state (layout in
+``docs/mapping.md``), so a saved map reloads into the same state
+(:func:`load_multiclass_bayes`).
 """
 
 from __future__ import annotations
@@ -25,13 +38,16 @@ from evsmap.mapping.fusion import MCBState
 from evsmap.mapping.mcb_kernel import frame_update
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, OctreeUpdater, strongest_child
+from evsmap.updaters.base import FramePoints, OctreeUpdater
 
-PAYLOAD_FORMAT = np.dtype([("classes", "u1", (3,)), ("logodds", "i1", (3,)), ("others", "i1")])
-"""Per-node payload after the float32 occupancy log-odds in the ``.ot`` stream (7 bytes): class
-ids (255 = empty slot) and the class and "others" log-odds in units of ``quantum``."""
+PAYLOAD_FORMAT = np.dtype([("classes", "u1", (3,)), ("logodds", "<f4", (3,)),
+                           ("others", "<f4")])
+"""Per-node payload after the float32 occupancy log-odds in the ``.ot`` stream (19 bytes): class
+ids (255 = empty slot) and the class and "others" log-odds, float32 as the map keeps them."""
 EMPTY_ID = 255
 TREE_TYPE = "MultiClassBayesOcTree"
+LEAF_UPDATES = ("bayes", "average")
+OCCUPANCIES = ("semantic", "octomap")
 
 USE_KERNEL = True
 """Update the payloads with the compiled kernel (:mod:`evsmap.mapping.mcb_kernel`) when numba
@@ -43,13 +59,15 @@ class MultiClassBayesMap(OctreeUpdater):
 
     Args:
         psi: log-odds added to the observed class (eq. 9, phi+ of the occupied case).
-        phi: log-odds added on a miss (eq. 9, phi-).
+        phi: log-odds added on a miss (eq. 9, phi-) and to the other entries on a hit.
         theta: Algorithm 1's punishment value.
-        quantum: step of the stored log-odds. The state lives on the lattice of the update
-            constants ("log-odds piecewise constants", Section III-B): every value is rounded
-            to a multiple of ``quantum`` (default ``|phi|`` = 0.1) after each update and stored
-            as an ``int8`` count (the clamps +-9.21 are +-92 steps), so equal histories give
-            exactly equal nodes, which prune, and a node's semantics take 7 bytes.
+        leaf_update: ``"bayes"`` (eq. 7: one additive observation per observed leaf and frame,
+            the paper's) or ``"average"`` (the frame's local node merged into the leaf with
+            Algorithm 1).
+        pairing: Algorithm 1's pairing of a class held by one node only with a punished others:
+            ``"printed"`` (the holding node's own, as printed) or ``"ssmi"`` (the other node's).
+        occupancy: ``"semantic"`` (the leaf's occupancy log-odds derived from its class vector,
+            eq. 5) or ``"octomap"`` (OctoMap's separate hit/miss log-odds).
         (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`)
     """
 
@@ -58,38 +76,38 @@ class MultiClassBayesMap(OctreeUpdater):
     uses_semantics = True
 
     def __init__(self, *, psi: float = fusion.PSI, phi: float = fusion.PHI,
-                 theta: float = fusion.THETA, quantum: float | None = None, **kwargs) -> None:
+                 theta: float = fusion.THETA, leaf_update: str = "bayes",
+                 pairing: str = "printed", occupancy: str = "semantic", **kwargs) -> None:
         from evsmap.errors import InvalidDataError
 
+        for option, value, known in (("leaf_update", leaf_update, LEAF_UPDATES),
+                                     ("pairing", pairing, fusion.PAIRINGS),
+                                     ("occupancy", occupancy, OCCUPANCIES)):
+            if value not in known:
+                raise InvalidDataError(f"multiclass-bayes: {option} must be one of "
+                                       f"{', '.join(known)}; got {value!r}")
         self.psi, self.phi, self.theta = float(psi), float(phi), float(theta)
-        self.quantum = abs(self.phi) if quantum is None else float(quantum)
-        if not self.quantum > 0 or fusion.MAX_LOGODDS / self.quantum > 127:
-            raise InvalidDataError(
-                f"quantum must be at least {fusion.MAX_LOGODDS / 127:.3f} (int8 steps up to the "
-                f"+-{fusion.MAX_LOGODDS:.2f} clamp), got {quantum!r}")
-        self._steps = int(np.floor(fusion.MAX_LOGODDS / self.quantum))
+        self.leaf_update, self.pairing, self.occupancy = leaf_update, pairing, occupancy
         super().__init__(**kwargs)
+        # a voxel without classes keeps its occupancy in ``others``: floored where OctoMap
+        # clamps (SSMI's fuseObsFree on such voxels)
+        self._empty_floor = float(self.params.clamp_min_logodds)
 
     def _init_payloads(self) -> None:
         self.map.add_payload("classes", np.int16, (3,), fill=fusion.EMPTY)
-        self.map.add_payload("class_logodds", np.int8, (3,), fill=0)
-        self.map.add_payload("others", np.int8, (), fill=0)
+        self.map.add_payload("class_logodds", np.float32, (3,), fill=0)
+        self.map.add_payload("others", np.float32, (), fill=0)
 
     def state(self, index: np.ndarray | slice = slice(None)) -> MCBState:
-        m, q = self.map, self.quantum
-        return MCBState(m.payload("classes")[index],
-                        m.payload("class_logodds")[index].astype(np.float32) * q,
-                        m.payload("others")[index].astype(np.float32) * q)
-
-    def _quantize(self, values: np.ndarray) -> np.ndarray:
-        steps = np.rint(np.asarray(values, dtype=np.float64) / self.quantum)
-        return np.clip(steps, -self._steps, self._steps).astype(np.int8)
+        m = self.map
+        return MCBState(m.payload("classes")[index], m.payload("class_logodds")[index],
+                        m.payload("others")[index])
 
     def _store(self, index: np.ndarray, state: MCBState) -> None:
         m = self.map
         m.payload("classes")[index] = state.classes
-        m.payload("class_logodds")[index] = self._quantize(state.logodds)
-        m.payload("others")[index] = self._quantize(state.others)
+        m.payload("class_logodds")[index] = state.logodds
+        m.payload("others")[index] = state.others
 
     def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
                          observation: SemanticObservation | None) -> None:
@@ -102,36 +120,47 @@ class MultiClassBayesMap(OctreeUpdater):
                 m = self.map
                 frame_update(
                     m.payload("classes"), m.payload("class_logodds"), m.payload("others"),
-                    update.free_index, voxels, local_index, pixels,
+                    m.logodds_for_writing(), update.free_index, voxels, local_index, pixels,
                     observation.classes.reshape(-1, k), observation.probs.reshape(-1, k),
-                    span, self.quantum,
-                    self._steps, self.psi, self.phi, self.theta, fusion.MIN_LOGODDS,
-                    fusion.MAX_LOGODDS, fusion.PROB_MIN)
+                    span, self.psi, self.phi, self.theta, fusion.MIN_LOGODDS,
+                    fusion.MAX_LOGODDS, fusion.PROB_MIN, self._empty_floor,
+                    self.leaf_update == "bayes", self.pairing == "printed",
+                    self.occupancy == "semantic")
                 return
         self._update_payloads_numpy(points, update, observation)
 
     def _update_payloads_numpy(self, points: FramePoints, update: ScanUpdate,
                                observation: SemanticObservation) -> None:
         """The reference implementation (numpy, whole arrays)."""
-        # rays: lower the semantics of traversed voxels that have some
+        semantic = self.occupancy == "semantic"
+        # rays: eq. 9's free case on the traversed voxels (with OctoMap occupancy, only those
+        # holding classes have a semantic state to lower)
         free = update.free_index
+        if not semantic and free.size:
+            free = free[self.map.payload("classes")[free, 0] >= 0]
         if free.size:
-            has = self.map.payload("classes")[free, 0] >= 0
-            idx = free[has]
-            if idx.size:
-                self._store(idx, fusion.mcb_miss(self.state(idx), phi=self.phi))
-        # end points: local map of this frame, merged with Algorithm 1
+            self._store(free, fusion.mcb_miss(self.state(free), phi=self.phi,
+                                              empty_min_logodds=self._empty_floor))
+        # end points: the frame's node per voxel, from its points' top-k
         pixels, voxels, local_index = self.endpoint_voxels(points)
-        if not voxels.size:
-            return
-        classes = observation.classes.reshape(-1, observation.k)[pixels]
-        probs = observation.probs.reshape(-1, observation.k)[pixels]
-        local = fusion.build_local(local_index, classes, probs, len(voxels), hit=self.psi)
-        current = self.state(voxels)
-        known = current.has_semantics
-        merged = fusion.merge_algorithm1(current.take(known), local.take(known), self.theta)
-        self._store(voxels[known], merged)
-        self._store(voxels[~known], local.take(~known))
+        if voxels.size:
+            classes = observation.classes.reshape(-1, observation.k)[pixels]
+            probs = observation.probs.reshape(-1, observation.k)[pixels]
+            local = fusion.build_local(local_index, classes, probs, len(voxels), hit=self.psi)
+            current = self.state(voxels)
+            if self.leaf_update == "bayes":  # eq. 7: one observation, the majority class
+                self._store(voxels, fusion.mcb_observe(current, local.classes[:, 0],
+                                                       psi=self.psi, phi=self.phi))
+            else:  # the local node merged with Algorithm 1; a first observation takes it
+                known = current.has_semantics
+                merged = fusion.merge_algorithm1(current.take(known), local.take(known),
+                                                 self.theta, pairing=self.pairing)
+                self._store(voxels[known], merged)
+                self._store(voxels[~known], local.take(~known))
+        if semantic:
+            touched = np.concatenate([free, voxels])
+            self.map.logodds_for_writing()[touched] = fusion.mcb_occupancy(
+                self.state(touched))
 
     def _payload_record(self) -> np.ndarray:
         rec = np.empty(self.map.num_leaves, dtype=PAYLOAD_FORMAT)
@@ -152,7 +181,19 @@ class MultiClassBayesMap(OctreeUpdater):
         return [m.logodds, m.payload("classes"), m.payload("class_logodds"), m.payload("others")]
 
     def _inner_payload(self):
-        return strongest_child("logodds")
+        def aggregate(child_payload: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+            ids = child_payload["classes"].astype(np.int16)
+            children = MCBState(np.where(ids == EMPTY_ID, fusion.EMPTY, ids),
+                                child_payload["logodds"], child_payload["others"])
+            merged = fusion.fold_algorithm1(children, group, n_groups, self.theta,
+                                            pairing=self.pairing)
+            rec = np.empty(n_groups, dtype=PAYLOAD_FORMAT)
+            rec["classes"] = np.where(merged.classes < 0, EMPTY_ID, merged.classes)
+            rec["logodds"] = merged.logodds
+            rec["others"] = merged.others
+            return rec
+
+        return aggregate
 
     def _payload_format(self):
         return PAYLOAD_FORMAT
@@ -174,8 +215,7 @@ class MultiClassBayesMap(OctreeUpdater):
 
 def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBayesMap:
     """A :class:`MultiClassBayesMap` restored from its ``.ot`` file (mapping can continue);
-    ``kwargs`` are the map's options (give the ``quantum`` it was built with, if not the
-    default)."""
+    ``kwargs`` are the map's options."""
     from evsmap.mapping.octree_io import read_ot
 
     resolution = read_ot(path, payload_format={TREE_TYPE: PAYLOAD_FORMAT}).resolution
@@ -183,13 +223,16 @@ def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBaye
 
 
 @UPDATERS.register("multiclass-bayes",
-                   description="EVSMaP: multi-class Bayesian semantic octree, local maps merged "
-                               "with Algorithm 1 (theta 0.6)")
+                   description="EVSMaP: multi-class Bayesian semantic octree (eq. 7 on every "
+                               "observed leaf, occupancy from the class vector, Algorithm 1 "
+                               "merging nodes, theta 0.6)")
 def multiclass_bayes(*, resolution: float = 0.05, max_range: float = 5.0,
                      discretize: bool = True, psi: float = fusion.PSI, phi: float = fusion.PHI,
-                     theta: float = fusion.THETA, quantum: float | None = None,
+                     theta: float = fusion.THETA, leaf_update: str = "bayes",
+                     pairing: str = "printed", occupancy: str = "semantic",
                      prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float = 0.1192,
                      clamp_max: float = 0.971) -> MultiClassBayesMap:
     return MultiClassBayesMap(resolution=resolution, max_range=max_range, discretize=discretize,
-                              psi=psi, phi=phi, theta=theta, quantum=quantum, prob_hit=prob_hit,
+                              psi=psi, phi=phi, theta=theta, leaf_update=leaf_update,
+                              pairing=pairing, occupancy=occupancy, prob_hit=prob_hit,
                               prob_miss=prob_miss, clamp_min=clamp_min, clamp_max=clamp_max)

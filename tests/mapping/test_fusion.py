@@ -209,7 +209,7 @@ def test_mcb_clamps():
 def test_algorithm1_shared_classes():
     g = state([([1, 2, 3], [2.0, 1.0, 0.0], -1.0)])
     c = state([([1, 2, 3], [1.0, 0.5, -0.5], -2.0)])
-    u = fu.merge_algorithm1(g, c, theta=0.6)
+    u = fu.merge_algorithm1(g, c, theta=0.6, pairing="ssmi")
     # Z = {1, 2, 3}: theta log(1 + 3) = 0.6 * 1.386294 = 0.831777
     # Delta_G = -1.831777, Delta_C = -2.831777
     # shared: 1: (2 + 1) / 2 = 1.5, 2: (1 + 0.5) / 2 = 0.75, 3: (0 - 0.5) / 2 = -0.25
@@ -223,7 +223,7 @@ def test_algorithm1_shared_classes():
 def test_algorithm1_class_missing_from_each_side():
     g = state([([1, 2, 3], [2.0, 1.0, 0.0], -1.0)])
     c = state([([1, 4, 2], [1.5, 1.0, 0.2], -1.5)])
-    u = fu.merge_algorithm1(g, c, theta=0.6)
+    u = fu.merge_algorithm1(g, c, theta=0.6, pairing="ssmi")
     # Z = {1, 2, 3, 4}: 0.6 log 5 = 0.965663; Delta_G = -1.965663, Delta_C = -2.465663
     d_g, d_c = -1.0 - 0.6 * LN(5), -1.5 - 0.6 * LN(5)
     # 1: (2 + 1.5) / 2 = 1.75; 2: (1 + 0.2) / 2 = 0.6
@@ -245,10 +245,10 @@ def test_algorithm1_punishment_lets_shared_classes_win():
     g = state([([3, 1], [1.0, 0.8], 0.5)])
     c = state([([2, 1], [1.2, 0.8], 0.5)])
     # theta 0: Delta = 0.5; 2 -> (1.2 + 0.5) / 2 = 0.85, 1 -> 0.8, 3 -> (1 + 0.5) / 2 = 0.75
-    assert fu.merge_algorithm1(g, c, theta=0.0).classes[0].tolist() == [2, 1, 3]
+    assert fu.merge_algorithm1(g, c, theta=0.0, pairing="ssmi").classes[0].tolist() == [2, 1, 3]
     # theta 0.6: Delta = 0.5 - 0.6 log 4 = -0.331777
     # 1 -> 0.8, 2 -> (1.2 - 0.331777) / 2 = 0.434111, 3 -> (1 - 0.331777) / 2 = 0.334111
-    u = fu.merge_algorithm1(g, c, theta=0.6)
+    u = fu.merge_algorithm1(g, c, theta=0.6, pairing="ssmi")
     assert u.classes[0].tolist() == [1, 2, 3]
     assert u.logodds[0].tolist() == approx([0.8, 0.434111, 0.334111], rel=1e-4)
 
@@ -269,7 +269,7 @@ def test_merge_of_voxels_without_classes_averages_others():
     g = MCBState.empty(1, others=-1.0)
     c = MCBState.empty(1, others=-2.0)
     # Z empty: log(1 + 0) = 0, xi_U = (-1 - 2) / 2
-    u = fu.merge_algorithm1(g, c)
+    u = fu.merge_algorithm1(g, c, pairing="ssmi")
     assert u.classes[0].tolist() == [-1, -1, -1] and u.others[0] == approx(-1.5)
 
 
@@ -471,7 +471,7 @@ def test_merges_match_reference_on_random_states():
     rng = np.random.default_rng(3)
     m = 500
     g, c = random_state(rng, m), random_state(rng, m)
-    alg1 = fu.merge_algorithm1(g, c, theta=0.6)
+    alg1 = fu.merge_algorithm1(g, c, theta=0.6, pairing="ssmi")
     ssmi = fu.merge_ssmi(g, c)
     for i in range(m):
         gi = (g.classes[i].tolist(), g.logodds[i].astype(float).tolist(), float(g.others[i]))
