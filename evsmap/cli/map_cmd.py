@@ -115,6 +115,13 @@ def run(args: argparse.Namespace) -> int:
         progress=lambda it: progress(it, total=len(it), desc=f"mapping {args.updater}"),
         skip_bad=args.skip_bad)
     result = record.as_dict()
+    truth = _ground_truth(sequence, args.resolution)
+    if truth is not None and hasattr(updater, "occupied_labels"):
+        from evsmap.metrics import evaluate_map
+
+        quality = evaluate_map(updater, truth).as_dict()
+        quality.pop("semantics", None)
+        result["quality"] = quality
     if args.ply is not None:
         from evsmap.mapping.export import export_ply
 
@@ -124,6 +131,22 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_record(result))
     return 0
+
+
+def _ground_truth(sequence, resolution: float):
+    """The sequence's ground-truth voxels at ``resolution`` when it has them (the synthetic
+    scenes, one synthrooms room), else None."""
+    make = getattr(sequence, "ground_truth", None)
+    if make is None:
+        return None
+    try:
+        return make(resolution)
+    except EvsmapError:
+        return None
+
+
+def _pct(x) -> str:
+    return "n/a" if x is None or x != x else f"{100.0 * x:.1f} %"
 
 
 def format_record(r: dict[str, Any]) -> str:
@@ -142,4 +165,17 @@ def format_record(r: dict[str, Any]) -> str:
                                                         if r["map_file"] else ""),
         f"in memory    {r['memory_bytes'] / 1e6:.3f} MB, {r['nodes']:,} nodes, "
         f"{r['leaves']:,} leaves",
-    ] + ply)
+    ] + ply + _quality_lines(r.get("quality")))
+
+
+def _quality_lines(q: dict[str, Any] | None) -> list[str]:
+    if q is None:
+        return []
+    lines = [f"geometry     precision {_pct(q['precision'])}, recall {_pct(q['recall'])} "
+             f"(occupied leaves against the scene's ground-truth voxels, "
+             f"{q['slack_voxels']} voxel slack)"]
+    if q.get("semantic_accuracy") is not None:
+        lines.append(f"semantics    accuracy {_pct(q['semantic_accuracy'])}, mIoU "
+                     f"{_pct(q['map_miou'])} over {q['matched'] - q['unlabelled']:,} matched "
+                     f"labelled leaves")
+    return lines

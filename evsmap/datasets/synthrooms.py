@@ -375,6 +375,18 @@ class SynthRoomsSequence(SegmentationSequence):
         labels = read_label_png(self.root / LABEL_DIR / f"{fid}.png", NUM_CLASSES, shape)
         return rgb, dequantize_depth(raw), self.intrinsics, labels
 
+    def ground_truth(self, resolution: float):
+        """The room's ground-truth voxels (:class:`~evsmap.synth.groundtruth.VoxelLabels`) at
+        ``resolution``, rebuilt from the manifest's scene and seed; only for one room
+        (``-r room=N``), where the frames share its world."""
+        from evsmap.synth.sequence import SyntheticSequence
+
+        if not self._by_room:
+            raise EvsmapError(f"{NAME}: ground truth is per room: pick one with -r room=N")
+        meta = self.meta
+        return SyntheticSequence(scene=meta["scene"], seed=int(meta["seed"])).ground_truth(
+            resolution)
+
     def pose(self, index: int) -> np.ndarray:
         """Camera-to-world pose of frame ``index`` in its room's frame."""
         _, _, t, q = self._poses[self.names[index]]

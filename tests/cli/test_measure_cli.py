@@ -169,6 +169,23 @@ def test_map_synthetic_json_has_the_record_keys(tmp_path):
     assert rec["frames"] == 2 and rec["segmenter"] == "oracle"
     assert rec["map_bytes"] == out.stat().st_size
     assert rec["hz_end_to_end"] <= rec["hz_median"]
+    # the synthetic scene has ground truth: the map is scored against it
+    q = rec["quality"]
+    assert q["resolution"] == 0.1 and q["occupied"] > 0 and q["matched"] > 0
+    assert 0.5 < q["precision"] <= 1.0 and 0.0 < q["recall"] <= 1.0
+    assert 0.3 < q["semantic_accuracy"] <= 1.0 and 0.0 < q["map_miou"] <= 1.0
+
+
+def test_map_prints_the_3d_scores_and_none_without_ground_truth(tum_dir):
+    import json
+
+    r = _evsmap("map", "synthetic", "--updater", "orgb", "--frames", "2", "--resolution", "0.1")
+    assert r.returncode == 0, r.stderr
+    assert "geometry     precision" in r.stdout and "semantics" not in r.stdout.split(
+        "geometry")[1]
+    r = _evsmap("map", str(tum_dir), "--updater", "orgb", "--frames", "1", "--json")
+    assert r.returncode == 0, r.stderr
+    assert "quality" not in json.loads(r.stdout)
 
 
 def test_map_user_errors_are_one_line(tmp_path, tum_dir):
