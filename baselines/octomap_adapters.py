@@ -84,7 +84,8 @@ class OctoMapAdapter(MapUpdater):
         return MapStats(nodes=int(self.tree.size()), leaves=int(self.tree.getNumLeafNodes()),
                         memory_bytes=int(self.tree.memoryUsage()))
 
-    def write(self, path: str | PathLike[str]) -> int:
+    def write(self, path: str | PathLike[str], file_format: str = "full") -> int:
+        """OctoMap's own file (the same for ``full`` and ``published``)."""
         path = Path(path)
         # note: writeBinary turns the live tree to maximum likelihood, as in OctoMap itself
         data = self.tree.writeBinary() if path.suffix == ".bt" else self.tree.write()

@@ -94,7 +94,11 @@ class MapUpdater(abc.ABC):
 
     @abc.abstractmethod
     def write(self, path: str | PathLike[str]) -> int:
-        """Write the map to ``path``; returns the file size in bytes (the paper's "Map Size")."""
+        """Write the map to ``path``; returns the file size in bytes (the paper's "Map Size").
+
+        An updater may also take ``file_format="full"|"published"`` (the resumable state, or
+        what the compared system itself writes; see :meth:`OctreeUpdater.write`); one without
+        it writes a single file, used for both."""
 
     @abc.abstractmethod
     def query(self, points: np.ndarray) -> PointQuery:

@@ -47,6 +47,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=positive_int, metavar="N", help="first N frames only")
     p.add_argument("--out", type=Path, metavar="FILE",
                    help="write the map here (.ot full state; .bt occupancy only)")
+    p.add_argument("--file-format", choices=("full", "published"), default="full",
+                   metavar="full|published",
+                   help="--out .ot content: full (the whole state; reloads and mapping "
+                        "continues) or published (what the compared system itself writes: "
+                        "semantic_slam's ColorOcTree for classic-semantic); default full")
     p.add_argument("--ply", type=Path, metavar="FILE",
                    help="also write the occupied voxel centres as a binary PLY point cloud")
     p.add_argument("--ply-color", choices=("rgb", "class"), metavar="rgb|class",
@@ -113,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         sequence, updater, updater_name=args.updater, segmenter=segmenter,
         segmenter_name=seg_name, frames=args.frames, out=args.out,
         progress=lambda it: progress(it, total=len(it), desc=f"mapping {args.updater}"),
-        skip_bad=args.skip_bad)
+        skip_bad=args.skip_bad, file_format=args.file_format)
     result = record.as_dict()
     truth = _ground_truth(sequence, args.resolution)
     if truth is not None and hasattr(updater, "occupied_labels"):
@@ -145,6 +150,12 @@ def _ground_truth(sequence, resolution: float):
         return None
 
 
+def _other_size(r: dict[str, Any]) -> str:
+    other = "published" if r["file_format"] == "full" else "full"
+    size = r.get(f"map_bytes_{other}")
+    return "" if size is None else f"; {other} .ot {size / 1e6:.3f} MB"
+
+
 def _pct(x) -> str:
     return "n/a" if x is None or x != x else f"{100.0 * x:.1f} %"
 
@@ -161,8 +172,8 @@ def format_record(r: dict[str, Any]) -> str:
         f"{r['sequence']}, {r['resolution']} m)",
         f"update       {r['hz_median']:.2f} Hz median (map update only)",
         f"end to end   {r['hz_end_to_end']:.2f} Hz median (segmentation + update)",
-        f"map file     {r['map_bytes'] / 1e6:.3f} MB" + (f"  ({r['map_file']})"
-                                                        if r["map_file"] else ""),
+        f"map file     {r['map_bytes'] / 1e6:.3f} MB {r['file_format']}" + (
+            f"  ({r['map_file']})" if r["map_file"] else "") + _other_size(r),
         f"in memory    {r['memory_bytes'] / 1e6:.3f} MB, {r['nodes']:,} nodes, "
         f"{r['leaves']:,} leaves",
     ] + ply + _quality_lines(r.get("quality")))

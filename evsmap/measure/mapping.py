@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from evsmap.data import Sequence
+from evsmap.errors import InvalidDataError
 from evsmap.interfaces import MapUpdater, Segmenter
 from evsmap.readers.skipping import SkippedFrames, read_frames
 
@@ -31,8 +32,12 @@ class MappingRecord:
         hz_median: ``1000 / median(update_ms)``.
         hz_end_to_end: ``1000 / median(update_ms + segment_ms)`` per frame (Table IV's
             "Runtime (Hz)": segmentation and update).
-        map_bytes: size of the written map file (the paper's "Map Size").
+        map_bytes: size of the written map file (the paper's "Map Size"), in ``file_format``.
         map_file: where it was written (``None`` when written to a temporary file).
+        file_format: ``"full"`` (the resumable state) or ``"published"`` (what the compared
+            system itself writes), see :meth:`OctreeUpdater.write`.
+        map_bytes_full, map_bytes_published: the ``.ot`` size in each format (both always
+            measured; equal where the system writes its full state).
         memory_bytes, nodes, leaves: the updater's in-memory size and octree counts.
     """
 
@@ -50,17 +55,52 @@ class MappingRecord:
     memory_bytes: int
     nodes: int
     leaves: int
+    file_format: str = "full"
+    map_bytes_full: int | None = None
+    map_bytes_published: int | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
+def write_map(updater: MapUpdater, path: str | PathLike[str], file_format: str = "full") -> int:
+    """``updater.write(path, file_format)``; a plug-in whose ``write`` takes no file format
+    writes one file, which is both its full and its published one."""
+    import inspect
+
+    if file_format != "full" and "file_format" in inspect.signature(updater.write).parameters:
+        return int(updater.write(path, file_format=file_format))
+    if file_format not in ("full", "published"):
+        raise InvalidDataError(f"file format must be full or published, got {file_format!r}")
+    return int(updater.write(path))
+
+
+def pruned_share(updater: MapUpdater) -> float | None:
+    """The share of the finest leaves merged into pruned nodes (octree updaters), else None."""
+    tree_of = getattr(updater, "tree", None)
+    leaves = getattr(getattr(updater, "map", None), "num_leaves", None)
+    if not callable(tree_of) or not leaves:
+        return None
+    from evsmap.mapping.keys import TREE_DEPTH
+
+    tree = tree_of()
+    finest = int(np.count_nonzero(tree.is_leaf & (tree.depth == TREE_DEPTH)))
+    return 1.0 - finest / int(leaves)
+
+
+def map_sizes(updater: MapUpdater) -> dict[str, int]:
+    """The ``.ot`` size of the map in each file format, written to a temporary folder."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return {fmt: write_map(updater, Path(tmp) / f"{fmt}.ot", fmt)
+                for fmt in ("full", "published")}
+
+
 def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
                  segmenter: Segmenter | None = None, segmenter_name: str | None = None,
                  frames: int | None = None, out: str | PathLike[str] | None = None,
                  progress: Callable[[Any], Any] | None = None,
-                 skip_bad: bool = False) -> MappingRecord:
+                 skip_bad: bool = False, file_format: str = "full") -> MappingRecord:
     """Integrate the first ``frames`` frames of ``sequence`` (all by default) into ``updater``.
 
     Each frame is read (not timed), segmented when a segmenter is given (timed), then integrated
@@ -85,13 +125,13 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         updater.integrate(frame, observation)
         update_ms.append((time.perf_counter() - t0) * 1000.0)
     stats = updater.stats()
+    sizes = map_sizes(updater)
     if out is not None:
         path = Path(out)
-        map_bytes = updater.write(path)
+        map_bytes = write_map(updater, path, file_format)
         map_file: str | None = str(path)
     else:
-        with tempfile.TemporaryDirectory() as tmp:
-            map_bytes = updater.write(Path(tmp) / "map.ot")
+        map_bytes = sizes[file_format]
         map_file = None
     n = len(update_ms)
     upd = np.asarray(update_ms)
@@ -103,5 +143,6 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         hz_median=float(1000.0 / np.median(upd)) if n else float("nan"),
         hz_end_to_end=float(1000.0 / np.median(total)) if n else float("nan"),
         map_bytes=int(map_bytes), map_file=map_file, memory_bytes=stats.memory_bytes,
-        nodes=stats.nodes, leaves=stats.leaves,
+        nodes=stats.nodes, leaves=stats.leaves, file_format=file_format,
+        map_bytes_full=sizes["full"], map_bytes_published=sizes["published"],
         extra={"skipped": skipped.as_dict()} if skip_bad else {})

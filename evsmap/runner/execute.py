@@ -14,7 +14,6 @@ import hashlib
 import os
 import socket
 import subprocess
-import tempfile
 import time
 import traceback
 from dataclasses import dataclass
@@ -371,15 +370,21 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         t0 = time.perf_counter()
         updater.integrate(frame, obs)
         update_ms.append((time.perf_counter() - t0) * 1000.0)
+    from evsmap.measure.mapping import map_sizes, pruned_share
+
     stats = updater.stats()
-    with tempfile.TemporaryDirectory() as tmp:
-        map_bytes = updater.write(Path(tmp) / "map.ot")
+    sizes = map_sizes(updater)  # Table IV's "Map Size": the file each system itself writes
+    map_bytes = sizes["published"]
     upd = np.asarray(update_ms)
     total = upd + (np.asarray(segment_ms) if segment_ms else 0.0)
     values: dict[str, float] = {
         "frames": float(n), "update_hz": float(1000.0 / np.median(upd)),
         "end_to_end_hz": float(1000.0 / np.median(total)), "map_bytes": float(map_bytes),
-        "memory_bytes": float(stats.memory_bytes)}
+        "map_bytes_full": float(sizes["full"]), "memory_bytes": float(stats.memory_bytes),
+        "nodes": float(stats.nodes), "leaves": float(stats.leaves)}
+    share = pruned_share(updater)
+    if share is not None:
+        values["pruned_share"] = float(share)
     details: dict[str, Any] = {
         "update_ms": update_ms, "segment_ms": segment_ms, "nodes": stats.nodes,
         "leaves": stats.leaves, "sequence_name": sequence.name, **values}

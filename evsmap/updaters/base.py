@@ -27,6 +27,9 @@ from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate
 from evsmap.mapping.raycast import scan_keys
 from evsmap.mapping.tree import Tree
 
+FILE_FORMATS = ("full", "published")
+"""``write``'s file formats (``evsmap map --file-format``)."""
+
 OCTOMAP_BASE_BYTES = 320
 """``sizeof(OcTreeBaseImpl)`` that OctoMap's ``memoryUsage`` adds once per tree (x86-64)."""
 
@@ -241,9 +244,20 @@ class OctreeUpdater(MapUpdater):
                         memory_bytes=int(tree.memory_bytes(node_bytes=self._node_bytes(),
                                                            base_bytes=OCTOMAP_BASE_BYTES)))
 
-    def write(self, path: str | PathLike[str]) -> int:
+    def write(self, path: str | PathLike[str], file_format: str = "full") -> int:
+        """Write the map (``.ot``: with payload; ``.bt``: occupancy only); returns the bytes.
+
+        Args:
+            file_format: ``"full"`` - the whole state, which :meth:`restore` reads back so
+                mapping can continue; ``"published"`` - what the compared system itself writes
+                (:meth:`_published_tree`; the same as ``full`` where that is what it writes).
+                ``.bt`` files are the same in both.
+        """
         from evsmap.mapping.octree_io import write_bt, write_ot
 
+        if file_format not in FILE_FORMATS:
+            raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, "
+                                   f"got {file_format!r}")
         path = Path(path)
         tree = self.tree()
         if path.suffix == ".bt":  # occupancy only; OctoMap writes its own tree type's id
@@ -252,8 +266,18 @@ class OctreeUpdater(MapUpdater):
             return write_bt(path, tree, self.resolution, tree_type=kind,
                             occupancy_thres=p.occupancy_threshold, clamp_min=p.clamp_min,
                             clamp_max=p.clamp_max)
+        if file_format == "published":
+            published = self._published_tree(tree)
+            if published is not None:
+                kind, tree, fmt = published
+                return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
         return write_ot(path, tree, self.resolution, tree_type=self.tree_type,
                         payload_format=self._payload_format())
+
+    def _published_tree(self, tree: Tree):
+        """``(tree type, tree, payload format)`` of the file the compared system writes, or
+        None when that is the full file."""
+        return None
 
     def _payload_format(self):
         return None

@@ -198,6 +198,10 @@ class MultiClassBayesMap(OctreeUpdater):
     def _payload_format(self):
         return PAYLOAD_FORMAT
 
+    # published file: the full one. EVSMaP's node "maintain[s] only the probabilities of the
+    # three most likely semantic classes ... all other classes are consolidated into an others
+    # class": 3 class ids, their 3 log-odds and others, which is exactly the full payload.
+
     def _node_bytes(self) -> int:
         # OctoMap node: 4 B log-odds + children pointer (8 B) + this payload, 8-byte aligned
         return -(-(4 + 8 + PAYLOAD_FORMAT.itemsize) // 8) * 8

@@ -200,3 +200,40 @@ def test_map_user_errors_are_one_line(tmp_path, tum_dir):
         assert r.returncode == 2, (args, r.stderr)
         assert "Traceback" not in r.stderr
         assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_classic_semantic_published_file_is_semantic_slams_color_octree(tmp_path):
+    """--file-format published: semantic_slam's file, a ColorOcTree (float log-odds + the top
+    class's colour a node) that octomap-python opens, with the node count --json reports; every
+    leaf shows a class colour of evsmap's palette (white: no semantics)."""
+    import json
+
+    import octomap
+
+    from evsmap.classes import palette
+
+    out = tmp_path / "c.ot"
+    r = _evsmap("map", "synthetic", "--updater", "classic-semantic", "--frames", "2",
+                "--resolution", "0.1", "--out", str(out), "--file-format", "published",
+                "--json")
+    assert r.returncode == 0, r.stderr
+    rec = json.loads(r.stdout)
+    assert rec["file_format"] == "published" and rec["map_bytes"] == out.stat().st_size
+    assert rec["map_bytes_published"] == rec["map_bytes"] < rec["map_bytes_full"]
+    tree = octomap.ColorOcTree.read(str(out).encode())
+    assert tree.size() == rec["nodes"] and tree.getNumLeafNodes() == rec["leaves"]
+    # 8 bytes a node (float, rgb, child mask) after the header
+    assert rec["map_bytes"] - 8 * rec["nodes"] < 200
+    colours = {tuple(c) for c in palette(40).tolist()} | {(255, 255, 255)}
+    it, seen, n = tree.begin_leafs(), set(), 0
+    end = tree.end_leafs()
+    while it != end and n < 5000:
+        seen.add(tuple(int(v) for v in it.getColor()))
+        it.next()
+        n += 1
+    assert seen <= colours and len(seen - {(255, 255, 255)}) >= 3
+    # full (the default) reloads into evsmap; multiclass-bayes writes the same file either way
+    r = _evsmap("map", "synthetic", "--updater", "multiclass-bayes", "--frames", "1",
+                "--resolution", "0.1", "--json")
+    rec = json.loads(r.stdout)
+    assert rec["file_format"] == "full" and rec["map_bytes_full"] == rec["map_bytes_published"]
