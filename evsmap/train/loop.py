@@ -308,6 +308,16 @@ def open_test_split(opts: RunOptions, splits) -> tuple[Any, str | None]:
     return test, None
 
 
+def _card_has_test(path: Path) -> bool:
+    """Whether the card of weights file ``path`` records a final test pass."""
+    from evsmap.segmenters.weights import read_checkpoint
+
+    try:
+        return "test_split" in dict(read_checkpoint(path).get("card") or {})
+    except (EvsmapError, OSError):
+        return False
+
+
 def final_test(opts: RunOptions, splits, segmenter, out: Path, *, device: torch.device,
                bar: bool = False) -> dict[str, Any] | None:
     """Score ``best.pt``'s weights on the test split (rank 0, after the last epoch, through
@@ -690,7 +700,10 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
 
     epochs_done = start + done_here
     test = None
-    if procs.main and done_here and epochs_done >= recipe.epochs and best is not None:
+    # the final test pass: after the last epoch, or on --resume of a finished run whose best.pt
+    # has none yet (a run finished before evsmap made the pass)
+    if procs.main and epochs_done >= recipe.epochs and best is not None and (
+            done_here or not _card_has_test(out / BEST)):
         test = final_test(opts, splits, segmenter, out, device=procs.device, bar=tty)
         if test is not None:
             run.update(test)

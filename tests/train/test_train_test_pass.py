@@ -79,6 +79,32 @@ def test_resuming_a_finished_run_does_not_test_again(capsys, run_dir, rooms, tin
     assert "test mIoU" not in got and (out / "best.pt").read_bytes() == before
 
 
+def test_resuming_a_finished_run_without_a_test_pass_makes_it(capsys, run_dir, rooms, tiny_model,
+                                                             tmp_path):
+    """A run that finished before evsmap made the final test pass gets it on --resume; the
+    weights stay the same."""
+    import shutil
+
+    from evsmap.train.checkpoint import save_weights
+
+    src, _ = run_dir
+    out = tmp_path / "old-run"
+    shutil.copytree(src, out)
+    saved = read_checkpoint(out / "best.pt")
+    card = {k: v for k, v in saved["card"].items()
+            if k not in ("test_split", "test_frames")}
+    card["test_miou"] = None
+    save_weights(out / "best.pt", saved["state_dict"], card)
+    code = main(["train", tiny_model, "--dataset", str(rooms), "--out", str(out), "--resume"])
+    got, err = capsys.readouterr()
+    assert code == 0, err
+    assert "test mIoU" in got
+    after = read_checkpoint(out / "best.pt")
+    assert after["card"]["test_split"] == "test"
+    assert after["card"]["test_miou"] == read_checkpoint(src / "best.pt")["card"]["test_miou"]
+    assert tensors_sha256(after["state_dict"]) == tensors_sha256(saved["state_dict"])
+
+
 def _splits(val_split, reader="synthrooms"):
     return SimpleNamespace(val_split=val_split, reader=reader)
 
