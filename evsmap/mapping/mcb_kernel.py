@@ -81,6 +81,20 @@ def _occupancy(classes, lodds, others, i):
     return np.float32(math.log(acc) + top)
 
 
+def _store_ranked(classes, lodds, others, g, cand_cls, cand_lo, cand_ok, rank, new_ot):
+    """Leaf ``g`` takes the 3 best-ranked valid candidates (empty slots -1, 0) and
+    ``new_ot``."""
+    for s in range(3):
+        i = rank[s]
+        if cand_ok[i]:
+            classes[g, s] = cand_cls[i]
+            lodds[g, s] = np.float32(cand_lo[i])
+        else:
+            classes[g, s] = -1
+            lodds[g, s] = np.float32(0.0)
+    others[g] = np.float32(new_ot)
+
+
 def _observe(classes, lodds, others, g, y, psi, phi, min_lo, max_lo, cand_cls, cand_lo,
              cand_ok, keys4, rank4):
     """``mcb_observe`` of leaf ``g`` with class ``y`` (-1: no class)."""
@@ -140,16 +154,8 @@ def _observe(classes, lodds, others, g, y, psi, phi, min_lo, max_lo, cand_cls, c
     fourth = rank4[3]
     if cand_ok[fourth]:
         new_ot = _logaddexp(new_ot, cand_lo[fourth])
-    new_ot = _clip(new_ot, min_lo, max_lo)
-    for s in range(3):
-        i = rank4[s]
-        if cand_ok[i]:
-            classes[g, s] = cand_cls[i]
-            lodds[g, s] = np.float32(cand_lo[i])
-        else:
-            classes[g, s] = -1
-            lodds[g, s] = np.float32(0.0)
-    others[g] = np.float32(new_ot)
+    _store_ranked(classes, lodds, others, g, cand_cls, cand_lo, cand_ok, rank4,
+                  _clip(new_ot, min_lo, max_lo))
 
 
 def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, pixels, obs_cls,
@@ -349,15 +355,7 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
             cand_lo[i] = _clip(cand_lo[i], min_lo, max_lo)
             keys6[i] = -cand_lo[i] if cand_ok[i] else np.inf
         _rank(keys6, 6, rank6)
-        for s in range(3):
-            i = rank6[s]
-            if cand_ok[i]:
-                classes[g, s] = cand_cls[i]
-                lodds[g, s] = np.float32(cand_lo[i])
-            else:
-                classes[g, s] = -1
-                lodds[g, s] = np.float32(0.0)
-        others[g] = np.float32(new_ot)
+        _store_ranked(classes, lodds, others, g, cand_cls, cand_lo, cand_ok, rank6, new_ot)
 
     # ---- occupancy from the class vector (mcb_occupancy) on every touched leaf
     if semantic:
@@ -373,6 +371,7 @@ if numba is not None:
     _clip = numba.njit(**_opts)(_clip)
     _rank = numba.njit(**_opts)(_rank)
     _occupancy = numba.njit(**_opts)(_occupancy)
+    _store_ranked = numba.njit(**_opts)(_store_ranked)
     _observe = numba.njit(**_opts)(_observe)
     frame_update = numba.njit(**_opts)(_frame_update)
 else:  # pragma: no cover

@@ -69,10 +69,10 @@ def write_map(updater: MapUpdater, path: str | PathLike[str], file_format: str =
     writes one file, which is both its full and its published one."""
     import inspect
 
-    if file_format != "full" and "file_format" in inspect.signature(updater.write).parameters:
-        return int(updater.write(path, file_format=file_format))
     if file_format not in ("full", "published"):
         raise InvalidDataError(f"file format must be full or published, got {file_format!r}")
+    if file_format != "full" and "file_format" in inspect.signature(updater.write).parameters:
+        return int(updater.write(path, file_format=file_format))
     return int(updater.write(path))
 
 

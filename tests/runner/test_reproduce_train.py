@@ -8,31 +8,15 @@ from __future__ import annotations
 
 import json
 import math
-from concurrent.futures import Future
 
 import pandas as pd
 import pytest
+from runner_fixtures import Inline
 
 import evsmap.runner.matrix as matrix
 from evsmap.cli.main import main
 from evsmap.runner.records import CellRecord
 from evsmap.segmenters.cards import inspect_weights
-
-
-class Inline:
-    def __init__(self, *args, **kwargs):
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    def submit(self, fn, *args):
-        fut = Future()
-        fut.set_result(fn(*args))
-        return fut
 
 
 @pytest.fixture

@@ -3,32 +3,17 @@ sharing, Table IV from the mapping runs, and the segmentation cache."""
 
 from __future__ import annotations
 
-from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
 import pytest
+from runner_fixtures import Inline
 
 import evsmap.runner.matrix as matrix
 from evsmap.runner.context import RunContext
 from evsmap.runner.execute import MappingRun, table4_record
 from evsmap.runner.records import CellRecord, RecordStore, needs_text
 from evsmap.tables.schema import Component, expand, load_tables
-
-
-class Inline:
-    """An executor that runs each task at once in this process."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    def submit(self, fn, *args):
-        fut = Future()
-        fut.set_result(fn(*args))
-        return fut
 
 
 @pytest.fixture
