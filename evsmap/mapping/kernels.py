@@ -20,6 +20,8 @@ sets and is the reference the tests compare this kernel with.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 try:
@@ -74,67 +76,68 @@ def _trace(tmax, tdelta, bound, length, increments, end_offset, origin_index, gr
 
 def _group_points(points, rf, offset, key_max, dense_limit):
     """Keys ``floor(float64(p) * rf) + offset`` of float32 ``points`` (OctoMap's
-    ``coordToKeyChecked``), a mask of the points inside the key range, and - when the keys' box
-    holds at most ``dense_limit`` cells - the sorted unique packed codes and each valid point's
-    position among them (a dense mark over the box, no sort). Returns ``(keys, ok, codes,
-    inverse, done)``; ``done`` is False when the box is too large (the caller sorts instead)."""
+    ``coordToKeyChecked``) grouped by voxel: ``(point_voxel, ok, codes, done)`` - each point's
+    position among the sorted unique packed ``codes`` (-1 outside the key range), the mask of the
+    points inside. Only when the keys' box holds at most ``dense_limit`` cells (a dense mark over
+    the box, no sort); otherwise ``done`` is False and the caller sorts instead."""
     n = points.shape[0]
-    keys = np.zeros((n, 3), dtype=np.int64)
-    ok = np.ones(n, dtype=np.bool_)
-    lo = np.full(3, key_max + 1, dtype=np.int64)
-    hi = np.full(3, -1, dtype=np.int64)
+    lim_lo = -offset
+    lim_hi = key_max - offset
+    ok = np.zeros(n, dtype=np.bool_)
+    lo0 = lo1 = lo2 = key_max + 1
+    hi0 = hi1 = hi2 = -1
     count = 0
+    # pass 1: the range test and the keys' box (nothing else is stored: a second pass recomputes
+    # the keys, cheaper than writing and reading them back)
     for i in range(n):
-        inside = True
-        for a in range(3):
-            s = np.floor(np.float64(points[i, a]) * rf)
-            if not (s >= -offset and s <= key_max - offset):  # also NaN and inf
-                inside = False
-                break
-            keys[i, a] = np.int64(s) + offset
-        if not inside:
-            ok[i] = False
-            keys[i, 0] = 0
-            keys[i, 1] = 0
-            keys[i, 2] = 0
-            continue
-        count += 1
-        for a in range(3):
-            if keys[i, a] < lo[a]:
-                lo[a] = keys[i, a]
-            if keys[i, a] > hi[a]:
-                hi[a] = keys[i, a]
+        s0 = math.floor(np.float64(points[i, 0]) * rf)
+        s1 = math.floor(np.float64(points[i, 1]) * rf)
+        s2 = math.floor(np.float64(points[i, 2]) * rf)
+        # comparisons that are False for NaN as well
+        if (s0 >= lim_lo) & (s0 <= lim_hi) & (s1 >= lim_lo) & (s1 <= lim_hi) \
+                & (s2 >= lim_lo) & (s2 <= lim_hi):
+            ok[i] = True
+            count += 1
+            k0 = np.int64(s0) + offset
+            k1 = np.int64(s1) + offset
+            k2 = np.int64(s2) + offset
+            lo0, lo1, lo2 = min(lo0, k0), min(lo1, k1), min(lo2, k2)
+            hi0, hi1, hi2 = max(hi0, k0), max(hi1, k1), max(hi2, k2)
+    point_voxel = np.full(n, -1, dtype=np.int64)
     empty = np.zeros(0, dtype=np.int64)
     if count == 0:
-        return keys, ok, empty, empty, True
-    s0, s1, s2 = hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1
-    if s0 * s1 * s2 > dense_limit:
-        return keys, ok, empty, empty, False
-    mark = np.zeros(s0 * s1 * s2, dtype=np.bool_)
-    lut = np.empty(s0 * s1 * s2, dtype=np.int64)  # written (and read) at marked cells only
-    cells = np.empty(count, dtype=np.int64)
-    j = 0
+        return point_voxel, ok, empty, True
+    b0, b1, b2 = hi0 - lo0 + 1, hi1 - lo1 + 1, hi2 - lo2 + 1
+    size = b0 * b1 * b2
+    if size > dense_limit:
+        return point_voxel, ok, empty, False
+    # pass 2: each point's cell in the box (kept in point_voxel for now), marked in the table
+    table = np.zeros(size, dtype=np.int32)
     for i in range(n):
         if ok[i]:
-            c = ((keys[i, 0] - lo[0]) * s1 + (keys[i, 1] - lo[1])) * s2 + (keys[i, 2] - lo[2])
-            cells[j] = c
-            mark[c] = True
-            j += 1
+            c = (((np.int64(math.floor(np.float64(points[i, 0]) * rf)) + offset - lo0) * b1
+                  + (np.int64(math.floor(np.float64(points[i, 1]) * rf)) + offset - lo1)) * b2
+                 + (np.int64(math.floor(np.float64(points[i, 2]) * rf)) + offset - lo2))
+            point_voxel[i] = c
+            table[c] = 1
+    # box order is packed-code order: number the marked cells, decode each once
     unique = 0
-    for c in range(mark.size):  # box order = packed-code order
-        if mark[c]:
-            lut[c] = unique
+    for c in range(size):
+        if table[c]:
             unique += 1
     codes = np.empty(unique, dtype=np.int64)
-    inverse = np.empty(count, dtype=np.int64)
-    for j in range(count):
-        c = cells[j]
-        u = lut[c]
-        inverse[j] = u
-        kz = c % s2
-        kxy = c // s2
-        codes[u] = ((kxy // s1 + lo[0]) << 32) | ((kxy % s1 + lo[1]) << 16) | (kz + lo[2])
-    return keys, ok, codes, inverse, True
+    u = 0
+    for c in range(size):
+        if table[c]:
+            u += 1
+            table[c] = u
+            kz = c % b2
+            kxy = c // b2
+            codes[u - 1] = ((kxy // b1 + lo0) << 32) | ((kxy % b1 + lo1) << 16) | (kz + lo2)
+    for i in range(n):
+        if ok[i]:
+            point_voxel[i] = table[point_voxel[i]] - 1
+    return point_voxel, ok, codes, True
 
 
 def _depth_points(depth, fx, fy, cx, cy, pose):
@@ -167,21 +170,22 @@ def _depth_points(depth, fx, fy, cx, cy, pose):
 def _grow_rows(old, created, fill, out):
     """``out`` (rows = rows of ``old`` + len(``created``)): the rows of ``old`` in order, with
     the rows of ``fill`` (one per new row, or a single row for all) at the sorted row positions
-    ``created`` (2-D arrays; 1-D ones as one column)."""
-    j = 0
-    src = 0
+    ``created`` (2-D arrays; 1-D ones as one column). The old rows move in slabs (between two
+    new rows) as block copies."""
     n_new = created.shape[0]
     per_row = fill.shape[0] > 1
-    for dst in range(out.shape[0]):
-        if j < n_new and created[j] == dst:
-            f = j if per_row else 0
-            for c in range(out.shape[1]):
-                out[dst, c] = fill[f, c]
-            j += 1
-        else:
-            for c in range(out.shape[1]):
-                out[dst, c] = old[src, c]
-            src += 1
+    src = 0
+    dst = 0
+    for j in range(n_new + 1):
+        stop = created[j] if j < n_new else out.shape[0]
+        run = stop - dst
+        if run > 0:
+            out[dst:stop] = old[src:src + run]
+            src += run
+        if j < n_new:
+            out[stop] = fill[j if per_row else 0]
+            dst = stop + 1
+    return None
 
 
 if numba is not None:

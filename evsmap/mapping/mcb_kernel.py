@@ -166,13 +166,17 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
     ``voxels[local_index[p]]``). ``bayes``: eq. 7 leaf update (else the average variant);
     ``printed``: Algorithm 1's printed pairing (else SSMI's); ``semantic``: write each touched
     leaf's occupancy log-odds from its class vector."""
-    # ---- rays: fuseObsFree on traversed voxels (mcb_miss)
+    # ---- rays: fuseObsFree on traversed voxels (mcb_miss), and with semantic occupancy the
+    # leaf's occupancy (mcb_occupancy; free and hit voxels are disjoint, and a leaf's occupancy
+    # depends on its own state only)
     for f in free:
         if classes[f, 0] < 0:
             if not semantic:
                 continue
             v = np.float64(others[f]) + phi
             others[f] = np.float32(v if v > empty_floor else empty_floor)
+            # no classes: log(exp(others - others)) + others is others itself
+            occupancy[f] = others[f]
             continue
         for s in range(3):
             if classes[f, s] >= 0:
@@ -186,6 +190,8 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
         if v < min_lo:
             v = min_lo
         others[f] = np.float32(v)
+        if semantic:
+            occupancy[f] = _occupancy(classes, lodds, others, f)
 
     # ---- local map (build_local): per voxel, its points in their original order (a stable
     # counting sort), summed slot by slot as numpy's per-slot bincount does
@@ -217,11 +223,13 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
     loc_lo = np.empty(3, dtype=np.float32)
     best_c = np.empty(3, dtype=np.int64)
     best_v = np.empty(3)
+    kept = np.zeros(3)
     for m in range(n):
         n_touched = 0
-        for j in range(k):
-            for t in range(start[m], start[m + 1]):
-                p = pixels[members[t]]
+        # each (slot, class) sum runs over the voxel's points in their order, as bincount's
+        for t in range(start[m], start[m + 1]):
+            p = pixels[members[t]]
+            for j in range(k):
                 c = obs_cls[p, j]
                 w = np.float64(obs_p[p, j])
                 if c >= 0 and w > 0:
@@ -255,7 +263,14 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
                 best_c[pos] = c
                 if filled < 3:
                     filled += 1
-        kept = np.zeros(3)
+        g = voxels[m]
+        if bayes:  # eq. 7 takes the majority class only
+            y = best_c[0] if filled > 0 and best_v[0] > 0 else -1
+            _observe(classes, lodds, others, g, y, psi, phi, min_lo, max_lo, cand_cls,
+                     cand_lo, cand_ok, keys4, rank4)
+            if semantic:
+                occupancy[g] = _occupancy(classes, lodds, others, g)
+            continue
         for s in range(3):
             if s < filled and best_v[s] > 0:
                 loc_cls[s] = best_c[s]
@@ -274,17 +289,14 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
         rest = max(1.0 - total, prob_min)
         loc_ot = np.float32(_clip(psi + math.log(rest), min_lo, max_lo))
 
-        g = voxels[m]
-        if bayes:
-            _observe(classes, lodds, others, g, loc_cls[0], psi, phi, min_lo, max_lo, cand_cls,
-                     cand_lo, cand_ok, keys4, rank4)
-            continue
         if classes[g, 0] < 0 and classes[g, 1] < 0 and classes[g, 2] < 0:
             # first semantic observation: the local node
             for s in range(3):
                 classes[g, s] = loc_cls[s]
                 lodds[g, s] = loc_lo[s]
             others[g] = loc_ot
+            if semantic:
+                occupancy[g] = _occupancy(classes, lodds, others, g)
             continue
 
         # ---- Algorithm 1 (merge_algorithm1 -> _merge)
@@ -356,13 +368,8 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
             keys6[i] = -cand_lo[i] if cand_ok[i] else np.inf
         _rank(keys6, 6, rank6)
         _store_ranked(classes, lodds, others, g, cand_cls, cand_lo, cand_ok, rank6, new_ot)
-
-    # ---- occupancy from the class vector (mcb_occupancy) on every touched leaf
-    if semantic:
-        for f in free:
-            occupancy[f] = _occupancy(classes, lodds, others, f)
-        for m in range(n):
-            occupancy[voxels[m]] = _occupancy(classes, lodds, others, voxels[m])
+        if semantic:
+            occupancy[g] = _occupancy(classes, lodds, others, g)
 
 
 if numba is not None:

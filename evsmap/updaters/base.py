@@ -72,13 +72,13 @@ class FramePoints:
         self.origin = frame.pose[:3, 3].astype(np.float64)
         done = False
         if USE_KERNEL and group_points is not None:
-            keys, ok, self.voxel_codes, inverse, done = group_points(
+            self.point_voxel, ok, self.voxel_codes, done = group_points(
                 pts, 1.0 / float(resolution), KEY_OFFSET, KEY_MAX, _DENSE_BOX)
         if not done:
             keys, ok = octomap_keys(pts, resolution)
             self.voxel_codes, inverse = group_keys(keys[ok])
-        self.point_voxel = np.full(len(pts), -1, dtype=np.int64)
-        self.point_voxel[ok] = inverse
+            self.point_voxel = np.full(len(pts), -1, dtype=np.int64)
+            self.point_voxel[ok] = inverse
         origin32 = self.origin.astype(np.float32)
         if discretize:  # the range test applies to the voxel centre the point is reduced to
             self.rays = ((unpack(self.voxel_codes) - KEY_OFFSET + 0.5) * resolution
