@@ -137,19 +137,41 @@ class ClassicSemanticMap(OctreeUpdater):
         return self._labelled_query(points, "sem_classes")
 
 
+FRONT_ENDS = ("voxel-grid", "classwise")
+"""``voxel-grid``: semantic_slam as it runs (:mod:`baselines.semantic_slam`); ``classwise``:
+evsmap's cleaner variant (:class:`ClassicSemanticMap`: a class-wise mean fused once per voxel and
+frame, OctoMap's ray casting to ``max_range``, the earlier candidate winning ties)."""
+
+
 def _factory(rule: str):
     def factory(*, resolution: float = 0.05, max_range: float = 5.0, discretize: bool = True,
-                prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float = 0.1192,
-                clamp_max: float = 0.971) -> ClassicSemanticMap:
+                front_end: str = "voxel-grid", raycast_range: float = 2.0,
+                prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float | None = None,
+                clamp_max: float | None = None):
+        if front_end not in FRONT_ENDS:
+            from evsmap.errors import InvalidDataError
+
+            raise InvalidDataError(f"classic-semantic: front_end must be one of "
+                                   f"{', '.join(FRONT_ENDS)}; got {front_end!r}")
+        if front_end == "voxel-grid":
+            from baselines.semantic_slam import make
+
+            # semantic_slam's octomap_generator.yaml clamps at 0.12 / 0.97
+            return make(rule, resolution=resolution, max_range=max_range,
+                        raycast_range=raycast_range, prob_hit=prob_hit, prob_miss=prob_miss,
+                        clamp_min=0.12 if clamp_min is None else clamp_min,
+                        clamp_max=0.97 if clamp_max is None else clamp_max)
         return ClassicSemanticMap(fusion_rule=rule, resolution=resolution, max_range=max_range,
                                   discretize=discretize, prob_hit=prob_hit, prob_miss=prob_miss,
-                                  clamp_min=clamp_min, clamp_max=clamp_max)
+                                  clamp_min=0.1192 if clamp_min is None else clamp_min,
+                                  clamp_max=0.971 if clamp_max is None else clamp_max)
 
     return factory
 
 
 UPDATERS.add("classic-semantic", _factory("bayes"),
              description="[14] semantic_slam: top-3 Bayesian semantic fusion + RGB (TESAMap, "
-                         "TFEAGMap)")
+                         "TFEAGMap); -o front_end=classwise for evsmap's cleaner variant")
 UPDATERS.add("classic-semantic-max", _factory("max"),
-             description="[14] semantic_slam: max semantic fusion + RGB")
+             description="[14] semantic_slam: max semantic fusion + RGB; -o "
+                         "front_end=classwise for evsmap's cleaner variant")

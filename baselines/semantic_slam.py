@@ -1,0 +1,365 @@
+"""``classic-semantic`` as semantic_slam runs it: the "traditional voxel node update strategy" of
+EVSMaP's reference [14] (floatlazer/semantic_slam, ``octomap_generator``), the TESAMap / TFEAGMap
+rows of Table IV.
+
+One frame, as ``OctomapGenerator::insertPointCloud`` and ``semantic_cloud.py`` do it:
+
+1. **The semantic cloud** (``semantic_cloud.py``): every pixel with a valid depth becomes a point
+   in the camera frame (``float32``) with its colour, its top-3 classes as colours of the PASCAL
+   VOC colour map packed ``0x00RRGGBB`` into float fields, and their confidences (the max variant:
+   the top class and its confidence). Invalid depth is NaN in the ROS ``32FC1`` depth image the
+   node reads, so those pixels are dropped by the next step.
+2. **PCL's VoxelGrid** at the map resolution, in the camera frame: one centroid per leaf with
+   every float field averaged - the packed class colours too, so a leaf mixing classes gets a
+   colour that is none of them - and the colour through its r/g/b bytes.
+3. The centroids are moved to the world frame (``float``). A centroid beyond ``max_range``
+   (5 m) is not inserted; one beyond ``raycast_range`` (2 m) gets ``updateNode(hit)`` on its
+   voxel at once and its ray is cut at ``raycast_range + 2 * resolution`` (free space up to
+   ``raycast_range`` only); the rest are inserted with ``insertPointCloud(maxrange=raycast_range,
+   discretize=true)``. Every ``updateNode`` runs with ``lazy_eval`` false: OctoMap expands pruned
+   nodes on the way down and prunes on the way up, comparing log-odds and semantics.
+4. Every centroid, in the voxel grid's order and without a range check, then averages its colour
+   into and fuses its semantics with the node OctoMap's ``search`` returns - a pruned node takes
+   it for its whole block, a missing voxel is skipped, two centroids in one voxel fuse twice.
+5. ``updateInnerOccupancy``: inner nodes get the max log-odds, the average child colour and their
+   children's semantics fused pairwise in child order.
+
+The tree is kept as OctoMap keeps it (a node pool, :mod:`baselines.semantic_slam_kernels`), so
+its node count, pruning and file are semantic_slam's. ``published`` files are semantic_slam's
+``ColorOcTree`` (log-odds and the top semantic colour a node); ``full`` files keep the whole node
+state and reload. The defaults are semantic_slam's ``octomap_generator.yaml``: ``max_range`` 5,
+``raycast_range`` 2, clamping 0.12 / 0.97, hit 0.7, miss 0.4.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+
+import numpy as np
+
+from baselines import semantic_slam_kernels as k
+from evsmap.data import Frame, SemanticObservation
+from evsmap.errors import DataFormatError, InvalidDataError
+from evsmap.mapping.keys import pack, unpack
+from evsmap.mapping.occupancy import OccupancyMap
+from evsmap.mapping.raycast import octomap_keys, scan_keys
+from evsmap.mapping.tree import Tree
+from evsmap.updaters.base import OctreeUpdater, check_observation
+
+WHITE = k.WHITE
+FUSION_RULES = ("bayes", "max")
+
+
+def voc_colormap(n: int) -> np.ndarray:
+    """semantic_slam's ``color_map``: the PASCAL VOC colours of classes ``0..n-1`` (bits of the
+    class id spread over the high bits of r, g, b), ``uint8`` (n, 3)."""
+    ids = np.arange(int(n), dtype=np.int64)
+    out = np.zeros((len(ids), 3), dtype=np.int64)
+    c = ids.copy()
+    for j in range(8):
+        for ch in range(3):
+            out[:, ch] |= ((c >> ch) & 1) << (7 - j)
+        c >>= 3
+    return out.astype(np.uint8)
+
+
+def pack_rgb(rgb: np.ndarray) -> np.ndarray:
+    """``uint32`` ``0x00RRGGBB`` of (..., 3) ``uint8`` colours (the cloud's bgr0 bytes)."""
+    rgb = np.asarray(rgb).astype(np.uint32)
+    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+
+
+def unpack_rgb(packed: np.ndarray) -> np.ndarray:
+    """(..., 3) ``uint8`` r, g, b of ``0x00RRGGBB`` values (``getSemanticColor``)."""
+    p = np.asarray(packed).astype(np.uint32)
+    return np.stack([(p >> 16) & 0xFF, (p >> 8) & 0xFF, p & 0xFF], axis=-1).astype(np.uint8)
+
+
+class SemanticSlamMap(OctreeUpdater):
+    """semantic_slam's semantic octree, Bayesian (top 3) or max fusion.
+
+    Args:
+        fusion_rule: ``"bayes"`` (``SemanticsOcTree<SemanticsBayesian>``) or ``"max"``.
+        raycast_range: free space is cast up to here; farther points are hits without rays.
+        max_range: centroids beyond it are not inserted (their semantics still fuse into
+            existing nodes, as in semantic_slam).
+        (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`; ``discretize`` is
+        always on, as semantic_slam calls ``insertPointCloud``)
+    """
+
+    uses_semantics = True
+
+    def __init__(self, *, fusion_rule: str = "bayes", raycast_range: float = 2.0,
+                 **kwargs) -> None:
+        if fusion_rule not in FUSION_RULES:
+            raise InvalidDataError(f"unknown fusion rule {fusion_rule!r} (known: bayes, max)")
+        if not (isinstance(raycast_range, (int, float)) and np.isfinite(raycast_range)
+                and raycast_range >= 0):
+            raise InvalidDataError(f"raycast_range must be a number of metres >= 0, got "
+                                   f"{raycast_range!r}")
+        self.fusion_rule = fusion_rule
+        self.bayes = fusion_rule == "bayes"
+        self.slots = 3 if self.bayes else 1
+        self.name = "classic-semantic" if self.bayes else "classic-semantic-max"
+        self.tree_type = ("SemanticSlamOcTreeBayes" if self.bayes
+                          else "SemanticSlamOcTreeMax")
+        self.raycast_range = float(raycast_range)
+        self.default_conf = np.float32(1.0 if self.bayes else 0.0)
+        self.payload_format = np.dtype([("rgb", "u1", (3,)), ("colors", "<u4", (self.slots,)),
+                                        ("conf", "<f4", (self.slots,))])
+        self._leaves: OccupancyMap | None = None
+        self._tree: Tree | None = None
+        self.num_classes = 256
+        self.fusions = 0
+        self.centroids = 0
+        super().__init__(**kwargs)
+        p = self.params
+        self._lo = np.float32(p.clamp_min_logodds)
+        self._hi = np.float32(p.clamp_max_logodds)
+        self._hit = np.float32(p.hit_logodds)
+        self._miss = np.float32(p.miss_logodds)
+        self._allocate(1 << 12)
+
+    # ---- the node pool
+    def _allocate(self, capacity: int) -> None:
+        self._state = np.array([-1, 0, 0], dtype=np.int64)
+        self._children = np.full((capacity, 8), -1, dtype=np.int32)
+        self._value = np.zeros(capacity, dtype=np.float32)
+        self._rgb = np.full((capacity, 3), 255, dtype=np.uint8)
+        self._colors = np.full((capacity, self.slots), WHITE, dtype=np.uint32)
+        self._conf = np.full((capacity, self.slots), self.default_conf, dtype=np.float32)
+        self._free = np.zeros(capacity, dtype=np.int64)
+
+    def _grow(self) -> None:
+        cap = len(self._value) * 2
+
+        def grow(a, fill):
+            out = np.empty((cap, *a.shape[1:]), dtype=a.dtype)
+            out[:len(a)] = a
+            out[len(a):] = fill
+            return out
+
+        self._children = grow(self._children, -1)
+        self._value = grow(self._value, 0)
+        self._rgb = grow(self._rgb, 255)
+        self._colors = grow(self._colors, WHITE)
+        self._conf = grow(self._conf, self.default_conf)
+        self._free = grow(self._free, 0)
+
+    def _pool(self):
+        return (self._state, self._children, self._value, self._rgb, self._colors, self._conf)
+
+    def _update(self, keys: np.ndarray, hits: np.ndarray) -> None:
+        keys = np.ascontiguousarray(keys, dtype=np.int64).reshape(-1, 3)
+        hits = np.ascontiguousarray(hits, dtype=np.bool_)
+        start = 0
+        while start < len(keys):
+            start = k.update_nodes(keys, hits, start, *self._pool(), self._free, self._hit,
+                                   self._miss, self._lo, self._hi, self.default_conf)
+            if start < len(keys):
+                self._grow()
+
+    @property
+    def num_nodes(self) -> int:
+        return int(self._state[k.USED] - self._state[k.FREE_TOP])
+
+    def memory_nbytes(self) -> int:
+        """Bytes of the arrays holding the tree's nodes (the pool's used rows)."""
+        used = int(self._state[k.USED])
+        per_row = sum(a[:1].nbytes for a in (self._children, self._value, self._rgb,
+                                              self._colors, self._conf))
+        return used * per_row
+
+    # ---- the leaf view (queries, PLY, scores) is built from the tree when asked for
+    @property
+    def map(self) -> OccupancyMap:
+        if self._leaves is None:
+            self._leaves = self._materialize()
+        return self._leaves
+
+    @map.setter
+    def map(self, value: OccupancyMap) -> None:
+        self._leaves = value
+
+    def _materialize(self) -> OccupancyMap:
+        tree = self.tree()
+        out = OccupancyMap(self.resolution, self.params)
+        if tree.num_nodes:
+            codes, values, payload = tree.expand()
+            out = OccupancyMap.from_leaves(self.resolution, codes, values, self.params)
+            order = np.argsort(codes, kind="stable")
+            payload = payload[order]
+        else:
+            payload = np.zeros(0, dtype=self.payload_format)
+        out.add_payload("rgb", np.uint8, (3,), fill=255)[:] = payload["rgb"]
+        out.add_payload("sem_colors", np.uint32, (self.slots,), fill=WHITE)[:] = \
+            payload["colors"].reshape(-1, self.slots)
+        out.add_payload("sem_classes", np.int16, (self.slots,), fill=-1)[:] = \
+            self.colour_classes(payload["colors"].reshape(-1, self.slots))
+        return out
+
+    def colour_classes(self, colours: np.ndarray) -> np.ndarray:
+        """Class ids of packed semantic colours under the VOC colour map; -1 for white and for
+        colours that are no class's (an averaged colour)."""
+        table = pack_rgb(voc_colormap(self.num_classes))
+        order = np.argsort(table, kind="stable")
+        sorted_table = table[order]
+        c = np.asarray(colours, dtype=np.uint32)
+        pos = np.clip(np.searchsorted(sorted_table, c), 0, len(table) - 1)
+        hit = sorted_table[pos] == c
+        return np.where(hit, order[pos], -1).astype(np.int16)
+
+    def _stale(self) -> None:
+        self._leaves = None
+        self._tree = None
+
+    # ---- MapUpdater
+    def _init_payloads(self) -> None:
+        pass
+
+    def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
+        observation = check_observation(frame, observation, self.name)
+        self.num_classes = max(self.num_classes if self.frames else 0,
+                               int(observation.num_classes))
+        cam, pixels = self._camera_points(frame)
+        # the cloud's float fields: packed class colours (as float bits) and confidences
+        slots = self.slots
+        cls = observation.classes.reshape(-1, observation.k)[pixels][:, :slots]
+        prb = observation.probs.reshape(-1, observation.k)[pixels][:, :slots]
+        if cls.shape[1] < slots:  # fewer classes than slots: white with confidence 0
+            pad = slots - cls.shape[1]
+            cls = np.concatenate([cls, np.full((len(cls), pad), -1, cls.dtype)], axis=1)
+            prb = np.concatenate([prb, np.zeros((len(prb), pad), prb.dtype)], axis=1)
+        palette = pack_rgb(voc_colormap(self.num_classes))
+        colours = np.where(cls >= 0, palette[np.clip(cls, 0, None)], np.uint32(WHITE))
+        fields = np.concatenate([colours.astype(np.uint32).view(np.float32),
+                                 prb.astype(np.float32)], axis=1)
+        colors = frame.colors()
+        rgb = (np.zeros((len(pixels), 3), np.uint8) if colors is None
+               else np.ascontiguousarray(colors[pixels], dtype=np.uint8))
+        inverse = np.float32(np.float32(1.0) / np.float32(self.resolution))
+        cent, avg, cent_rgb = k.voxel_grid(np.ascontiguousarray(cam), inverse,
+                                           np.ascontiguousarray(fields), rgb)
+        self.centroids += len(cent)
+        world, origin = self._to_world(cent, frame.pose)
+        d = world - origin
+        dist = np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
+        inside = dist.astype(np.float64) <= self.max_range
+        near = inside & (dist.astype(np.float64) <= self.raycast_range)
+        far = inside & ~near
+        ends = world.copy()
+        if far.any():
+            # point3d::normalized (float norm, double sqrt, divide by the float length), then
+            # origin + direction * float(raycast_range + 2 res)
+            df = d[far]
+            length = np.sqrt(((df[:, 0] * df[:, 0] + df[:, 1] * df[:, 1])
+                              + df[:, 2] * df[:, 2]).astype(np.float64)).astype(np.float32)
+            direction = df / length[:, None]
+            scale = np.float32(self.raycast_range + self.resolution * 2)
+            ends[far] = origin + direction * scale
+            fk, fok = octomap_keys(world[far], self.resolution)
+            self._update(fk[fok], np.ones(int(fok.sum()), dtype=bool))
+        cloud = ends[inside]
+        if len(cloud):
+            keys = scan_keys(cloud, origin.astype(np.float64), self.resolution,
+                             max_range=self.raycast_range, discretize=True)
+            self._update(unpack(keys.free), np.zeros(len(keys.free), dtype=bool))
+            self._update(unpack(keys.occupied), np.ones(len(keys.occupied), dtype=bool))
+        # colours and semantics of every centroid, in the voxel grid's order
+        ck, cok = octomap_keys(world, self.resolution)
+        sem = np.ascontiguousarray(avg[:, :slots]).view(np.uint32)
+        conf = np.ascontiguousarray(avg[:, slots:])
+        self.fusions += int(k.fuse_points(ck, cok, cent_rgb, sem, conf, colors is not None,
+                                          *self._pool(), self.bayes))
+        self.frames += 1
+        self._stale()
+
+    def _camera_points(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """(float32 camera-frame points of the valid depth pixels, their flat indices)."""
+        if frame.is_cloud:
+            raise InvalidDataError(f"{self.name}: semantic_slam builds its cloud from a depth "
+                                   f"image; frame {frame.name!r} is a point cloud")
+        depth = frame.depth
+        valid = np.isfinite(depth) & (depth > 0)
+        pixels = np.flatnonzero(valid)
+        v, u = np.divmod(pixels, depth.shape[1])
+        z = depth.ravel()[pixels].astype(np.float64)
+        i = frame.intrinsics
+        x = (u - i.cx) / i.fx * z
+        y = (v - i.cy) / i.fy * z
+        return np.stack([x, y, z], axis=1).astype(np.float32), pixels
+
+    @staticmethod
+    def _to_world(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``pcl::transformPointCloud`` with a ``Matrix4f``: each coordinate summed left to
+        right in ``float``; and the origin as ``point3d``."""
+        m = np.asarray(pose, dtype=np.float64).astype(np.float32)
+        out = np.empty_like(points)
+        for a in range(3):
+            out[:, a] = ((m[a, 0] * points[:, 0] + m[a, 1] * points[:, 1])
+                         + m[a, 2] * points[:, 2]) + m[a, 3]
+        return out, m[:3, 3].copy()
+
+    # ---- the tree, files
+    def tree(self) -> Tree:
+        if self._tree is None:
+            depth, keys, mask, value, rgb, colors, conf = k.export(
+                *self._pool(), self.bayes, self.default_conf)
+            payload = np.empty(len(depth), dtype=self.payload_format)
+            payload["rgb"] = rgb
+            payload["colors"] = colors.reshape(len(depth), self.slots)
+            payload["conf"] = conf.reshape(len(depth), self.slots)
+            self._tree = Tree(depth.astype(np.uint8), pack(keys), mask.astype(np.uint8),
+                              value.astype(np.float32), payload)
+        return self._tree
+
+    def _payload_format(self):
+        return self.payload_format
+
+    def _published_tree(self, tree: Tree):
+        """semantic_slam's file: ``writeData`` writes the log-odds and ``getSemanticColor`` (the
+        first semantic colour; white when unset) of every node under the type ``ColorOcTree``."""
+        from dataclasses import replace
+
+        top = np.asarray(tree.payload["colors"]).reshape(tree.num_nodes, self.slots)[:, 0]
+        return "ColorOcTree", replace(tree, payload=unpack_rgb(top)), None
+
+    def _node_bytes(self) -> int:
+        # semantic_slam's node in RAM: a max node 32 B, a Bayesian node 48 B
+        return 48 if self.bayes else 32
+
+    def restore(self, path: str | PathLike[str]) -> SemanticSlamMap:
+        from evsmap.mapping.octree_io import read_ot
+
+        kind, resolution, tree = read_ot(path, payload_format={self.tree_type:
+                                                               self.payload_format})
+        if kind != self.tree_type:
+            raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
+        if not np.isclose(resolution, self.resolution, rtol=1e-9, atol=0):
+            raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "
+                                  f"{self.resolution} m")
+        n = tree.num_nodes
+        self._allocate(max(n + k.HEADROOM, 1 << 12))
+        if n:
+            parents = tree.parents()
+            index = tree.child_index()
+            rows = np.arange(1, n)
+            self._children[parents[rows], index[rows]] = rows
+            self._value[:n] = tree.value
+            self._rgb[:n] = tree.payload["rgb"]
+            self._colors[:n] = tree.payload["colors"].reshape(n, self.slots)
+            self._conf[:n] = tree.payload["conf"].reshape(n, self.slots)
+            self._state[:] = (0, n, 0)
+        self._stale()
+        return self
+
+    def query(self, points: np.ndarray):
+        return self._labelled_query(points, "sem_classes")
+
+
+def make(rule: str, *, resolution: float, max_range: float, raycast_range: float,
+         prob_hit: float, prob_miss: float, clamp_min: float, clamp_max: float
+         ) -> SemanticSlamMap:
+    return SemanticSlamMap(fusion_rule=rule, raycast_range=raycast_range, resolution=resolution,
+                           max_range=max_range, discretize=True, prob_hit=prob_hit,
+                           prob_miss=prob_miss, clamp_min=clamp_min, clamp_max=clamp_max)
