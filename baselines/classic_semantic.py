@@ -114,19 +114,19 @@ class ClassicSemanticMap(OctreeUpdater):
 
     def _published_tree(self, tree):
         """semantic_slam's own file: its node type reports ``ColorOcTree`` and ``writeData``
-        writes the float log-odds and the top class's colour (``getSemanticColor``: white,
+        writes the float log-odds and the top class's colour (semantic_slam's VOC colour map; ``getSemanticColor``: white,
         255/255/255, for a node without semantics), 8 bytes a node with the child mask; any
         OctoMap tool opens it. Inner nodes show the top class of their semantics here (the
         strongest child's; semantic_slam fuses the children)."""
         from dataclasses import replace
 
-        from evsmap.classes import palette
+        from baselines.semantic_slam import voc_colormap
 
         top = np.asarray(tree.payload["classes"])[:, 0].astype(np.int64)
         colours = np.full((len(top), 3), 255, dtype=np.uint8)
         known = top >= 0
         if known.any():
-            colours[known] = palette(int(top.max()) + 1)[top[known]]
+            colours[known] = voc_colormap(int(top.max()) + 1)[top[known]]
         return "ColorOcTree", replace(tree, payload=colours), None
 
     def _node_bytes(self) -> int:

@@ -189,4 +189,8 @@ def _quality_lines(q: dict[str, Any] | None) -> list[str]:
         lines.append(f"semantics    accuracy {_pct(q['semantic_accuracy'])}, mIoU "
                      f"{_pct(q['map_miou'])} over {q['matched'] - q['unlabelled']:,} matched "
                      f"labelled leaves")
+        if q.get("unlabelled"):
+            lines.append(f"             {q['unlabelled']:,} matched leaves hold no class; "
+                         f"counted as wrong the accuracy is "
+                         f"{_pct(q['semantic_accuracy_all'])}")
     return lines

@@ -89,6 +89,19 @@ def pruned_share(updater: MapUpdater) -> float | None:
     return 1.0 - finest / int(leaves)
 
 
+def memory_nbytes(updater: MapUpdater) -> int | None:
+    """Bytes of the arrays that hold the map in evsmap (its own ``memory_nbytes()``, else the
+    leaf arrays of an octree updater: codes, log-odds and payloads), or None when unknown."""
+    own = getattr(updater, "memory_nbytes", None)
+    if callable(own):
+        return int(own())
+    leaves = getattr(updater, "map", None)
+    if leaves is None or not hasattr(leaves, "payload_names"):
+        return None
+    arrays = [leaves.codes, leaves.logodds] + [leaves.payload(n) for n in leaves.payload_names]
+    return int(sum(a.nbytes for a in arrays))
+
+
 def map_sizes(updater: MapUpdater) -> dict[str, int]:
     """The ``.ot`` size of the map in each file format, written to a temporary folder."""
     with tempfile.TemporaryDirectory() as tmp:

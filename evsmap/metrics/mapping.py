@@ -51,6 +51,8 @@ class MapQuality:
         semantic_accuracy: matched labelled leaves whose class is the ground truth's / all of
             them (``None`` for updaters without semantics).
         map_miou: mIoU of the same matrix (``None`` without semantics).
+        semantic_accuracy_all: matched leaves whose class is the ground truth's / all matched
+            leaves, a leaf without a class counting as wrong (``None`` without semantics).
         semantics: the full :class:`SegmentationResult` of the matched leaves, or ``None``.
     """
 
@@ -66,12 +68,14 @@ class MapQuality:
     unlabelled: int = 0
     semantic_accuracy: float | None = None
     map_miou: float | None = None
+    semantic_accuracy_all: float | None = None
     semantics: SegmentationResult | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict:
         out = {k: getattr(self, k) for k in (
             "resolution", "slack_voxels", "occupied", "ground_truth", "observed", "precision",
-            "recall", "recall_total", "matched", "unlabelled", "semantic_accuracy", "map_miou")}
+            "recall", "recall_total", "matched", "unlabelled", "semantic_accuracy", "map_miou",
+            "semantic_accuracy_all")}
         for k, v in out.items():
             if isinstance(v, float) and np.isnan(v):
                 out[k] = None
@@ -187,4 +191,5 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
     result = cm.result()
     return MapQuality(**quality, unlabelled=int(np.count_nonzero(~labelled)),
                       semantic_accuracy=result.pixel_accuracy, map_miou=result.miou,
+                      semantic_accuracy_all=_ratio(np.count_nonzero(pred == truth), len(pred)),
                       semantics=result)

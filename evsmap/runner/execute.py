@@ -230,16 +230,29 @@ class MappingRun:
         return f"extra/mapping/{self.row}/{self.sequence}@{self.voxel_size:g}m"
 
 
+VARIANT_ROWS = {"tfeagmap": ("-classwise", "TFEAGMap, classwise variant",
+                              {"front_end": "classwise"})}
+"""Table IV rows also mapped with a named variant of their updater (row suffix, label, options):
+TFEAGMap with evsmap's classwise classic-semantic beside semantic_slam's own pipeline, so the
+report shows what semantic_slam's front end, ray casting and fusion details cost."""
+
+
 def mapping_runs(sequences: list[str], voxel_size: float) -> list[MappingRun]:
-    """Table IV's systems plus the C++ OctoMap reference on each of ``sequences``."""
+    """Table IV's systems (and :data:`VARIANT_ROWS`) plus the C++ OctoMap reference on each of
+    ``sequences``."""
     table = load_tables()["table4"]
     runs = []
     for seq in sequences:
         for system in table.rows:
             if system.implemented and system.updater is not None:
-                runs.append(MappingRun(system.id, system.label,
-                                       system.segmenter_for(MAPPING_WEIGHTS), system.updater,
+                segmenter = system.segmenter_for(MAPPING_WEIGHTS)
+                runs.append(MappingRun(system.id, system.label, segmenter, system.updater,
                                        seq, voxel_size))
+                if system.id in VARIANT_ROWS:
+                    suffix, label, options = VARIANT_ROWS[system.id]
+                    runs.append(MappingRun(system.id + suffix, label, segmenter,
+                                           system.updater.with_options(options), seq,
+                                           voxel_size))
         runs.append(MappingRun(REFERENCE_ROW, "OctoMap (C++)", None, Component("octomap-cpp"),
                                seq, voxel_size))
     return runs
@@ -370,7 +383,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         t0 = time.perf_counter()
         updater.integrate(frame, obs)
         update_ms.append((time.perf_counter() - t0) * 1000.0)
-    from evsmap.measure.mapping import map_sizes, pruned_share
+    from evsmap.measure.mapping import map_sizes, memory_nbytes, pruned_share
 
     stats = updater.stats()
     sizes = map_sizes(updater)  # Table IV's "Map Size": the file each system itself writes
@@ -382,6 +395,9 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         "end_to_end_hz": float(1000.0 / np.median(total)), "map_bytes": float(map_bytes),
         "map_bytes_full": float(sizes["full"]), "memory_bytes": float(stats.memory_bytes),
         "nodes": float(stats.nodes), "leaves": float(stats.leaves)}
+    measured = memory_nbytes(updater)
+    if measured is not None:
+        values["memory_nbytes"] = float(measured)
     share = pruned_share(updater)
     if share is not None:
         values["pruned_share"] = float(share)
@@ -398,7 +414,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         quality = evaluate_map(updater, truth)
         q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
         details["quality"] = q
-        for name in ("precision", "recall", "semantic_accuracy", "map_miou"):
+        for name in ("precision", "recall", "semantic_accuracy", "semantic_accuracy_all",
+                     "map_miou"):
             if q.get(name) is not None and np.isfinite(q[name]):
                 values[name] = float(q[name])
         _save_map_artifact(updater, run, ctx)
