@@ -224,22 +224,16 @@ class SemanticSlamMap(OctreeUpdater):
         cam, pixels = self._camera_points(frame)
         # the cloud's float fields: packed class colours (as float bits) and confidences
         slots = self.slots
-        cls = observation.classes.reshape(-1, observation.k)[pixels][:, :slots]
-        prb = observation.probs.reshape(-1, observation.k)[pixels][:, :slots]
-        if cls.shape[1] < slots:  # fewer classes than slots: white with confidence 0
-            pad = slots - cls.shape[1]
-            cls = np.concatenate([cls, np.full((len(cls), pad), -1, cls.dtype)], axis=1)
-            prb = np.concatenate([prb, np.zeros((len(prb), pad), prb.dtype)], axis=1)
         palette = pack_rgb(voc_colormap(self.num_classes))
-        colours = np.where(cls >= 0, palette[np.clip(cls, 0, None)], np.uint32(WHITE))
-        fields = np.concatenate([colours.astype(np.uint32).view(np.float32),
-                                 prb.astype(np.float32)], axis=1)
         colors = frame.colors()
-        rgb = (np.zeros((len(pixels), 3), np.uint8) if colors is None
-               else np.ascontiguousarray(colors[pixels], dtype=np.uint8))
+        fields, rgb = k.cloud_fields(
+            pixels, np.ascontiguousarray(observation.classes.reshape(-1, observation.k)),
+            np.ascontiguousarray(observation.probs.reshape(-1, observation.k), np.float32),
+            slots, palette,
+            np.zeros((0, 3), np.uint8) if colors is None
+            else np.ascontiguousarray(colors.reshape(-1, 3), np.uint8))
         inverse = np.float32(np.float32(1.0) / np.float32(self.resolution))
-        cent, avg, cent_rgb = k.voxel_grid(np.ascontiguousarray(cam), inverse,
-                                           np.ascontiguousarray(fields), rgb)
+        cent, avg, cent_rgb = k.voxel_grid(cam, inverse, fields, rgb)
         self.centroids += len(cent)
         world, origin = self._to_world(cent, frame.pose)
         d = world - origin

@@ -39,6 +39,10 @@ HEADROOM = 16 * 8 + 16
 
 
 # ----------------------------------------------------------------------------- voxel grid
+DENSE_CELLS = 1 << 24
+"""Largest voxel-grid box numbered through a dense table; larger boxes are sorted."""
+
+
 @njit(cache=True, nogil=True)
 def voxel_grid(points, inverse_leaf, fields, rgb):
     """PCL ``VoxelGrid`` of float32 ``points`` (N, 3), leaf ``1 / inverse_leaf`` (float32).
@@ -53,66 +57,104 @@ def voxel_grid(points, inverse_leaf, fields, rgb):
     Returns:
         ``(centroids (M, 3) float32, fields (M, F) float32, rgb (M, 3) uint8)`` in PCL's output
         order (leaf index ``i + j * nx + k * nx * ny`` ascending). PCL sorts with ``std::sort``,
-        which leaves the order of one leaf's points unspecified; here they are summed in input
-        order.
+        which leaves the order of one leaf's points unspecified; here each leaf sums its points
+        in input order.
     """
     n = points.shape[0]
     f = fields.shape[1]
-    lo = np.full(3, np.inf, dtype=np.float32)
-    hi = np.full(3, -np.inf, dtype=np.float32)
-    for i in range(n):
-        for a in range(3):
-            v = points[i, a]
-            if v < lo[a]:
-                lo[a] = v
-            if v > hi[a]:
-                hi[a] = v
     if n == 0:
         return (np.zeros((0, 3), np.float32), np.zeros((0, f), np.float32),
                 np.zeros((0, 3), np.uint8))
-    min_b = np.empty(3, np.int64)
-    div = np.empty(3, np.int64)
-    for a in range(3):
-        min_b[a] = np.int64(np.floor(np.float32(lo[a] * inverse_leaf)))
-        div[a] = np.int64(np.floor(np.float32(hi[a] * inverse_leaf))) - min_b[a] + 1
+    lo0, lo1, lo2 = points[0, 0], points[0, 1], points[0, 2]
+    hi0, hi1, hi2 = lo0, lo1, lo2
+    for i in range(n):
+        lo0, hi0 = min(lo0, points[i, 0]), max(hi0, points[i, 0])
+        lo1, hi1 = min(lo1, points[i, 1]), max(hi1, points[i, 1])
+        lo2, hi2 = min(lo2, points[i, 2]), max(hi2, points[i, 2])
+    b0 = np.int64(np.floor(np.float32(lo0 * inverse_leaf)))
+    b1 = np.int64(np.floor(np.float32(lo1 * inverse_leaf)))
+    b2 = np.int64(np.floor(np.float32(lo2 * inverse_leaf)))
+    d0 = np.int64(np.floor(np.float32(hi0 * inverse_leaf))) - b0 + 1
+    d1 = np.int64(np.floor(np.float32(hi1 * inverse_leaf))) - b1 + 1
+    d2 = np.int64(np.floor(np.float32(hi2 * inverse_leaf))) - b2 + 1
     idx = np.empty(n, np.int64)
     for i in range(n):
-        c = np.empty(3, np.int64)
+        i0 = np.int64(np.floor(np.float32(points[i, 0] * inverse_leaf))) - b0
+        i1 = np.int64(np.floor(np.float32(points[i, 1] * inverse_leaf))) - b1
+        i2 = np.int64(np.floor(np.float32(points[i, 2] * inverse_leaf))) - b2
+        idx[i] = i0 + i1 * d0 + i2 * d0 * d1
+    # number the occupied leaves in index order
+    cell = np.empty(n, np.int64)
+    size = d0 * d1 * d2
+    if size <= DENSE_CELLS:
+        table = np.zeros(size, np.int32)
+        for i in range(n):
+            table[idx[i]] = 1
+        m = 0
+        for c in range(size):
+            if table[c]:
+                m += 1
+                table[c] = m
+        for i in range(n):
+            cell[i] = table[idx[i]] - 1
+    else:
+        order = np.argsort(idx, kind="mergesort")
+        m = 0
+        for t in range(n):
+            if t > 0 and idx[order[t]] != idx[order[t - 1]]:
+                m += 1
+            cell[order[t]] = m
+        m += 1
+    width = 3 + f + 3
+    acc = np.zeros((m, width), np.float32)
+    count = np.zeros(m, np.int64)
+    for i in range(n):  # each leaf's sums run over its points in input order
+        c = cell[i]
+        count[c] += 1
         for a in range(3):
-            c[a] = np.int64(np.floor(np.float32(points[i, a] * inverse_leaf))) - min_b[a]
-        idx[i] = c[0] + c[1] * div[0] + c[2] * div[0] * div[1]
-    order = np.argsort(idx, kind="mergesort")
-    m = 0
-    for t in range(n):
-        if t == 0 or idx[order[t]] != idx[order[t - 1]]:
-            m += 1
+            acc[c, a] = np.float32(acc[c, a] + points[i, a])
+        for q in range(f):
+            acc[c, 3 + q] = np.float32(acc[c, 3 + q] + fields[i, q])
+        for q in range(3):
+            acc[c, 3 + f + q] = np.float32(acc[c, 3 + f + q] + np.float32(rgb[i, q]))
     out_p = np.empty((m, 3), np.float32)
     out_f = np.empty((m, f), np.float32)
     out_rgb = np.empty((m, 3), np.uint8)
-    acc = np.zeros(3 + f + 4, np.float32)
-    t = 0
-    j = 0
-    while t < n:
-        s = t
-        acc[:] = 0
-        while t < n and idx[order[t]] == idx[order[s]]:
-            p = order[t]
-            for a in range(3):
-                acc[a] = np.float32(acc[a] + points[p, a])
-            for q in range(f):
-                acc[3 + q] = np.float32(acc[3 + q] + fields[p, q])
-            for q in range(3):
-                acc[3 + f + q] = np.float32(acc[3 + f + q] + np.float32(rgb[p, q]))
-            t += 1
-        count = np.float32(t - s)
+    for j in range(m):
+        cnt = np.float32(count[j])
         for a in range(3):
-            out_p[j, a] = np.float32(acc[a] / count)
+            out_p[j, a] = np.float32(acc[j, a] / cnt)
         for q in range(f):
-            out_f[j, q] = np.float32(acc[3 + q] / count)
+            out_f[j, q] = np.float32(acc[j, 3 + q] / cnt)
         for q in range(3):
-            out_rgb[j, q] = np.uint8(np.int64(np.float32(acc[3 + f + q] / count)) & 0xFF)
-        j += 1
+            out_rgb[j, q] = np.uint8(np.int64(np.float32(acc[j, 3 + f + q] / cnt)) & 0xFF)
     return out_p, out_f, out_rgb
+
+
+@njit(cache=True, nogil=True)
+def cloud_fields(pixels, classes, probs, slots, palette, colours_hw3):
+    """semantic_cloud.py's per-point fields for the points at flat ``pixels``: float32 (N,
+    2 * slots) - the top ``slots`` classes as packed ``palette`` colours (float bits; white
+    for a missing class) then their confidences (0 when missing) - and the points' uint8
+    colours (N, 3) (zeros when ``colours_hw3`` is empty)."""
+    n = pixels.shape[0]
+    k = classes.shape[1]
+    fields = np.zeros((n, 2 * slots), np.float32)
+    bits = fields.view(np.uint32)
+    rgb = np.zeros((n, 3), np.uint8)
+    has_rgb = colours_hw3.shape[0] > 0
+    for i in range(n):
+        p = pixels[i]
+        for s in range(slots):
+            if s < k and classes[p, s] >= 0:
+                bits[i, s] = palette[classes[p, s]]
+                fields[i, slots + s] = probs[p, s]
+            else:
+                bits[i, s] = WHITE
+        if has_rgb:
+            for a in range(3):
+                rgb[i, a] = colours_hw3[p, a]
+    return fields, rgb
 
 
 # ----------------------------------------------------------------------------- fusion
