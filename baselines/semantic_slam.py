@@ -95,7 +95,7 @@ class SemanticSlamMap(OctreeUpdater):
             raise InvalidDataError(f"unknown fusion rule {fusion_rule!r} (known: bayes, max)")
         if not (isinstance(raycast_range, (int, float)) and np.isfinite(raycast_range)
                 and raycast_range >= 0):
-            raise InvalidDataError(f"raycast_range must be a number of metres >= 0, got "
+            raise InvalidDataError(f"classic-semantic: raycast_range must be a number of metres >= 0, got "
                                    f"{raycast_range!r}")
         self.fusion_rule = fusion_rule
         self.bayes = fusion_rule == "bayes"

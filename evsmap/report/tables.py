@@ -414,9 +414,39 @@ def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
                     cells.append(format_number(value / div, dec))
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
+        out += size_claim_lines(recs)
         if notes.texts:
             out += notes.markdown() + [""]
     return out + (proxy_mapping_markdown(proxy) if proxy else [])
+
+
+SIZE_CLAIM = ("tfeagmap", "evsmap", 2.6)
+"""Table IV's map-size claim as this report checks it: (compared row, EVSMap's row, the paper's
+"up to" factor by which EVSMap's map is smaller)."""
+
+
+def size_claim_lines(recs: Iterable[CellRecord]) -> list[str]:
+    """One paragraph on the paper's map-size claim for one sequence: the ratio of the two
+    published files and what makes it (bytes a node, nodes), when both rows were measured."""
+    by_row = {r.row: r for r in recs if r.status == "ok"}
+    other, ours, factor = SIZE_CLAIM
+    if other not in by_row or ours not in by_row:
+        return []
+    a, b = by_row[other].values, by_row[ours].values
+    size_a, size_b = _number(a.get("map_bytes")), _number(b.get("map_bytes"))
+    nodes_a, nodes_b = _number(a.get("nodes")), _number(b.get("nodes"))
+    if not (size_a and size_b and nodes_a and nodes_b):
+        return []
+    ratio = size_a / size_b
+    verdict = ("reproduces" if ratio >= factor else
+               "does not reproduce" + (" (EVSMap's map is smaller, by less)" if ratio > 1 else
+                                       ": EVSMap's map is the larger one"))
+    label_a, label_b = by_row[other].label or other, by_row[ours].label or ours
+    return [f"Map size, {label_a} / {label_b} (each the file the system itself writes): "
+            f"{ratio:.2f}x. The paper reports EVSMap's map up to {factor:g}x smaller; here "
+            f"that {verdict}. Bytes a node in the file: {size_a / nodes_a:.1f} against "
+            f"{size_b / nodes_b:.1f}; nodes: {int(nodes_a):,} against {int(nodes_b):,} "
+            f"({nodes_b / nodes_a:.2f}x).", ""]
 
 
 def _is_proxy(record: CellRecord) -> bool:

@@ -208,3 +208,23 @@ def test_extra_frame_base_units():
 def test_spec_key_helper_matches_expand():
     assert spec_key("table1", "feagnet-v2", "complexity") == \
         "table1/feagnet-v2/complexity@640x480[params,flops]"
+
+
+def test_size_claim_says_plainly_whether_it_reproduces():
+    from evsmap.report.tables import size_claim_lines
+
+    from conftest import extra
+
+    def pair(slam_bytes, slam_nodes, ev_bytes, ev_nodes):
+        return [extra("tfeagmap", "TFEAGMap", "tum", "ok",
+                      values={"map_bytes": slam_bytes, "nodes": slam_nodes}),
+                extra("evsmap", "MVSMMap", "tum", "ok",
+                      values={"map_bytes": ev_bytes, "nodes": ev_nodes})]
+
+    text = size_claim_lines(pair(81_000, 10_000, 554_000, 23_000))[0]
+    assert "0.15x" in text and "does not reproduce: EVSMap's map is the larger one" in text
+    assert "Bytes a node in the file: 8.1 against 24.1" in text and "(2.30x)" in text
+    assert "that reproduces" in size_claim_lines(pair(3e6, 1e5, 1e6, 4e4))[0]
+    assert "smaller, by less" in size_claim_lines(pair(2e6, 1e5, 1e6, 4e4))[0]
+    # one side missing or not measured: nothing to say
+    assert size_claim_lines(pair(81_000, 10_000, 554_000, 23_000)[:1]) == []
