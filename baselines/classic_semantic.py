@@ -156,6 +156,13 @@ def _factory(rule: str):
         if front_end == "voxel-grid":
             from baselines.semantic_slam import make
 
+            if not discretize:
+                from evsmap.errors import InvalidDataError
+
+                raise InvalidDataError("classic-semantic: semantic_slam always inserts with "
+                                       "discretize on; use -o front_end=classwise for "
+                                       "discretize=false")
+
             # semantic_slam's octomap_generator.yaml clamps at 0.12 / 0.97
             return make(rule, resolution=resolution, max_range=max_range,
                         raycast_range=raycast_range, prob_hit=prob_hit, prob_miss=prob_miss,

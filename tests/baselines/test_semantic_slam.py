@@ -78,6 +78,73 @@ def test_max_fusion_rules():
     assert c == [9]
 
 
+def _reference_bayes(s1, s2):
+    """SemanticsBayesian::semanticFusion transcribed line by line with numpy float32 scalars
+    (double constants promoted as C++ does), independent of the compiled kernel."""
+    alpha, eps = 0.8, 0.001
+    colors = [c for c, _ in s1]
+    conf = [f32(f) for _, f in s1]
+    conf2 = []
+    o1, o2 = f32(1.0), f32(1.0)
+    for i in range(3):
+        o1 = f32(o1 - f32(s1[i][1]))
+        o2 = f32(o2 - f32(s2[i][1]))
+    if float(o1) <= eps:
+        o1 = f32(eps)
+    if float(o2) <= eps:
+        o2 = f32(eps)
+    for i in range(3):
+        match = [f32(f) for c, f in s2 if c == colors[i]]
+        if match:
+            conf2.append(match[0])
+        else:
+            conf2.append(f32(alpha * float(o2)))
+            o2 = f32(float(o2) - alpha * float(o2))
+    for c, f in s2:
+        if c not in colors[:3]:
+            colors.append(c)
+            conf.append(f32(alpha * float(o1)))
+            o1 = f32(float(o1) - alpha * float(o1))
+            conf2.append(f32(f))
+    total = f32(o1 * o2)
+    for i in range(len(colors)):
+        conf[i] = f32(conf[i] * conf2[i])
+        total = f32(total + conf[i])
+    for i in range(len(colors)):
+        conf[i] = f32(conf[i] / total)
+        if float(conf[i]) < eps:
+            conf[i] = f32(eps)
+    ranked = sorted(zip(conf, range(len(colors))), key=lambda t: t[0])  # stable ascending
+    return [(colors[i], c) for c, i in ranked[::-1][:3]]
+
+
+def test_bayes_fusion_sequences_match_the_transcribed_cpp():
+    """Long fusion sequences of one voxel - agreeing runs that push confidences to the EPSILON
+    floors, contrary runs, classes entering and leaving, exact ties - compiled kernel against
+    a line-by-line transcription, bit for bit."""
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        state = None
+        for _ in range(25):
+            if rng.random() < 0.3:  # exact ties: equal confidences
+                obs_c = rng.choice(6, 3, replace=False)
+                obs_f = np.full(3, f32(rng.choice([0.2, 0.3, 0.25])))
+            else:
+                obs_c = rng.choice(6, 3, replace=False) if rng.random() < 0.5 else \
+                    np.array([1, 2, 3])
+                obs_f = np.sort(rng.dirichlet([4, 1, 1, 1])[:3])[::-1].astype(np.float32)
+            obs = [(int(c), f32(f)) for c, f in zip(obs_c, obs_f, strict=True)]
+            if state is None:
+                state = obs
+                continue
+            want = _reference_bayes(state, obs)
+            c, f = _fuse("bayes", [c for c, _ in state], [v for _, v in state],
+                         [c for c, _ in obs], [v for _, v in obs])
+            assert c == [w[0] for w in want]
+            assert f.tolist() == [float(w[1]) for w in want]
+            state = list(zip(c, f.tolist(), strict=True))
+
+
 # ------------------------------------------------------------------------------ voxel grid
 def test_voxel_grid_averages_packed_colours_as_floats():
     voc = pack_rgb(voc_colormap(40))
@@ -257,6 +324,9 @@ def test_bad_options_are_one_clear_error():
         UPDATERS.create("classic-semantic", front_end="pcl")
     with pytest.raises(InvalidDataError, match="raycast_range"):
         UPDATERS.create("classic-semantic", raycast_range=-1.0)
+    with pytest.raises(InvalidDataError, match="discretize"):
+        UPDATERS.create("classic-semantic-max", discretize=False)
+    UPDATERS.create("classic-semantic", discretize=False, front_end="classwise")
 
 
 def test_unpack_inverts_pack():
