@@ -3,7 +3,7 @@ import re
 
 import pandas as pd
 import pytest
-from conftest import make_records, spec_key
+from conftest import extra, make_records, spec_key
 
 from evsmap.report.tables import (
     FRAME_COLUMNS,
@@ -212,8 +212,6 @@ def test_spec_key_helper_matches_expand():
 
 def test_size_claim_says_plainly_whether_it_reproduces():
     from evsmap.report.tables import size_claim_lines
-
-    from conftest import extra
 
     def pair(slam_bytes, slam_nodes, ev_bytes, ev_nodes):
         return [extra("tfeagmap", "TFEAGMap", "tum", "ok",
