@@ -147,6 +147,7 @@ class Registry(Generic[T]):
                     f"{self.kind} {name!r} has no option {', '.join(map(repr, unknown))} "
                     f"(accepted: {accepted})"
                 )
+        _check_option_types(self.kind, name, entry.factory, config)
         return entry.factory(**config)
 
     def names(self) -> list[str]:
@@ -166,6 +167,48 @@ class Registry(Generic[T]):
 
     def __len__(self) -> int:
         return len(self.names())
+
+
+_TYPE_WORDS = {float: "a number", int: "an integer", bool: "true or false", str: "a text"}
+
+
+def _accepts(hint: Any, value: Any) -> bool | None:
+    """Whether ``value`` fits the annotation ``hint`` (None: the hint is not one we check)."""
+    import types
+    import typing
+
+    if hint in (float, int):
+        ok = isinstance(value, (int, float)) if hint is float else isinstance(value, int)
+        return ok and not isinstance(value, bool)
+    if hint in (bool, str):
+        return isinstance(value, hint)
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        if value is None:
+            return type(None) in typing.get_args(hint)
+        verdicts = [_accepts(h, value) for h in typing.get_args(hint) if h is not type(None)]
+        if any(v is None for v in verdicts):
+            return None
+        return any(verdicts)
+    return None
+
+
+def _check_option_types(kind: str, name: str, factory: Callable[..., Any],
+                        config: dict[str, Any]) -> None:
+    """One clear error for an option whose value has the wrong type for the factory's
+    annotation (``-o psi=abc`` where a number is expected)."""
+    import typing
+
+    try:
+        hints = typing.get_type_hints(factory)
+    except Exception:  # noqa: BLE001 - annotations we cannot resolve are not checked
+        return
+    for key, value in config.items():
+        hint = hints.get(key)
+        if hint is None or _accepts(hint, value) is not False:
+            continue
+        words = [_TYPE_WORDS[h] for h in (typing.get_args(hint) or (hint,)) if h in _TYPE_WORDS]
+        want = " or ".join(words) or str(hint)
+        raise EvsmapError(f"{kind} {name!r}: option {key} must be {want}, got {value!r}")
 
 
 def _qualname(obj: object) -> str:

@@ -60,3 +60,18 @@ def test_builtin_readers_registered():
     assert "tum" in READERS
     seq = get_reader("synthetic", frames=2, width=32, height=24)
     assert len(seq) == 2
+
+
+def test_options_of_the_wrong_type_are_one_clear_error():
+    from evsmap.errors import EvsmapError
+    from evsmap.registry import UPDATERS
+
+    with pytest.raises(EvsmapError, match="option psi must be a number, got 'abc'"):
+        UPDATERS.create("multiclass-bayes", psi="abc")
+    with pytest.raises(EvsmapError, match="option discretize must be true or false"):
+        UPDATERS.create("orgb", discretize="yes")
+    with pytest.raises(EvsmapError, match="option clamp_min must be a number"):
+        UPDATERS.create("classic-semantic", clamp_min="low")
+    # numbers given as integers, None where the annotation allows it, still pass
+    UPDATERS.create("multiclass-bayes", psi=2, theta=1)
+    UPDATERS.create("classic-semantic", clamp_min=None)

@@ -52,7 +52,23 @@ def build_network(args: argparse.Namespace) -> tuple[Any, int, int]:
     if getattr(segmenter, "module", None) is None:
         raise EvsmapError(f"segmenter {args.model!r} is not a network; nothing to measure")
     default_h, default_w = segmenter.default_size
-    return segmenter, args.height or default_h, args.width or default_w
+    height, width = args.height or default_h, args.width or default_w
+    check_input_size(segmenter, args.model, height, width)
+    return segmenter, height, width
+
+
+def check_input_size(segmenter: Any, model: str, height: int, width: int) -> None:
+    """One forward pass at ``height`` x ``width``: a size the network cannot take (a pooling
+    layer's output shrinking to nothing, a "divisible by 32" check) becomes one clear error."""
+    import torch
+
+    try:
+        with torch.no_grad():
+            segmenter.module.eval()(*segmenter.example_inputs(height, width))
+    except (ValueError, RuntimeError) as exc:
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise EvsmapError(f"{model} cannot run at {height}x{width}: {why} (pass another "
+                          f"--height/--width)") from None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,9 @@ def _range(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number of metres, got {text!r}") from None
     if value != value or value == float("inf"):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    if value == 0:
+        raise argparse.ArgumentTypeError("0 m inserts nothing: give a positive range, or a "
+                                         "negative one for no limit")
     return value
 
 
@@ -111,6 +115,11 @@ def run(args: argparse.Namespace) -> int:
         if args.backend is not None:
             seg_config["backend"] = args.backend
         segmenter = SEGMENTERS.create(seg_name, **seg_config)
+        if getattr(segmenter, "module", None) is not None and \
+                getattr(segmenter, "weights", None) is None:
+            sys.stderr.write(f"evsmap map: warning: {seg_name} runs with RANDOM weights (no "
+                             f"--weights): its labels are noise, only its timing means "
+                             f"something\n")
     elif args.segmenter_option:
         raise EvsmapError(f"-s: updater {args.updater!r} uses no segmenter (pass --segmenter "
                           f"NAME to run one)")

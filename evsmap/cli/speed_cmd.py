@@ -39,6 +39,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     segmenter, height, width = build_network(args)
+    if getattr(segmenter, "weights", None) is None:
+        import sys
+
+        sys.stderr.write(f"evsmap speed: warning: {args.model} has RANDOM weights (-o "
+                         f"weights=FILE loads trained ones); its timing does not depend on "
+                         f"them\n")
     from evsmap.measure.complexity import measure_complexity
     from evsmap.measure.speed import measure_speed
 

@@ -263,8 +263,8 @@ class TumSequence(Sequence):
         if detected is None:
             raise EvsmapError(
                 f"{root}: cannot tell which TUM camera recorded this folder (its name has no "
-                f"freiburg1/2/3); pass camera=fr1|fr2|fr3|ros-default (--camera) or add "
-                f"{INTRINSICS_FILE}")
+                f"freiburg1/2/3); pass camera=fr1|fr2|fr3|ros-default (-r camera=NAME; "
+                f"--camera with evsmap info) or add {INTRINSICS_FILE}")
         return TUM_CAMERAS[detected], f"camera {detected} (from folder name)"
 
     def __len__(self) -> int:

@@ -194,12 +194,25 @@ def test_map_user_errors_are_one_line(tmp_path, tum_dir):
         ("map", str(tmp_path / "missing"), "--updater", "orgb"),
         ("map", "synthetic", "--updater", "orgb", "--out", str(tmp_path / "m.txt")),
         ("map", str(tum_dir), "--updater", "multiclass-bayes", "--frames", "1"),
+        ("map", "synthetic", "--updater", "multiclass-bayes", "-o", "psi=abc"),
+        ("map", "synthetic", "--updater", "classic-semantic", "-o", "clamp_min=x"),
+        ("map", "synthetic", "--updater", "orgb", "--max-range", "0"),
+        ("complexity", "feagnet-v1", "--height", "17", "--width", "31"),
+        ("speed", "feagnet-v1", "--height", "17", "--width", "31"),
     ]
     for args in cases:
         r = _evsmap(*args)
         assert r.returncode == 2, (args, r.stderr)
         assert "Traceback" not in r.stderr
         assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "option psi must be a number, got 'abc'" in _evsmap(*cases[4]).stderr
+
+
+def test_map_warns_about_random_weights():
+    r = _evsmap("map", "synthetic", "--updater", "multiclass-bayes", "--segmenter",
+                "feagnet-v1", "--frames", "1", "--resolution", "0.2")
+    assert r.returncode == 0, r.stderr
+    assert "warning: feagnet-v1 runs with RANDOM weights" in r.stderr
 
 
 def test_classic_semantic_published_file_is_semantic_slams_color_octree(tmp_path):
