@@ -116,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
             seg_config["backend"] = args.backend
         segmenter = SEGMENTERS.create(seg_name, **seg_config)
         if getattr(segmenter, "module", None) is not None and \
-                getattr(segmenter, "weights", None) is None:
+                getattr(segmenter, "weights", None) is None and \
+                getattr(updater, "uses_semantics", False):
             sys.stderr.write(f"evsmap map: warning: {seg_name} runs with RANDOM weights (no "
                              f"--weights): its labels are noise, only its timing means "
                              f"something\n")
@@ -129,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
         progress=lambda it: progress(it, total=len(it), desc=f"mapping {args.updater}"),
         skip_bad=args.skip_bad, file_format=args.file_format)
     result = record.as_dict()
+    result["stage_ms_median"] = record.stage_medians()
     truth = _ground_truth(sequence, args.resolution)
     if truth is not None and hasattr(updater, "occupied_labels"):
         from evsmap.metrics import evaluate_map
@@ -180,12 +182,17 @@ def format_record(r: dict[str, Any]) -> str:
         f"updater      {r['updater']}  (segmenter {seg}, {r['frames']} frames of "
         f"{r['sequence']}, {r['resolution']} m)",
         f"update       {r['hz_median']:.2f} Hz median (map update only)",
-        f"end to end   {r['hz_end_to_end']:.2f} Hz median (segmentation + update)",
+        f"end to end   {r['hz_end_to_end']:.2f} Hz median (" + (
+            "segmentation + update)" if r["segment_ms"] else "update only: no network ran)"),
+        "per frame    " + ", ".join(f"{k} {v:.1f} ms" for k, v in
+                                    r.get("stage_ms_median", {}).items()) + " (medians)",
         f"map file     {r['map_bytes'] / 1e6:.3f} MB {r['file_format']}" + (
             f"  ({r['map_file']})" if r["map_file"] else "") + _other_size(r),
         f"in memory    {r['memory_bytes'] / 1e6:.3f} MB, {r['nodes']:,} nodes, "
         f"{r['leaves']:,} leaves",
-    ] + ply + _quality_lines(r.get("quality")))
+    ] + ply + ([f"note         {r['extra']['segmenter_not_run']}"]
+                if r.get("extra", {}).get("segmenter_not_run") else [])
+        + _quality_lines(r.get("quality")))
 
 
 def _quality_lines(q: dict[str, Any] | None) -> list[str]:

@@ -28,7 +28,12 @@ class MappingRecord:
         frames: frames integrated.
         resolution: leaf size, metres.
         update_ms: time of each ``integrate`` call (map update only), ms.
-        segment_ms: time of each segmentation (``predict``), ms; empty without a segmenter.
+        segment_ms: time of each segmentation by a network (``predict``), ms; empty without
+            one, with the oracle (its time is the ``oracle`` stage, not a network's) and for
+            updaters that use no semantics (the segmenter is not run).
+        stages_ms: per-frame times of every stage that ran, ms: ``read`` (the reader),
+            ``preprocess`` / ``network`` / ``postprocess`` (a network segmenter's
+            ``last_timings``), ``oracle``, ``update``.
         hz_median: ``1000 / median(update_ms)``.
         hz_end_to_end: ``1000 / median(update_ms + segment_ms)`` per frame (Table IV's
             "Runtime (Hz)": segmentation and update).
@@ -58,7 +63,12 @@ class MappingRecord:
     file_format: str = "full"
     map_bytes_full: int | None = None
     map_bytes_published: int | None = None
+    stages_ms: dict[str, list[float]] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
+
+    def stage_medians(self) -> dict[str, float]:
+        """Median ms per frame of each stage in :attr:`stages_ms`."""
+        return {k: float(np.median(v)) for k, v in self.stages_ms.items() if v}
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -121,22 +131,45 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
     With ``skip_bad`` a frame that cannot be read is left out and listed in
     ``extra["skipped"]``; otherwise its error stops the run.
     """
+    from evsmap.segmenters.oracle import OracleSegmenter
+
     n = len(sequence) if frames is None else min(frames, len(sequence))
     update_ms: list[float] = []
     segment_ms: list[float] = []
+    stages: dict[str, list[float]] = {}
+    extra: dict[str, Any] = {}
     indices = range(n)
     if progress is not None:
         indices = progress(indices)
     skipped = SkippedFrames()
-    for _, frame in read_frames(sequence, indices, skip_bad=skip_bad, skipped=skipped):
+    if segmenter is not None and not getattr(updater, "uses_semantics", False):
+        extra["segmenter_not_run"] = (f"{segmenter_name or 'the segmenter'} was not run: "
+                                      f"{updater_name} uses no semantics")
+        segmenter = segmenter_name = None
+    oracle = isinstance(segmenter, OracleSegmenter)
+    frames_read = iter(read_frames(sequence, indices, skip_bad=skip_bad, skipped=skipped))
+    while True:
+        t0 = time.perf_counter()
+        try:
+            _, frame = next(frames_read)
+        except StopIteration:
+            break
+        stages.setdefault("read", []).append((time.perf_counter() - t0) * 1000.0)
         observation = None
         if segmenter is not None:
             t0 = time.perf_counter()
             observation = segmenter.predict(frame)
-            segment_ms.append((time.perf_counter() - t0) * 1000.0)
+            ms = (time.perf_counter() - t0) * 1000.0
+            if oracle:
+                stages.setdefault("oracle", []).append(ms)
+            else:
+                segment_ms.append(ms)
+                for stage, value in getattr(segmenter, "last_timings", {}).items():
+                    stages.setdefault(stage, []).append(float(value))
         t0 = time.perf_counter()
         updater.integrate(frame, observation)
         update_ms.append((time.perf_counter() - t0) * 1000.0)
+        stages.setdefault("update", []).append(update_ms[-1])
     stats = updater.stats()
     sizes = map_sizes(updater)
     if out is not None:
@@ -158,4 +191,4 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         map_bytes=int(map_bytes), map_file=map_file, memory_bytes=stats.memory_bytes,
         nodes=stats.nodes, leaves=stats.leaves, file_format=file_format,
         map_bytes_full=sizes["full"], map_bytes_published=sizes["published"],
-        extra={"skipped": skipped.as_dict()} if skip_bad else {})
+        stages_ms=stages, extra={**extra, **({"skipped": skipped.as_dict()} if skip_bad else {})})

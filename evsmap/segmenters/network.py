@@ -9,6 +9,8 @@ at the frame's resolution.
 
 from __future__ import annotations
 
+import time
+
 from os import PathLike
 from typing import ClassVar
 
@@ -117,6 +119,10 @@ class NetworkSegmenter(Segmenter):
         if weights is not None:
             load_weights(self._module, weights)
         self._session = None
+        self.last_timings: dict[str, float] = {}
+        """Milliseconds of the last :meth:`predict`'s stages: ``preprocess`` (normalise,
+        resize), ``network`` (the forward pass on the backend), ``postprocess`` (upsampling,
+        top-k and probabilities)."""
 
     @property
     def module(self) -> nn.Module:
@@ -172,16 +178,24 @@ class NetworkSegmenter(Segmenter):
     def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
         if not 1 <= k <= self.num_classes:
             raise InvalidDataError(f"k must lie in [1, {self.num_classes}], got {k}")
-        logits = self.logits(self.preprocess(frame))
-        h, w = frame.rgb.shape[:2]
+        t0 = time.perf_counter()
+        inputs = self.preprocess(frame)
+        t1 = time.perf_counter()
+        logits = self.logits(inputs)
+        t2 = time.perf_counter()
+        observation = self.top_k(logits, frame.rgb.shape[:2], k)
+        t3 = time.perf_counter()
+        self.last_timings = {"preprocess": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3,
+                             "postprocess": (t3 - t2) * 1e3}
+        return observation
+
+    def top_k(self, logits: torch.Tensor, size: tuple[int, int], k: int) -> SemanticObservation:
+        """The per-pixel top-``k`` classes and softmax probabilities of ``logits`` (1, C, h, w)
+        at the frame's ``size`` (bilinear upsampling of the logits first when they differ)."""
+        h, w = size
         if tuple(logits.shape[-2:]) != (h, w):
             logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
-        # classes last and contiguous: softmax and top-k then run along memory (several times
-        # faster than along the strided channel axis of NCHW)
-        scores = logits[0].float().permute(1, 2, 0).contiguous()
-        top_p, top_c = torch.softmax(scores, dim=-1).topk(k, dim=-1)
-        return SemanticObservation(
-            classes=top_c.to(torch.int16).numpy(),
-            probs=np.clip(top_p.numpy(), 0.0, 1.0).astype(np.float32),
-            num_classes=self.num_classes,
-        )
+        from evsmap.segmenters.topk import top_k_softmax
+
+        classes, probs = top_k_softmax(logits[0], k)
+        return SemanticObservation(classes=classes, probs=probs, num_classes=self.num_classes)

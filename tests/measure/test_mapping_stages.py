@@ -1,0 +1,46 @@
+"""``map_sequence``'s time accounting: every stage that ran, nothing for stages that did not."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from evsmap.measure.mapping import map_sequence
+from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return READERS.create("synthetic", frames=2, width=80, height=60)
+
+
+def test_a_network_reports_its_three_stages(seq):
+    torch.manual_seed(0)
+    net = SEGMENTERS.create("feagnet-v1", input_size=(64, 96))
+    rec = map_sequence(seq, UPDATERS.create("multiclass-bayes", resolution=0.2),
+                       updater_name="multiclass-bayes", segmenter=net,
+                       segmenter_name="feagnet-v1")
+    assert set(rec.stages_ms) == {"read", "preprocess", "network", "postprocess", "update"}
+    assert all(len(v) == 2 for v in rec.stages_ms.values())
+    assert len(rec.segment_ms) == 2
+    # the stages add up to the segmentation time measured around predict
+    for i in range(2):
+        parts = sum(rec.stages_ms[s][i] for s in ("preprocess", "network", "postprocess"))
+        assert parts <= rec.segment_ms[i] + 1e-6
+    assert set(rec.stage_medians()) == set(rec.stages_ms)
+
+
+def test_the_oracle_is_not_counted_as_segmentation(seq):
+    rec = map_sequence(seq, UPDATERS.create("multiclass-bayes", resolution=0.2),
+                       updater_name="multiclass-bayes", segmenter=SEGMENTERS.create("oracle"),
+                       segmenter_name="oracle")
+    assert rec.segment_ms == [] and len(rec.stages_ms["oracle"]) == 2
+    assert rec.hz_end_to_end == rec.hz_median
+
+
+def test_an_updater_without_semantics_runs_no_segmenter(seq):
+    rec = map_sequence(seq, UPDATERS.create("orgb", resolution=0.2), updater_name="orgb",
+                       segmenter=SEGMENTERS.create("oracle"), segmenter_name="oracle")
+    assert rec.segmenter is None and rec.segment_ms == []
+    assert set(rec.stages_ms) == {"read", "update"}
+    assert "uses no semantics" in rec.extra["segmenter_not_run"]
