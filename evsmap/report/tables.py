@@ -297,6 +297,17 @@ def _column_details(col: Column) -> str:
     return "; ".join(parts)
 
 
+def _measured_on(table: PaperTable, column: Column, records: Mapping[str, CellRecord]) -> str:
+    """`` on SEQ`` for a rate column whose measured cells all come from one sequence (Table
+    IV's Runtime: one sequence for every system), else nothing."""
+    if column.quantity != "runtime_hz":
+        return ""
+    seqs = {str(r.inputs.get("sequence")) for r in records.values()
+            if r.table == table.id and r.status == "ok" and column.id in r.values
+            and r.inputs.get("sequence")}
+    return f", measured on {seqs.pop()}" if len(seqs) == 1 else ""
+
+
 def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
                    specs: Iterable[CellSpec] | None = None, *,
                    extras: Iterable[CellRecord] | None = None,
@@ -319,7 +330,8 @@ def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
     out += ["Each cell: measured / paper (measured ÷ paper). Measured values are evsmap's on "
             "this machine; bold marks the paper's best values; `paper only`: evsmap does not "
             "implement the row. Bracketed numbers refer to the notes below the table.", ""]
-    headers = ["System"] + [_md_escape(header_with_unit(c)) for c in table.columns]
+    headers = ["System"] + [_md_escape(header_with_unit(c) + _measured_on(table, c, records))
+                            for c in table.columns]
     out.append("| " + " | ".join(headers) + " |")
     out.append("|" + "|".join(["---"] + [":---:" if c.kind == "flag" else "---:"
                                          for c in table.columns]) + "|")
