@@ -67,6 +67,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=positive_int, default=2, metavar="N",
                    help="processes for the cells that are not timed (default 2); timed cells "
                         "always run alone, each in a fresh process")
+    p.add_argument("--strict-timing", action="store_true",
+                   help="refuse to time on a busy machine: stop at once when the load average "
+                        "exceeds the cores, and record a speed cell whose calibration shows "
+                        "contention (twice) as not measured instead of flagging it")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out: keep its finished cells, run the rest")
     p.add_argument("--force", action="store_true",
@@ -135,10 +139,19 @@ def run(args: argparse.Namespace) -> int:
         raise EvsmapError(f"--weights-dir {args.weights_dir}: no such folder")
     if args.data_root is not None and not args.data_root.is_dir():
         raise EvsmapError(f"--data-root {args.data_root}: no such folder")
+    if args.strict_timing:
+        import os
+
+        load1 = os.getloadavg()[0]
+        cores = os.cpu_count() or 1
+        if load1 > cores:
+            raise EvsmapError(f"--strict-timing: the machine is busy (load average {load1:.1f} "
+                              f"on {cores} cores); wait until it is idle or drop "
+                              f"--strict-timing (busy cells are then flagged)")
     out.mkdir(parents=True, exist_ok=True)
 
     ctx = RunContext.create(out, data_root=args.data_root, weights_dir=args.weights_dir,
-                            quick=args.quick)
+                            quick=args.quick, strict_timing=args.strict_timing)
     the_plan = plan(ctx, args.tables)
     if "table4" in args.tables and ctx.dataset_path("tum") is None:
         print(f"note: no real TUM sample under {ctx.data_root} (or datasets/): Table IV maps the "

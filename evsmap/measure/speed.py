@@ -42,6 +42,11 @@ class SpeedRecord:
         roofline_fraction: ``achieved_gmacs / roofline_gmacs``.
         versions: python and library versions.
         cpu: CPU model name.
+        rounds: rounds of ``runs`` passes timed (more than one when repeating until stable).
+        rel_iqr: ``ms_iqr / ms_median`` of the kept round.
+        stable: the kept round met the requested ``stable_rel_iqr`` (None: none requested).
+        contention: the machine around the timing (:func:`evsmap.measure.contention.
+            contention`: load, calibration slowdown against the run's best, ``contended``).
     """
 
     backend: str
@@ -61,9 +66,28 @@ class SpeedRecord:
     roofline_fraction: float
     versions: dict[str, str] = field(default_factory=dict)
     cpu: str = ""
+    rounds: int = 1
+    rel_iqr: float = 0.0
+    stable: bool | None = None
+    contention: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @property
+    def flag(self) -> str | None:
+        """Why this figure should not be trusted as is, or None: a round that never met the
+        stability threshold, or a machine busy with other work."""
+        reasons = []
+        if self.stable is False:
+            reasons.append(f"unstable: IQR/median {self.rel_iqr:.2f} after {self.rounds} "
+                           f"rounds of {self.runs}")
+        if self.contention.get("contended"):
+            reasons.append(f"contended: the calibration matmul ran "
+                           f"{self.contention['slowdown']:.2f}x slower than the run's best "
+                           f"(load {self.contention['before']['load1']:.1f} on "
+                           f"{self.contention['before']['cores']} cores)")
+        return "; ".join(reasons) or None
 
 
 def library_versions() -> dict[str, str]:
@@ -142,6 +166,9 @@ def measure_speed(
     key: str | None = None,
     cache_dir: str | os.PathLike[str] | None = None,
     roofline_size: int = ROOFLINE_SIZE,
+    max_rounds: int = 1,
+    stable_rel_iqr: float | None = None,
+    calibration_log: Any = None,
 ) -> SpeedRecord:
     """Time ``runs`` forward passes of ``module(*inputs)`` after ``warmup`` untimed ones.
 
@@ -160,6 +187,11 @@ def measure_speed(
         roofline_size: matrix size of the fp32 matmul roofline, measured in this call with
             torch and the same thread count for either backend (one machine-level ceiling;
             ONNX Runtime's own MatMul reaches about the same or less here).
+        max_rounds, stable_rel_iqr: time rounds of ``runs`` passes until one has
+            ``IQR / median <= stable_rel_iqr``, at most ``max_rounds``; the record keeps that
+            round, else the steadiest one and ``stable=False``.
+        calibration_log: a :class:`~evsmap.measure.contention.CalibrationLog` holding the
+            run's best calibration (default: this call's own).
 
     Each sample is one forward pass timed with ``time.perf_counter``.
 
@@ -181,17 +213,37 @@ def measure_speed(
 
         macs = measure_complexity(module, inputs).flops
 
+    from evsmap.measure.contention import Probe, contention
+
+    if max_rounds < 1:
+        raise ValueError(f"max_rounds must be >= 1, got {max_rounds}")
     previous_threads = torch.get_num_threads()
     try:
         if threads is not None:
             torch.set_num_threads(threads)
         used_threads = torch.get_num_threads()
+        before = Probe.take()
         if backend == "torch":
-            times = _time_torch(module, inputs, runs, warmup)
+            def timed(n_warm: int) -> list[float]:
+                return _time_torch(module, inputs, runs, n_warm)
         else:
             forward = _onnxruntime_forward(module, inputs, input_names, used_threads,
                                            key or type(module).__name__, cache_dir)
-            times = _time_calls(forward, runs, warmup)
+
+            def timed(n_warm: int) -> list[float]:
+                return _time_calls(forward, runs, n_warm)
+        kept, kept_rel, rounds = None, float("inf"), 0
+        for r in range(max_rounds):
+            times = timed(warmup if r == 0 else 0)
+            rounds += 1
+            rel = _rel_iqr(times)
+            if rel < kept_rel:
+                kept, kept_rel = times, rel
+            if stable_rel_iqr is not None and rel <= stable_rel_iqr:
+                kept, kept_rel = times, rel
+                break
+        times = kept
+        after = Probe.take()
         roofline = roofline_gmacs(roofline_size)
     finally:
         torch.set_num_threads(previous_threads)
@@ -208,7 +260,15 @@ def measure_speed(
         roofline_gmacs=roofline, achieved_gmacs=achieved,
         roofline_fraction=achieved / roofline,
         versions=library_versions(), cpu=cpu_model(),
+        rounds=rounds, rel_iqr=(q75 - q25) / median,
+        stable=None if stable_rel_iqr is None else bool(kept_rel <= stable_rel_iqr),
+        contention=contention(before, after, calibration_log),
     )
+
+
+def _rel_iqr(times: list[float]) -> float:
+    q25, median, q75 = np.percentile(times, [25, 50, 75])
+    return float((q75 - q25) / median) if median > 0 else float("inf")
 
 
 def _time_calls(forward: Callable[[], object], runs: int, warmup: int) -> list[float]:

@@ -222,6 +222,19 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     if run.get("quick"):
         out.append("- Quick run (`--quick`): smaller inputs and fewer frames than the paper's "
                    "settings")
+    flagged = [(tid, r) for tid in table_ids for r in frames[tid].to_dict("records")
+               if r.get("timing_flag")]
+    timed = sum(int(((frames[tid]["status"] == "ok") & (frames[tid]["unit"] == "FPS")).sum())
+                for tid in table_ids)
+    if flagged:
+        cells = ", ".join(f"{tables[tid].number}: {r['label']} / {r['header']}"
+                          for tid, r in flagged[:6]) + (" ..." if len(flagged) > 6 else "")
+        out.append(f"- **Timing: {len(flagged)} speed cell(s) flagged** (marked `~`: no steady "
+                   f"median within the rounds allowed, or the machine was busy) - Table {cells}. "
+                   f"Rerun them on an idle machine, or with `--strict-timing`.")
+    elif timed:
+        out.append(f"- Timing: all {timed} speed cells reached a steady median (IQR/median "
+                   f"within the threshold) with no contention seen by the calibration")
     out.append(f"- Data root: `{run['data_root']}`" if run.get("data_root")
                else "- Data root: none")
     out.append(f"- Weights folder: `{run['weights_dir']}`" if run.get("weights_dir")

@@ -21,7 +21,7 @@ from evsmap.runner.records import CellRecord, needs_text
 from evsmap.tables.schema import CellSpec, Column, PaperTable, expand
 
 FRAME_COLUMNS = ("table", "row", "label", "column", "header", "unit", "measured", "paper",
-                 "ratio", "status", "note")
+                 "ratio", "status", "note", "timing_flag")
 """Columns of :func:`table_frame`."""
 
 STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
@@ -172,6 +172,7 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
             cell = table.cell(system.id, col.id)
             paper = None if cell.number is None else float(cell.number)
             measured = None
+            flag = None
             if not system.implemented:
                 status, note = "paper only", ""
             elif (system.id, col.id) not in index or index[(system.id, col.id)] is None:
@@ -192,12 +193,13 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                             f"the record holds no value for {col.id!r}", note) if x)
                     else:
                         status, measured = "ok", value / col.scale
+                        flag = (rec.details or {}).get("timing_flag")
             ratio = (measured / paper if measured is not None and paper not in (None, 0.0)
                      else None)
             lines.append({"table": table.id, "row": system.id, "label": system.label,
                           "column": col.id, "header": col.header, "unit": col.unit,
                           "measured": measured, "paper": paper, "ratio": ratio,
-                          "status": status, "note": note})
+                          "status": status, "note": note, "timing_flag": flag})
     frame = pd.DataFrame(lines, columns=list(FRAME_COLUMNS))
     for name in ("measured", "paper", "ratio"):
         frame[name] = pd.to_numeric(frame[name]).astype("float64")
@@ -266,7 +268,7 @@ def _cell_markdown(line: Mapping[str, Any], cell, notes: Footnotes) -> str:
     if status == "ok":
         measured = format_number(line["measured"], cell.decimals if cell.number is not None
                                  else None)
-        text = f"{measured} / {paper}"
+        text = f"{measured}{TIMING_MARK if line.get('timing_flag') else ''} / {paper}"
         if not pd.isna(line["ratio"]):
             text += f" ({format_ratio(line['ratio'])})"
     elif status == "n/a":
@@ -278,6 +280,11 @@ def _cell_markdown(line: Mapping[str, Any], cell, notes: Footnotes) -> str:
     else:
         text = f"- / {paper}"
     return f"{text} {ref}".strip()
+
+
+TIMING_MARK = " ~"
+"""Appended to a measured value whose timing is flagged (unstable or taken on a busy machine);
+the cell's note says which."""
 
 
 def _column_details(col: Column) -> str:
@@ -329,7 +336,9 @@ def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
         out += [f"Note: {' '.join(table.note.split())}", ""]
     out += ["Each cell: measured / paper (measured ÷ paper). Measured values are evsmap's on "
             "this machine; bold marks the paper's best values; `paper only`: evsmap does not "
-            "implement the row. Bracketed numbers refer to the notes below the table.", ""]
+            "implement the row; `~` after a measured speed: its timing is flagged (it never "
+            "reached a steady median, or the machine was busy; the note says which). "
+            "Bracketed numbers refer to the notes below the table.", ""]
     headers = ["System"] + [_md_escape(header_with_unit(c) + _measured_on(table, c, records))
                             for c in table.columns]
     out.append("| " + " | ".join(headers) + " |")

@@ -46,6 +46,11 @@ class RunContext:
         synthetic: options of the built-in synthetic sequence.
         frames: frames mapped per sequence (None: all).
         speed_runs, speed_warmup, speed_backend, threads: the speed method.
+        stable_rel_iqr, max_rounds: a speed cell repeats its rounds of ``speed_runs`` passes
+            until one has IQR / median at or below ``stable_rel_iqr``, at most ``max_rounds``;
+            one that never does is flagged.
+        strict_timing: refuse to time on a busy machine: a cell whose calibration shows
+            contention is retried once after a pause, then recorded as not measured.
         voxel_size: Table IV's voxel size (the paper's value is assumed: 5 cm).
     """
 
@@ -61,19 +66,25 @@ class RunContext:
     speed_warmup: int = 2
     speed_backend: str = "onnxruntime"
     threads: int = field(default_factory=lambda: os.cpu_count() or 1)
+    stable_rel_iqr: float = 0.10
+    max_rounds: int = 4
+    strict_timing: bool = False
     voxel_size: float = 0.05
     oracle: dict[str, Any] = field(default_factory=lambda: {"seed": 0})
 
     @classmethod
     def create(cls, out: str | Path, *, data_root: str | Path | None = None,
-               weights_dir: str | Path | None = None, quick: bool = False) -> RunContext:
+               weights_dir: str | Path | None = None, quick: bool = False,
+               strict_timing: bool = False) -> RunContext:
         root = Path(data_root) if data_root else default_data_root()
         ctx = cls(out=str(out), data_root=str(root) if root else None,
-                  weights_dir=str(weights_dir) if weights_dir else None, quick=quick)
+                  weights_dir=str(weights_dir) if weights_dir else None, quick=quick,
+                  strict_timing=strict_timing)
         if quick:
             ctx.synthetic.update(frames=8, width=320, height=240)
             ctx.frames = 8
             ctx.speed_runs, ctx.speed_warmup, ctx.speed_backend = 3, 1, "torch"
+            ctx.max_rounds = 2
         return ctx
 
     def as_dict(self) -> dict[str, Any]:

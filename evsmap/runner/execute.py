@@ -145,17 +145,44 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
     h, w = _size(spec, segmenter)
     inputs = segmenter.example_inputs(h, w)
     macs = measure_complexity(segmenter.module, inputs).flops
+    from evsmap.measure.contention import CalibrationLog
+
     cache = Path(ctx.out) / "cache" / "onnx" if ctx.speed_backend == "onnxruntime" else None
-    rec = measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,
-                        runs=ctx.speed_runs, warmup=ctx.speed_warmup, threads=ctx.threads,
-                        macs=macs, input_names=segmenter.input_names,
-                        key=spec.segmenter.spec, cache_dir=_onnx_cache(ctx) or cache)
+    log = CalibrationLog(Path(ctx.out) / "cache" / "calibration.json")
+
+    def measure():
+        return measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,
+                             runs=ctx.speed_runs, warmup=ctx.speed_warmup, threads=ctx.threads,
+                             macs=macs, input_names=segmenter.input_names,
+                             key=spec.segmenter.spec, cache_dir=_onnx_cache(ctx) or cache,
+                             max_rounds=ctx.max_rounds, stable_rel_iqr=ctx.stable_rel_iqr,
+                             calibration_log=log)
+
+    rec = measure()
+    if ctx.strict_timing and rec.contention.get("contended"):
+        time.sleep(STRICT_PAUSE_S)  # one more try once the other work may have passed
+        rec = measure()
+        if rec.contention.get("contended"):
+            return CellRecord(**_base(spec), status="na", needs=["an idle machine"],
+                              reason=f"n/a - --strict-timing: the machine was busy "
+                                     f"({rec.flag}); rerun when it is idle",
+                              details=rec.as_dict(), started=_now())
     values = {col: float(rec.fps_median) for col in spec.metrics}
     notes = [f"{ctx.speed_backend} on the CPU ({rec.threads} threads, {rec.cpu}), {w}x{h}, "
-             f"median of {rec.runs} runs after {rec.warmup} warm-up; untrained weights "
-             f"(speed does not depend on them)"]
+             f"median of {rec.runs} runs after {rec.warmup} warm-up"
+             + (f" (round {rec.rounds} of at most {ctx.max_rounds}: the first with IQR/median "
+                f"<= {ctx.stable_rel_iqr:g})" if rec.rounds > 1 and rec.stable else "")
+             + "; untrained weights (speed does not depend on them)"]
+    details = rec.as_dict()
+    if rec.flag:
+        notes.append(f"timing flagged - {rec.flag}")
+        details["timing_flag"] = rec.flag
     return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
-                      details=rec.as_dict())
+                      details=details)
+
+
+STRICT_PAUSE_S = 20.0
+"""``--strict-timing``: seconds to wait before timing a contended cell a second time."""
 
 
 def _onnx_cache(ctx: RunContext) -> Path | None:

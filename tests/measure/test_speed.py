@@ -80,3 +80,40 @@ def test_bad_counts(kwargs):
 def test_roofline_is_finite():
     value = roofline_gmacs(32, repeats=2)
     assert value > 0 and math.isfinite(value)
+
+
+def test_repeats_until_stable_and_flags_what_never_is(monkeypatch):
+    """Rounds repeat until IQR/median meets the threshold; a cell that never does keeps its
+    steadiest round and is flagged; a calibration far below the run's best flags contention."""
+    import evsmap.measure.contention as contention
+    import evsmap.measure.speed as speed
+
+    rounds = iter([[1.0, 2.0, 3.0, 4.0], [1.0, 1.0, 1.01, 1.0], [9.0, 9.0, 9.0, 9.0]])
+    monkeypatch.setattr(speed, "_time_torch", lambda *a: next(rounds))
+    monkeypatch.setattr(speed, "roofline_gmacs", lambda *a, **k: 100.0)
+    monkeypatch.setattr(contention, "calibration_gmacs", lambda: 50.0)
+    module = torch.nn.Conv2d(3, 4, 3)
+    inputs = torch.zeros(1, 3, 8, 8)
+    rec = speed.measure_speed(module, inputs, runs=4, warmup=0, macs=1, max_rounds=3,
+                              stable_rel_iqr=0.05)
+    assert rec.rounds == 2 and rec.stable and rec.ms_median == pytest.approx(1000.0)
+    assert rec.flag is None and rec.contention["slowdown"] == 1.0
+    rounds = iter([[1.0, 2.0, 3.0, 4.0], [1.0, 1.5, 2.0, 2.5]])
+    rec = speed.measure_speed(module, inputs, runs=4, warmup=0, macs=1, max_rounds=2,
+                              stable_rel_iqr=0.05)
+    assert rec.rounds == 2 and rec.stable is False and "unstable" in rec.flag
+    assert rec.ms_median == pytest.approx(1750.0)  # the steadier second round is kept
+    log = contention.CalibrationLog()
+    log.best(200.0)  # the run once calibrated at 200 G MAC/s: 50 now is a 4x slowdown
+    rounds = iter([[1.0, 1.0, 1.0, 1.0]])
+    rec = speed.measure_speed(module, inputs, runs=4, warmup=0, macs=1, calibration_log=log)
+    assert rec.contention["contended"] and "4.00x slower" in rec.flag
+
+
+def test_calibration_log_keeps_the_best_across_processes(tmp_path):
+    from evsmap.measure.contention import CalibrationLog
+
+    path = tmp_path / "cal.json"
+    assert CalibrationLog(path).best(30.0) == 30.0
+    assert CalibrationLog(path).best(20.0) == 30.0  # a new process reads the file
+    assert CalibrationLog(path).best(45.0) == 45.0

@@ -228,3 +228,23 @@ def test_size_claim_says_plainly_whether_it_reproduces():
     assert "smaller, by less" in size_claim_lines(pair(2e6, 1e5, 1e6, 4e4))[0]
     # one side missing or not measured: nothing to say
     assert size_claim_lines(pair(81_000, 10_000, 554_000, 23_000)[:1]) == []
+
+
+def test_flagged_timings_are_marked_in_the_table(tables, specs):
+    from dataclasses import replace
+
+    records = {r.key: r for r in make_records()}
+    key = next(k for k, r in records.items() if r.kind == "speed" and r.status == "ok")
+    records[key] = replace(records[key], details={"timing_flag": "unstable: IQR/median 0.21 "
+                                                                "after 4 rounds of 10"},
+                           notes=records[key].notes + ["timing flagged - unstable"])
+    table = tables[records[key].table]
+    md = table_markdown(table, records, specs)
+    label = next(s.label for s in table.rows if s.id == records[key].row)
+    header = next(c for c in table.columns if c.id == records[key].metrics[0])
+    from evsmap.report.tables import header_with_unit
+
+    assert " ~ / " in md_cell(md, label, header_with_unit(header))
+    frame = table_frame(table, records, specs)
+    flagged = frame[frame["timing_flag"].notna()]
+    assert len(flagged) == 1 and "unstable" in flagged.iloc[0]["timing_flag"]
