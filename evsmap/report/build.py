@@ -223,7 +223,7 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
         out.append("- Quick run (`--quick`): smaller inputs and fewer frames than the paper's "
                    "settings")
     flagged = [(tid, r) for tid in table_ids for r in frames[tid].to_dict("records")
-               if r.get("timing_flag")]
+               if isinstance(r.get("timing_flag"), str) and r["timing_flag"]]
     timed = sum(int(((frames[tid]["status"] == "ok") & (frames[tid]["unit"] == "FPS")).sum())
                 for tid in table_ids)
     if flagged:

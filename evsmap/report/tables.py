@@ -268,7 +268,8 @@ def _cell_markdown(line: Mapping[str, Any], cell, notes: Footnotes) -> str:
     if status == "ok":
         measured = format_number(line["measured"], cell.decimals if cell.number is not None
                                  else None)
-        text = f"{measured}{TIMING_MARK if line.get('timing_flag') else ''} / {paper}"
+        flagged = isinstance(line.get("timing_flag"), str) and line["timing_flag"]
+        text = f"{measured}{TIMING_MARK if flagged else ''} / {paper}"
         if not pd.isna(line["ratio"]):
             text += f" ({format_ratio(line['ratio'])})"
     elif status == "n/a":

@@ -159,10 +159,13 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
                              calibration_log=log)
 
     rec = measure()
-    if ctx.strict_timing and rec.contention.get("contended"):
-        time.sleep(STRICT_PAUSE_S)  # one more try once the other work may have passed
-        rec = measure()
-        if rec.contention.get("contended"):
+    if rec.contention.get("contended"):
+        # one more try once the other work may have passed; keep the less contended
+        time.sleep(STRICT_PAUSE_S if ctx.strict_timing else RETRY_PAUSE_S)
+        again = measure()
+        if again.contention["slowdown"] < rec.contention["slowdown"]:
+            rec = again
+        if ctx.strict_timing and rec.contention.get("contended"):
             return CellRecord(**_base(spec), status="na", needs=["an idle machine"],
                               reason=f"n/a - --strict-timing: the machine was busy "
                                      f"({rec.flag}); rerun when it is idle",
@@ -183,6 +186,8 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
 
 STRICT_PAUSE_S = 20.0
 """``--strict-timing``: seconds to wait before timing a contended cell a second time."""
+RETRY_PAUSE_S = 3.0
+"""Without ``--strict-timing``: the same, shorter (the cell is flagged if still contended)."""
 
 
 def _onnx_cache(ctx: RunContext) -> Path | None:
