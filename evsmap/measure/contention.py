@@ -68,32 +68,73 @@ class Probe:
         return asdict(self)
 
 
+def machine_key() -> str:
+    """The calibration's machine: CPU model and torch threads (a different thread count is a
+    different reference)."""
+    from evsmap.environment import cpu_model
+
+    return f"{cpu_model()} / {torch.get_num_threads()} threads"
+
+
+def machine_log_path() -> Path:
+    """``$EVSMAP_CACHE_DIR/calibration.json``, else ``~/.cache/evsmap/calibration.json``: the
+    best calibration each machine has shown, kept across runs."""
+    root = os.environ.get("EVSMAP_CACHE_DIR")
+    base = Path(root).expanduser() if root else Path.home() / ".cache" / "evsmap"
+    return base / "calibration.json"
+
+
 class CalibrationLog:
-    """The best calibration of a run, kept in a small JSON file in the run folder so that cells
-    timed in separate processes compare against the same reference.
+    """The best calibration seen, kept in small JSON files so that cells timed in separate
+    processes - and runs on the same machine - compare against the same reference: the best of
+    this run (``path``) and the best this machine has shown in any run (``machine_path``). A run
+    that is loaded from its start is thus still compared with the machine idle.
 
     Args:
-        path: the JSON file (created on first use); None keeps the best in memory only.
+        path: the run's JSON file (created on first use); None keeps the best in memory only.
+        machine_path: the machine-wide file (:func:`machine_log_path`); None: none.
     """
 
-    def __init__(self, path: str | os.PathLike[str] | None = None) -> None:
+    def __init__(self, path: str | os.PathLike[str] | None = None,
+                 machine_path: str | os.PathLike[str] | None = None) -> None:
         self.path = None if path is None else Path(path)
+        self.machine_path = None if machine_path is None else Path(machine_path)
         self._best = 0.0
 
     def best(self, seen: float) -> float:
-        """Record ``seen`` G MAC/s; returns the best of the run so far (``seen`` included)."""
+        """Record ``seen`` G MAC/s; returns the reference: the best of the run so far
+        (``seen`` included) or of this machine, whichever is higher."""
         best = max(self._best, seen)
         if self.path is not None:
-            try:
-                best = max(best, float(json.loads(self.path.read_text())["best_gmacs"]))
-            except (OSError, ValueError, KeyError, TypeError):
-                pass
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.path.with_suffix(".tmp")
-            tmp.write_text(json.dumps({"best_gmacs": best}))
-            os.replace(tmp, self.path)
+            best = max(best, _read(self.path).get("best_gmacs", 0.0))
+            _write(self.path, {"best_gmacs": best})
         self._best = best
+        if self.machine_path is not None:
+            table = _read(self.machine_path)
+            key = machine_key()
+            machine = max(float(table.get(key, 0.0)), best)
+            table[key] = machine
+            _write(self.machine_path, table)
+            best = machine
         return best
+
+
+def _read(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+        return data if isinstance(data, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def _write(path: Path, data: dict) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(data))
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only cache: the reference stays in memory
 
 
 def contention(before: Probe, after: Probe, log: CalibrationLog | None = None) -> dict:

@@ -145,10 +145,11 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
     h, w = _size(spec, segmenter)
     inputs = segmenter.example_inputs(h, w)
     macs = measure_complexity(segmenter.module, inputs).flops
-    from evsmap.measure.contention import CalibrationLog
+    from evsmap.measure.contention import CalibrationLog, machine_log_path
 
     cache = Path(ctx.out) / "cache" / "onnx" if ctx.speed_backend == "onnxruntime" else None
-    log = CalibrationLog(Path(ctx.out) / "cache" / "calibration.json")
+    log = CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
+                         machine_path=machine_log_path())
 
     def measure():
         return measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,

@@ -117,3 +117,15 @@ def test_calibration_log_keeps_the_best_across_processes(tmp_path):
     assert CalibrationLog(path).best(30.0) == 30.0
     assert CalibrationLog(path).best(20.0) == 30.0  # a new process reads the file
     assert CalibrationLog(path).best(45.0) == 45.0
+
+
+def test_a_run_loaded_from_its_start_is_compared_with_the_machine_idle(tmp_path):
+    from evsmap.measure.contention import CalibrationLog, machine_key
+
+    machine = tmp_path / "machine.json"
+    CalibrationLog(tmp_path / "idle-run.json", machine_path=machine).best(100.0)
+    loaded = CalibrationLog(tmp_path / "loaded-run.json", machine_path=machine)
+    assert loaded.best(40.0) == 100.0  # the idle run's best, from the machine file
+    import json
+
+    assert json.loads(machine.read_text())[machine_key()] == 100.0
