@@ -31,10 +31,10 @@ the 2-core VM this was developed on, an otherwise idle machine moves the calibra
 
 
 def calibration_gmacs(size: int = CALIBRATION_SIZE, repeats: int = 15, warmup: int = 3) -> float:
-    """G MAC/s of a ``size`` x ``size`` fp32 matmul with torch's current threads: the fastest of
-    ``repeats`` products after ``warmup`` (about 50 ms in all). The fastest, not the median:
-    a brief interruption does not move it (5 % spread over repeated calls on an idle 2-core
-    machine), a job holding the cores does."""
+    """G MAC/s of a ``size`` x ``size`` fp32 matmul with torch's current threads: the median of
+    ``repeats`` products after ``warmup`` (about 50 ms in all). The median, not the fastest: a
+    job sharing the cores leaves gaps in which one product runs at full speed, so the fastest
+    hides it; the median moves by about 8 % between calls on an idle 2-core machine."""
     gen = torch.Generator().manual_seed(1)
     a = torch.rand(size, size, generator=gen)
     b = torch.rand(size, size, generator=gen)
@@ -46,7 +46,7 @@ def calibration_gmacs(size: int = CALIBRATION_SIZE, repeats: int = 15, warmup: i
         t0 = time.perf_counter()
         torch.matmul(a, b, out=out)
         times.append(time.perf_counter() - t0)
-    return float(size) ** 3 / float(np.min(times)) / 1e9
+    return float(size) ** 3 / float(np.median(times)) / 1e9
 
 
 @dataclass(frozen=True)
