@@ -21,6 +21,7 @@ import pandas as pd
 
 from evsmap.errors import DataFormatError
 from evsmap.report import plots
+from evsmap.report.claims import claims_markdown, relative_markdown
 from evsmap.report.tables import (
     STATUSES,
     extra_frame,
@@ -141,6 +142,9 @@ def build_report(run_dir: str | Path) -> list[Path]:
         frames[tid] = frame
         md = table_markdown(table, by_key, specs, frame=frame,
                             extras=extras if tid == "table4" else None)
+        relative = relative_markdown(table, frame)
+        if relative:
+            md = md + "\n" + "\n".join(relative).rstrip() + "\n"
         if tid in ("table1", "table3"):  # reproduce --train's networks, beside the table
             proxy = proxy_accuracy_markdown(extras)
             if proxy:
@@ -217,6 +221,7 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     """The run's ``index.md``."""
     run_id = run.get("run") or "unknown"
     out = [f"# evsmap report - run {run_id}", ""]
+    out += claims_markdown(frames, extras)
     finished = run.get("finished") or "not finished (interrupted, or still running)"
     out += [f"- Started: {run.get('started') or 'unknown'}", f"- Finished: {finished}"]
     if run.get("quick"):

@@ -1,0 +1,188 @@
+"""What of the paper reproduces here: its comparative claims as ratios measured in one run.
+
+Absolute figures compare machines (this CPU against the paper's GPU or Jetson with TensorRT).
+A ratio between two systems measured the same way on the same machine compares methods, and
+carries across machines. So each table gets a view relative to the paper's baseline row
+(:func:`relative_markdown`), and ``index.md`` opens with the paper's claims checked as such
+ratios (:func:`claims_markdown`): measured here, beside the paper's own ratio, with a verdict,
+or the reason it cannot be checked.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import pandas as pd
+
+from evsmap.runner.records import CellRecord
+from evsmap.tables.schema import PaperTable
+
+BASELINES = {"table1": "esanet-r34", "table2": "esanet-r34", "table4": "tesamap"}
+"""The paper's baseline row of each table: the system its method is set against."""
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A comparative claim of the paper about ``value(row, column) / value(base, column)``:
+    above 1 (``mode="higher"``), below 1 (``"lower"``), or within :data:`MATCH_TOLERANCE` of
+    the paper's own ratio (``"match"``: the paper trades accuracy for speed, so what it claims
+    is its relative accuracy, not a win)."""
+
+    text: str
+    table: str
+    row: str
+    base: str
+    column: str
+    mode: str
+
+
+MATCH_TOLERANCE = 0.05
+
+
+CLAIMS = (
+    Claim("FEAGNet-V2 runs faster than ESANet-R34 (Table I, FPS)", "table1", "feagnet-v2",
+          "esanet-r34", "fps", "higher"),
+    Claim("FEAGNet-V1 runs faster than ESANet-R34 (Table I, FPS)", "table1", "feagnet-v1",
+          "esanet-r34", "fps", "higher"),
+    Claim("FEAGNet-V2 has fewer parameters than ESANet-R34 (Table I)", "table1", "feagnet-v2",
+          "esanet-r34", "params", "lower"),
+    Claim("FEAGNet-V2 needs fewer FLOPs than ESANet-R34 (Table I)", "table1", "feagnet-v2",
+          "esanet-r34", "flops", "lower"),
+    Claim("FEAGNet-V2 keeps the paper's share of ESANet-R34's NYUv2 mIoU (Table I, within 5 %)",
+          "table1", "feagnet-v2", "esanet-r34", "miou_nyuv2", "match"),
+    Claim("FEAGNet-V2 keeps the paper's share of ESANet-R34's SUN RGB-D mIoU (Table I, within "
+          "5 %)", "table1", "feagnet-v2", "esanet-r34", "miou_sunrgbd", "match"),
+    Claim("EVSMap runs faster end to end than TESAMap (Table IV, Runtime)", "table4", "evsmap",
+          "tesamap", "runtime", "higher"),
+    Claim("EVSMap's map is smaller than TESAMap's on Seq.1, TUM (Table IV)", "table4", "evsmap",
+          "tesamap", "size_seq1", "lower"),
+)
+
+
+def _cells(frame: pd.DataFrame) -> dict[tuple[str, str], dict]:
+    return {(r["row"], r["column"]): r for r in frame.to_dict("records")}
+
+
+def _measured(cell: Mapping | None) -> float | None:
+    if cell is None or cell.get("status") != "ok":
+        return None
+    v = cell.get("measured")
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+
+
+def _paper(cell: Mapping | None) -> float | None:
+    v = None if cell is None else cell.get("paper")
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+
+
+def _why(cell: Mapping | None, row: str) -> str:
+    if cell is None:
+        return f"{row}: not in this run"
+    note = str(cell.get("note") or "").strip().removeprefix("n/a - ")
+    return f"{cell.get('label', row)}: {note or cell.get('status')}"
+
+
+def check(claim: Claim, frame: pd.DataFrame) -> dict:
+    """One claim against a table's frame (:func:`~evsmap.report.tables.table_frame`):
+    ``measured`` and ``paper`` ratios, ``verdict`` ("holds", "does not hold", "cannot be
+    checked here") and ``why`` when it cannot."""
+    cells = _cells(frame)
+    a, b = cells.get((claim.row, claim.column)), cells.get((claim.base, claim.column))
+    pa, pb = _paper(a), _paper(b)
+    paper = pa / pb if pa is not None and pb else None
+    ma, mb = _measured(a), _measured(b)
+    if ma is None or not mb:
+        missing = ([_why(a, claim.row)] if ma is None else []) + \
+            ([_why(b, claim.base)] if not mb else [])
+        return {"claim": claim.text, "measured": None, "paper": paper,
+                "verdict": "cannot be checked here", "why": "; ".join(missing)}
+    ratio = ma / mb
+    if claim.mode == "higher":
+        holds = ratio > 1.0
+    elif claim.mode == "lower":
+        holds = ratio < 1.0
+    else:
+        holds = paper is not None and abs(ratio / paper - 1.0) <= MATCH_TOLERANCE
+    flagged = any(isinstance(c.get("timing_flag"), str) and c.get("timing_flag")
+                  for c in (a, b) if c is not None)
+    return {"claim": claim.text, "measured": ratio, "paper": paper,
+            "verdict": "holds" if holds else "does not hold",
+            "why": "a timing in it is flagged (~)" if flagged else ""}
+
+
+def claims_markdown(frames: Mapping[str, pd.DataFrame],
+                    extras: Iterable[CellRecord] = ()) -> list[str]:
+    """``index.md``'s opening section: each claim of :data:`CLAIMS` whose table is in the run,
+    then the map-size claim on the extra sequences (the synthetic room, TUM)."""
+    rows = [check(c, frames[c.table]) for c in CLAIMS if c.table in frames]
+    if not rows and not extras:
+        return []
+    out = ["## What reproduces here", "",
+           "The paper's comparative claims, each as a ratio of two systems measured the same "
+           "way in this run (ratios carry across machines; this CPU against the paper's GPU or "
+           "Jetson does not).", "",
+           "| claim | measured ratio | paper's ratio | here |", "|---|---:|---:|---|"]
+    for r in rows:
+        measured = "-" if r["measured"] is None else f"{r['measured']:.2f}x"
+        paper = "-" if r["paper"] is None else f"{r['paper']:.2f}x"
+        verdict = r["verdict"] + (f" ({_short(r['why'])})" if r["why"] else "")
+        out.append(f"| {r['claim']} | {measured} | {paper} | {verdict} |")
+    out += _map_size_rows(extras)
+    out.append("")
+    return out
+
+
+def _short(text: str, limit: int = 140) -> str:
+    text = " ".join(text.split()).replace("|", "\\|")
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _map_size_rows(extras: Iterable[CellRecord]) -> list[str]:
+    """The map-size claim ("EVSMap's map smaller than TESAMap's", the paper's up to 2.6x) on each
+    extra sequence where TFEAGMap (semantic_slam) and EVSMap were both mapped."""
+    by = {(r.row, str(r.inputs.get("sequence"))): r for r in extras
+          if r.status == "ok" and r.key.startswith("extra/mapping/")}
+    out = []
+    for (row, seq), ev in sorted(by.items()):
+        if row != "evsmap" or ("tfeagmap", seq) not in by:
+            continue
+        other = by[("tfeagmap", seq)]
+        a, b = ev.values.get("map_bytes"), other.values.get("map_bytes")
+        if not a or not b:
+            continue
+        ratio = a / b
+        out.append(f"| EVSMap's map is smaller than TFEAGMap's (semantic_slam), on {seq} "
+                   f"(not a paper sequence; the files each system writes) | {ratio:.2f}x | "
+                   f"up to 1/2.6 = 0.38x | {'holds' if ratio < 1 else 'does not hold'} |")
+    return out
+
+
+def relative_markdown(table: PaperTable, frame: pd.DataFrame) -> list[str]:
+    """The table relative to its baseline row (:data:`BASELINES`): for every implemented row
+    and numeric column, ``measured ratio / paper's ratio``."""
+    base = BASELINES.get(table.id)
+    if base is None:
+        return []
+    cells = _cells(frame)
+    columns = [c for c in table.columns if c.kind != "flag"]
+    base_label = next((r.label for r in table.rows if r.id == base), base)
+    out = [f"## Relative to {base_label} (the paper's baseline row)", "",
+           f"Each cell: this row / {base_label} measured here, then the same ratio of the "
+           f"paper's figures. Ratios of systems measured the same way compare methods; they "
+           f"carry across machines where absolute figures do not.", "",
+           "| System | " + " | ".join(c.header for c in columns) + " |",
+           "|---|" + "|".join("---:" for _ in columns) + "|"]
+    for system in table.rows:
+        if not system.implemented or system.id == base:
+            continue
+        line = [system.label]
+        for col in columns:
+            a, b = cells.get((system.id, col.id)), cells.get((base, col.id))
+            ma, mb, pa, pb = _measured(a), _measured(b), _paper(a), _paper(b)
+            m = f"{ma / mb:.2f}x" if ma is not None and mb else "-"
+            p = f"{pa / pb:.2f}x" if pa is not None and pb else "-"
+            line.append(f"{m} / {p}" if (m, p) != ("-", "-") else "-")
+        out.append("| " + " | ".join(line) + " |")
+    return out + [""]
