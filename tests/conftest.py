@@ -32,3 +32,20 @@ def nyuv2_samples_dir() -> Path:
 @pytest.fixture(scope="session")
 def lidar_bag() -> Path:
     return require_sample("lidar-odometry-bag")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _session_cache(tmp_path_factory):
+    """One evsmap cache (ONNX exports, segmentations, rendered sequences, calibrations) for the
+    whole test session, never the user's ``~/.cache/evsmap``: tests start from nothing and leave
+    nothing behind. A cache set from outside (``EVSMAP_CACHE_DIR``) is kept."""
+    import os
+
+    if os.environ.get("EVSMAP_CACHE_DIR"):
+        yield
+        return
+    os.environ["EVSMAP_CACHE_DIR"] = str(tmp_path_factory.mktemp("evsmap-cache"))
+    try:
+        yield
+    finally:
+        os.environ.pop("EVSMAP_CACHE_DIR", None)

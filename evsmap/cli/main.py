@@ -23,6 +23,7 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     from evsmap.cli import (
+        cache_cmd,
         complexity_cmd,
         datasets_cmd,
         eval_cmd,
@@ -47,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd,
                    map_cmd, datasets_cmd, eval_cmd, report_cmd, weights_cmd,
-                   predict_cmd, train_cmd):
+                   predict_cmd, train_cmd, cache_cmd):
         module.add_parser(sub)
     return parser
 

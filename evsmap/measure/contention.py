@@ -79,9 +79,9 @@ def machine_key() -> str:
 def machine_log_path() -> Path:
     """``$EVSMAP_CACHE_DIR/calibration.json``, else ``~/.cache/evsmap/calibration.json``: the
     best calibration each machine has shown, kept across runs."""
-    root = os.environ.get("EVSMAP_CACHE_DIR")
-    base = Path(root).expanduser() if root else Path.home() / ".cache" / "evsmap"
-    return base / "calibration.json"
+    from evsmap.cache import cache_root
+
+    return cache_root() / "calibration.json"
 
 
 class CalibrationLog:

@@ -27,11 +27,11 @@ class OnnxExportError(EvsmapError):
 
 
 def default_cache_dir() -> Path:
-    """``$EVSMAP_CACHE_DIR/onnx`` when set, else ``~/.cache/evsmap/onnx``."""
-    root = os.environ.get(CACHE_ENV)
-    if root:
-        return Path(root).expanduser() / "onnx"
-    return Path.home() / ".cache" / "evsmap" / "onnx"
+    """``$EVSMAP_CACHE_DIR/onnx`` when set, else ``~/.cache/evsmap/onnx`` (the cache shared
+    across runs, :mod:`evsmap.cache`)."""
+    from evsmap.cache import cache_dir
+
+    return cache_dir("onnx")
 
 
 def export_onnx(

@@ -171,8 +171,13 @@ def build_report(run_dir: str | Path) -> list[Path]:
         else:
             path.unlink(missing_ok=True)  # a stale figure from an earlier build
 
+    from evsmap.cache import cache_root, folder_size
+
     index = index_markdown(run, tables, table_ids, frames, extras, drawn,
-                           has_extra_csv=bool(extras))
+                           has_extra_csv=bool(extras),
+                           sizes={"run": folder_size(run_dir)[1],
+                                  "cache_root": str(cache_root()),
+                                  "cache": folder_size(cache_root())[1]})
     written.append(_write(run_dir / "index.md", index))
     return written
 
@@ -217,8 +222,8 @@ def _md(text: Any) -> str:
 def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
                    table_ids: list[str], frames: Mapping[str, pd.DataFrame],
                    extras: list[CellRecord], drawn: Mapping[str, bool], *,
-                   has_extra_csv: bool) -> str:
-    """The run's ``index.md``."""
+                   has_extra_csv: bool, sizes: Mapping[str, Any] | None = None) -> str:
+    """The run's ``index.md`` (``sizes``: bytes of the run folder and of the shared cache)."""
     run_id = run.get("run") or "unknown"
     out = [f"# evsmap report - run {run_id}", ""]
     out += claims_markdown(frames, extras)
@@ -240,6 +245,11 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     elif timed:
         out.append(f"- Timing: all {timed} speed cells reached a steady median (IQR/median "
                    f"within the threshold) with no contention seen by the calibration")
+    if sizes:
+        out.append(f"- Run folder: {sizes['run'] / 1e6:.1f} MB (records, tables, plots, small "
+                   f"artifacts); ONNX exports, segmentations and rendered sequences live in the "
+                   f"cache shared across runs, `{sizes['cache_root']}` "
+                   f"({sizes['cache'] / 1e6:.1f} MB, `evsmap cache info`)")
     out.append(f"- Data root: `{run['data_root']}`" if run.get("data_root")
                else "- Data root: none")
     out.append(f"- Weights folder: `{run['weights_dir']}`" if run.get("weights_dir")

@@ -147,7 +147,10 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
     macs = measure_complexity(segmenter.module, inputs).flops
     from evsmap.measure.contention import CalibrationLog, machine_log_path
 
-    cache = Path(ctx.out) / "cache" / "onnx" if ctx.speed_backend == "onnxruntime" else None
+    from evsmap.measure.onnx_export import default_cache_dir
+
+    # ONNX exports: the cache shared across runs (content-addressed by network and weights)
+    cache = default_cache_dir() if ctx.speed_backend == "onnxruntime" else None
     log = CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
                          machine_path=machine_log_path())
 
@@ -155,7 +158,7 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
         return measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,
                              runs=ctx.speed_runs, warmup=ctx.speed_warmup, threads=ctx.threads,
                              macs=macs, input_names=segmenter.input_names,
-                             key=spec.segmenter.spec, cache_dir=_onnx_cache(ctx) or cache,
+                             key=spec.segmenter.spec, cache_dir=cache,
                              max_rounds=ctx.max_rounds, stable_rel_iqr=ctx.stable_rel_iqr,
                              calibration_log=log)
 
@@ -189,11 +192,6 @@ STRICT_PAUSE_S = 20.0
 """``--strict-timing``: seconds to wait before timing a contended cell a second time."""
 RETRY_PAUSE_S = 3.0
 """Without ``--strict-timing``: the same, shorter (the cell is flagged if still contended)."""
-
-
-def _onnx_cache(ctx: RunContext) -> Path | None:
-    env = os.environ.get("EVSMAP_CACHE_DIR")
-    return Path(env) / "onnx" if env else None
 
 
 def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
@@ -302,10 +300,13 @@ def open_mapping_sequence(ctx: RunContext, name: str):
         from evsmap.readers.tum import METADATA_FILE
         from evsmap.synth.write import write_synthetic
 
+        from evsmap.cache import cache_dir, source_digest
+
         o = ctx.synthetic
-        folder = Path(ctx.out) / "cache" / "sequences" / (
+        # the cache shared across runs, keyed by the options and the renderer's source
+        folder = cache_dir("sequences") / (
             f"synthetic-{o['scene']}-s{o['seed']}-{o['width']}x{o['height']}-{o['frames']}f"
-            + ("-noise" if o.get("noise") else ""))
+            + ("-noise" if o.get("noise") else "") + f"-{source_digest('evsmap.synth')}")
         if not (folder / METADATA_FILE).is_file():
             write_synthetic(SyntheticSequence(**o), folder, overwrite=True)
         return READERS.create("tum", path=str(folder))
@@ -314,6 +315,22 @@ def open_mapping_sequence(ctx: RunContext, name: str):
         raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")
     info = MAPPING_SEQUENCES[name]
     return READERS.create(info["reader"], path=str(path), **info["options"])
+
+
+def sequence_identity(sequence) -> str:
+    """What a sequence's frames are, for the shared segmentation cache: its folder (resolved)
+    and that folder's modification time and size, so frames replaced in place, or another
+    rendering of the synthetic scene (its folder names the renderer's source digest), get new
+    entries."""
+    path = getattr(sequence, "root", None) or getattr(sequence, "path", None)
+    if path is None:
+        return str(getattr(sequence, "name", "unknown"))
+    p = Path(path).resolve()
+    try:
+        st = p.stat()
+        return f"{p}:{st.st_mtime_ns}:{st.st_size}"
+    except OSError:
+        return str(p)
 
 
 _WEIGHTS_IDS: dict[tuple[str, int, int, int], str] = {}
@@ -374,16 +391,28 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     n = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
     indices = list(range(n))
     notes: list[str] = []
+    from evsmap.cache import cache_dir
+
+    # observations: the cache shared across runs (keyed by segmenter, weights' tensors and the
+    # sequence's frames); timings: this run's own, never another run's
+    shared = SegmentationCache(cache_dir("segmentation"))
     cache = SegmentationCache(Path(ctx.out) / "cache" / "segmentation")
+    frames_id = sequence_identity(sequence)
     observations: list | None = None
     segment_ms: list[float] = []
     if semantic:
         labelled = n > 0 and sequence.frame(0).labels is not None
         if choice is not None:
             net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
-            observations, segment_ms, _ = cache.observations(
+            observations, segment_ms, reused = shared.observations(
                 net, sequence, indices,
-                key=observations_key(run.segmenter.spec, weights, sequence.name))
+                key={**observations_key(run.segmenter.spec, weights, sequence.name),
+                     "frames": frames_id})
+            if reused:  # computed in another run: time the network in this one
+                segment_ms, _ = cache.timings(net, sequence, indices, key={
+                    "segmenter": run.segmenter.spec, "weights_id": weights_identity(weights),
+                    "backend": "onnxruntime", "threads": ctx.threads,
+                    "sequence": sequence.name})
             notes.append(f"labels from {run.segmenter.spec} with weights {choice.file} "
                          f"(onnxruntime)")
             notes.append(choice.note())
@@ -391,9 +420,9 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
             from evsmap.registry import SEGMENTERS
 
             oracle = SEGMENTERS.create("oracle", **ctx.oracle)
-            observations, _, _ = cache.observations(
+            observations, _, _ = shared.observations(
                 oracle, sequence, indices, key={"segmenter": "oracle", **ctx.oracle,
-                                                "sequence": sequence.name})
+                                                "sequence": sequence.name, "frames": frames_id})
             net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
             segment_ms, _ = cache.timings(net, sequence, indices, key={
                 "segmenter": run.segmenter.spec, "backend": ctx.speed_backend,
