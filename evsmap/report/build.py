@@ -234,17 +234,17 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
                    "settings")
     flagged = [(tid, r) for tid in table_ids for r in frames[tid].to_dict("records")
                if isinstance(r.get("timing_flag"), str) and r["timing_flag"]]
-    timed = sum(int(((frames[tid]["status"] == "ok") & (frames[tid]["unit"] == "FPS")).sum())
-                for tid in table_ids)
+    timed = sum(int(((frames[tid]["status"] == "ok")
+                     & frames[tid]["unit"].isin(["FPS", "Hz"])).sum()) for tid in table_ids)
     if flagged:
         cells = ", ".join(f"{tables[tid].number}: {r['label']} / {r['header']}"
                           for tid, r in flagged[:6]) + (" ..." if len(flagged) > 6 else "")
-        out.append(f"- **Timing: {len(flagged)} speed cell(s) flagged** (marked `~`: no steady "
+        out.append(f"- **Timing: {len(flagged)} timed cell(s) flagged** (marked `~`: no steady "
                    f"median within the rounds allowed, or the machine was busy) - Table {cells}. "
                    f"Rerun them on an idle machine, or with `--strict-timing`.")
     elif timed:
-        out.append(f"- Timing: all {timed} speed cells reached a steady median (IQR/median "
-                   f"within the threshold) with no contention seen by the calibration")
+        out.append(f"- Timing: all {timed} timed cells (speeds, mapping rates) were taken with no "
+                   f"contention seen by the calibration, speeds with a steady median")
     if sizes:
         out.append(f"- Run folder: {sizes['run'] / 1e6:.1f} MB (records, tables, plots, small "
                    f"artifacts); ONNX exports, segmentations and rendered sequences live in the "

@@ -400,6 +400,9 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     frames_id = sequence_identity(sequence)
     observations: list | None = None
     segment_ms: list[float] = []
+    from evsmap.measure.contention import CalibrationLog, Probe, contention, machine_log_path
+
+    before = Probe.take()  # the machine around the timed part (segmentation and update)
     if semantic:
         labelled = n > 0 and sequence.frame(0).labels is not None
         if choice is not None:
@@ -445,6 +448,9 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         t0 = time.perf_counter()
         updater.integrate(frame, obs)
         update_ms.append((time.perf_counter() - t0) * 1000.0)
+    machine = contention(before, Probe.take(),
+                         CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
+                                        machine_path=machine_log_path()))
     from evsmap.measure.mapping import map_sizes, memory_nbytes, pruned_share
 
     stats = updater.stats()
@@ -468,6 +474,13 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         "leaves": stats.leaves, "sequence_name": sequence.name, **values}
     notes.append(f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians "
                  f"over frames (update only; end to end = segmentation + update)")
+    details["contention"] = machine
+    if machine["contended"]:
+        flag = (f"contended: the calibration matmul ran {machine['slowdown']:.2f}x slower than "
+                f"the run's best around this mapping run (load {machine['before']['load1']:.1f}"
+                f" on {machine['before']['cores']} cores)")
+        details["timing_flag"] = flag
+        notes.append(f"timing flagged - {flag}")
     if run.sequence == "synthetic" and hasattr(updater, "occupied_labels"):
         from evsmap.metrics import evaluate_map
         from evsmap.synth.sequence import SyntheticSequence
@@ -566,6 +579,8 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
                          + (" (no sequence of the paper's could be mapped by every system "
                             "here)" if fallback else "") + "; " + "; ".join(source.notes))
             details[col] = {"source": source.key}
+            if (source.details or {}).get("timing_flag"):
+                details["timing_flag"] = source.details["timing_flag"]
     return CellRecord(**base, status="ok", values=values, notes=notes, details=details,
                       started=_now())
 

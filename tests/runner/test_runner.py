@@ -233,3 +233,21 @@ def test_a_missing_sample_names_the_fetch_command():
     assert needs_text(["dataset:tum"]) == (
         "n/a - needs the tum dataset (`evsmap datasets fetch tum-fr1-xyz`)")
     assert "fetch" not in needs_text(["dataset:nyuv2"])
+
+
+def test_a_contended_mapping_run_flags_the_runtime_cell(ctx):
+    from dataclasses import replace
+
+    specs = {s.key: s for s in expand(load_tables()["table4"])}
+    flag = "contended: the calibration matmul ran 3.00x slower"
+    runs = {r.key: r for r in [
+        replace(_run_record("evsmap", "synthetic", end_to_end_hz=7.5, map_bytes=1e6),
+                details={"timing_flag": flag}),
+        _run_record("orgbmap", "synthetic", end_to_end_hz=25.0, map_bytes=3e5),
+    ]}
+    rate = table4_record(specs["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
+                               "[runtime_hz]"], runs, ctx)
+    assert rate.details["timing_flag"] == flag
+    orgb = table4_record(specs["table4/orgbmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
+                               "[runtime_hz]"], runs, ctx)
+    assert "timing_flag" not in orgb.details
