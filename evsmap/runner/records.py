@@ -128,6 +128,7 @@ class RecordStore:
         try:
             with os.fdopen(fd, "w") as fh:
                 json.dump(record.as_dict(), fh, indent=1, default=_json_default)
+            os.chmod(tmp, _file_mode())  # mkstemp makes 0600; records are for everyone
             os.replace(tmp, target)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -166,3 +167,10 @@ def _json_default(value: Any) -> Any:
     if isinstance(value, Path):
         return str(value)
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def _file_mode() -> int:
+    """0666 less the process umask: the mode ``open`` gives a new file."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask

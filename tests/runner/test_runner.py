@@ -251,3 +251,16 @@ def test_a_contended_mapping_run_flags_the_runtime_cell(ctx):
     orgb = table4_record(specs["table4/orgbmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
                                "[runtime_hz]"], runs, ctx)
     assert "timing_flag" not in orgb.details
+
+
+def test_record_files_are_readable_by_others(tmp_path):
+    import os
+    import stat
+
+    from evsmap.runner.records import RecordStore
+
+    store = RecordStore(tmp_path / "records")
+    path = store.write(_run_record("evsmap", "synthetic", end_to_end_hz=1.0))
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
