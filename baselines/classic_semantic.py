@@ -114,8 +114,9 @@ class ClassicSemanticMap(OctreeUpdater):
 
     def _published_tree(self, tree):
         """semantic_slam's own file: its node type reports ``ColorOcTree`` and ``writeData``
-        writes the float log-odds and the top class's colour (semantic_slam's VOC colour map; ``getSemanticColor``: white,
-        255/255/255, for a node without semantics), 8 bytes a node with the child mask; any
+        writes the float log-odds and the top class's colour (semantic_slam's VOC colour map;
+        ``getSemanticColor``: white, 255/255/255, for a node without semantics), 8 bytes a node
+        with the child mask; any
         OctoMap tool opens it. Inner nodes show the top class of their semantics here (the
         strongest child's; semantic_slam fuses the children)."""
         from dataclasses import replace

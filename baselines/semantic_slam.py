@@ -95,8 +95,8 @@ class SemanticSlamMap(OctreeUpdater):
             raise InvalidDataError(f"unknown fusion rule {fusion_rule!r} (known: bayes, max)")
         if not (isinstance(raycast_range, (int, float)) and np.isfinite(raycast_range)
                 and raycast_range >= 0):
-            raise InvalidDataError(f"classic-semantic: raycast_range must be a number of metres >= 0, got "
-                                   f"{raycast_range!r}")
+            raise InvalidDataError(f"classic-semantic: raycast_range must be a number of metres "
+                                   f">= 0, got {raycast_range!r}")
         self.fusion_rule = fusion_rule
         self.bayes = fusion_rule == "bayes"
         self.slots = 3 if self.bayes else 1
@@ -273,15 +273,11 @@ class SemanticSlamMap(OctreeUpdater):
         if frame.is_cloud:
             raise InvalidDataError(f"{self.name}: semantic_slam builds its cloud from a depth "
                                    f"image; frame {frame.name!r} is a point cloud")
-        depth = frame.depth
-        valid = np.isfinite(depth) & (depth > 0)
-        pixels = np.flatnonzero(valid)
-        v, u = np.divmod(pixels, depth.shape[1])
-        z = depth.ravel()[pixels].astype(np.float64)
-        i = frame.intrinsics
-        x = (u - i.cx) / i.fx * z
-        y = (v - i.cy) / i.fy * z
-        return np.stack([x, y, z], axis=1).astype(np.float32), pixels
+        from evsmap.geometry import backproject
+
+        valid = np.isfinite(frame.depth) & (frame.depth > 0)
+        return (backproject(frame.depth, frame.intrinsics, mask=valid).astype(np.float32),
+                np.flatnonzero(valid))
 
     @staticmethod
     def _to_world(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

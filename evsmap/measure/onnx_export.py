@@ -149,9 +149,9 @@ def cached_onnx(
     tmp = Path(tmp_name)
     try:
         export_onnx(module, inputs, input_names, tmp)
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)  # mkstemp makes 0600; the shared cache is for everyone
+        from evsmap.cache import new_file_mode
+
+        os.chmod(tmp, new_file_mode())  # mkstemp makes 0600; the shared cache is for everyone
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)

@@ -30,8 +30,8 @@ missing); the run failed; no record; a record without a value for the column; a 
 not implement."""
 
 EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "map_bytes_full", "memory_bytes",
-                "memory_nbytes", "nodes", "leaves", "pruned_share", "precision", "recall", "semantic_accuracy", "semantic_accuracy_all",
-                "map_miou", "frames", "miou")
+                "memory_nbytes", "nodes", "leaves", "pruned_share", "precision", "recall",
+                "semantic_accuracy", "semantic_accuracy_all", "map_miou", "frames", "miou")
 """Value keys of the ``extra`` records (base units; ``map_bytes``: the file the system itself
 writes, ``map_bytes_full``: evsmap's resumable state; ``miou``: the synthrooms proxy
 networks')."""

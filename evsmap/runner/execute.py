@@ -146,7 +146,6 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
     inputs = segmenter.example_inputs(h, w)
     macs = measure_complexity(segmenter.module, inputs).flops
     from evsmap.measure.contention import CalibrationLog, machine_log_path
-
     from evsmap.measure.onnx_export import default_cache_dir
 
     # ONNX exports: the cache shared across runs (content-addressed by network and weights)
@@ -297,10 +296,9 @@ def open_mapping_sequence(ctx: RunContext, name: str):
     if name == "synthetic":
         # rendered once per run into the cache (TUM layout, read back bit-identical), so the
         # mapping runs, the segmentation cache and the timings all read the same frames cheaply
+        from evsmap.cache import cache_dir, source_digest
         from evsmap.readers.tum import METADATA_FILE
         from evsmap.synth.write import write_synthetic
-
-        from evsmap.cache import cache_dir, source_digest
 
         o = ctx.synthetic
         # the cache shared across runs, keyed by the options and the renderer's source

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from evsmap.cache import new_file_mode
 from evsmap.errors import DataFormatError
 
 STATUSES = ("ok", "na", "error")
@@ -128,7 +129,7 @@ class RecordStore:
         try:
             with os.fdopen(fd, "w") as fh:
                 json.dump(record.as_dict(), fh, indent=1, default=_json_default)
-            os.chmod(tmp, _file_mode())  # mkstemp makes 0600; records are for everyone
+            os.chmod(tmp, new_file_mode())  # mkstemp makes 0600; records are for everyone
             os.replace(tmp, target)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -168,9 +169,3 @@ def _json_default(value: Any) -> Any:
         return str(value)
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
-
-def _file_mode() -> int:
-    """0666 less the process umask: the mode ``open`` gives a new file."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask

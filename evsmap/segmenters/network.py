@@ -10,7 +10,6 @@ at the frame's resolution.
 from __future__ import annotations
 
 import time
-
 from os import PathLike
 from typing import ClassVar
 

@@ -114,7 +114,8 @@ def _reference_bayes(s1, s2):
         conf[i] = f32(conf[i] / total)
         if float(conf[i]) < eps:
             conf[i] = f32(eps)
-    ranked = sorted(zip(conf, range(len(colors))), key=lambda t: t[0])  # stable ascending
+    ranked = sorted(zip(conf, range(len(colors)), strict=True),
+                    key=lambda t: t[0])  # stable ascending
     return [(colors[i], c) for c, i in ranked[::-1][:3]]
 
 
