@@ -8,9 +8,13 @@ from __future__ import annotations
 import argparse
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from evsmap.cli.options import positive_int
 from evsmap.errors import EvsmapError
+
+if TYPE_CHECKING:
+    from evsmap.runner.context import RunContext
 
 TABLE_NAMES = {"I": "table1", "II": "table2", "III": "table3", "IV": "table4"}
 
@@ -161,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
     sequences = {"synthetic": {**ctx.synthetic, "labels": "ground truth (oracle segmenter)"}}
     for name in the_plan.sequences:
         if name != "synthetic":
-            sequences[name] = {"path": str(ctx.dataset_path(name)), "frames": ctx.frames}
+            sequences[name] = _describe_sequence(ctx, name)
     fields = dict(run=stamp, started=started, finished=None, tables=args.tables,
                   environment=env, sequences=sequences)
     write_run_file(ctx, the_plan, out / "run.json", **fields)
@@ -196,3 +200,27 @@ def run(args: argparse.Namespace) -> int:
         print(f"  failed: {r.key}: {r.error}")
     print(f"report written to {out}/ ({', '.join(p.name for p in written[:6])}, ...)")
     return 1 if err else 0
+
+
+def _describe_sequence(ctx: RunContext, name: str) -> dict:
+    """What index.md says about a real mapping sequence: its folder, the frames mapped (all, or
+    the ``--quick`` cap), their size, and whether it has labels for the oracle."""
+    from evsmap.runner.execute import open_mapping_sequence
+
+    path = ctx.dataset_path(name)
+    info: dict = {"path": str(path), "scene": path.name if path is not None else None}
+    try:
+        seq = open_mapping_sequence(ctx, name)
+        n = len(seq) if ctx.frames is None else min(ctx.frames, len(seq))
+        info["frames"] = n
+        if n:
+            first = seq.frame(0)
+            image = first.depth if first.depth is not None else first.rgb
+            if image is not None:
+                info.update(width=int(image.shape[1]), height=int(image.shape[0]))
+            info.update(
+                        labels="ground truth (oracle segmenter)" if first.labels is not None
+                        else "none (semantic systems need trained weights)")
+    except EvsmapError as exc:
+        info["labels"] = f"unreadable: {exc}"
+    return info

@@ -160,7 +160,7 @@ def build_report(run_dir: str | Path) -> list[Path]:
     labels = _map_labels(tables, records)
     drawn: dict[str, bool] = {}
     for name, draw in (
-        ("networks.png", lambda p: plots.networks_plot(frames, p)),
+        ("networks.png", lambda p: plots.networks_plot(frames, p, records)),
         ("mapping.png", lambda p: plots.mapping_plot(records, p, tables)),
         ("qualitative.png", lambda p: plots.qualitative_plot(run_dir / "artifacts", p, labels)),
     ):

@@ -1,7 +1,7 @@
 """The report's figures (matplotlib, drawn off-screen through the Agg canvas).
 
-* :func:`networks_plot` - FPS against parameters and against FLOPs for the networks of Tables I
-  and II whose speed and complexity were measured, the paper's values as hollow markers.
+* :func:`networks_plot` - measured FPS against FLOPs for the networks of Tables I and II, and
+  each network's speed over ESANet-R34's beside the paper's ratio.
 * :func:`mapping_plot` - map update rate, end-to-end rate and map size per sequence and system.
 * :func:`qualitative_plot` - segmentation overlays beside the ground truth, and a top-down
   render of each system's semantic map.
@@ -61,10 +61,18 @@ def _value(cells: Mapping[str, Mapping[str, Any]], col: str, which: str) -> floa
     return float(line[which])
 
 
-def network_points(frames: Mapping[str, pd.DataFrame]) -> list[dict[str, Any]]:
+def network_points(frames: Mapping[str, pd.DataFrame],
+                   records: Iterable[CellRecord] = ()) -> list[dict[str, Any]]:
     """Rows of Tables I/II with a measured FPS: the measured and printed FPS, parameters (M) and
     FLOPs (G) for each speed column (``frames``: :func:`~evsmap.report.tables.table_frame` by
-    table id)."""
+    table id). ``flops`` is the speed record's own count at the resolution it timed (fvcore,
+    ``details["macs"]``, from ``records``), else the table's FLOPs column."""
+    timed_macs = {}
+    for rec in records:
+        macs = (rec.details or {}).get("macs") if rec.status == "ok" else None
+        if rec.kind == "speed" and isinstance(macs, (int, float)) and macs > 0:
+            for col in rec.metrics:
+                timed_macs[(rec.table, rec.row, col)] = float(macs) / 1e9
     points = []
     for tid, fps_col, legend, marker in _SPEED_SERIES:
         frame = frames.get(tid)
@@ -80,68 +88,216 @@ def network_points(frames: Mapping[str, pd.DataFrame]) -> list[dict[str, Any]]:
                 "table": tid, "series": legend, "marker": marker, "row": row,
                 "label": fps["label"],
                 "fps": float(fps["measured"]), "params": _value(cells, "params", "measured"),
-                "flops": _value(cells, "flops", "measured"),
+                "flops": timed_macs.get((tid, row, fps_col), _value(cells, "flops", "measured")),
                 "paper_fps": _value(cells, fps_col, "paper"),
                 "paper_params": _value(cells, "params", "paper"),
                 "paper_flops": _value(cells, "flops", "paper")})
     return points
 
 
-def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path) -> bool:
-    """FPS vs parameters and FPS vs FLOPs (two panels) of the networks with a measured speed
-    and complexity; the paper's values for the same rows as hollow markers joined by a dotted
-    line. ``False`` when no network has both."""
-    points = network_points(frames)
-    panels = (("params", "Parameters (M)"), ("flops", "FLOPs (G)"))
-    if not any(p[x] is not None for p in points for x, _ in panels):
-        return False
-    fig = _figure(12, 5)
-    axes = fig.subplots(1, 2)
-    for ax, (x, xlabel) in zip(axes, panels, strict=True):
-        shown = [p for p in points if p[x] is not None]
-        xs: list[float] = []
-        for i, series in enumerate(dict.fromkeys(p["series"] for p in points)):
-            color = f"C{i}"
-            pts = [p for p in shown if p["series"] == series]
-            if not pts:
-                continue
-            marker = pts[0]["marker"]
-            ax.scatter([p[x] for p in pts], [p["fps"] for p in pts], marker=marker, color=color,
-                       s=45, label=f"{series}: measured", zorder=3)
-            xs += [p[x] for p in pts]
-            paper = [p for p in pts if p[f"paper_{x}"] is not None and p["paper_fps"] is not None]
-            if paper:
-                ax.scatter([p[f"paper_{x}"] for p in paper], [p["paper_fps"] for p in paper],
-                           marker=marker, facecolors="none", edgecolors=color, s=45,
-                           label=f"{series}: paper", zorder=3)
-                xs += [p[f"paper_{x}"] for p in paper]
-                for p in paper:
-                    ax.plot([p[x], p[f"paper_{x}"]], [p["fps"], p["paper_fps"]], ":",
-                            color=color, lw=0.8, zorder=2)
-            for p in pts:
-                ax.annotate(p["label"], (p[x], p["fps"]), textcoords="offset points",
-                            xytext=(4, 4), fontsize=7)
-        if not shown:
-            ax.text(0.5, 0.5, f"no network with measured {xlabel.split(' ')[0]}", ha="center",
-                    va="center", transform=ax.transAxes)
-            ax.set_axis_off()
-            continue
-        positive = [v for v in xs if v > 0]
-        if positive and max(positive) / min(positive) > 8:
-            from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+def _log_axis(ax, which: str, values: Iterable[float]) -> None:
+    """Log scale with plain-number ticks on ``ax``'s ``which`` ("x" or "y") axis when the
+    positive ``values`` span more than a factor of 8."""
+    positive = [v for v in values if v is not None and v > 0]
+    if not positive or max(positive) / min(positive) <= 8:
+        return
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-            ax.set_xscale("log")
-            ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-            ax.xaxis.set_major_formatter(ScalarFormatter())
-            ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("FPS (batch 1)")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="best")
-    fig.suptitle("Speed against model size: measured (filled) and the paper (hollow)")
+    (ax.set_xscale if which == "x" else ax.set_yscale)("log")
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
+
+
+# candidate label offsets (points) around a marker, tried in this order
+_OFFSETS = ((5, 5), (5, -11), (-5, 5), (-5, -11), (8, -3), (-8, -3), (0, 9), (0, -15),
+            (12, 12), (-12, 12), (12, -18), (-12, -18))
+
+
+def place_labels(ax, xs: list[float], ys: list[float], texts: list[str],
+                 fontsize: float = 7) -> list:
+    """Annotate each point with its text at the first offset of :data:`_OFFSETS` whose box
+    overlaps no label placed before it, no marker and stays inside the axes (else the offset
+    that overlaps least). Returns the annotations."""
+    fig = ax.figure
+    renderer = fig.canvas.get_renderer()
+    fig.draw_without_rendering()
+    frame = ax.get_window_extent(renderer)
+    points = ax.transData.transform(np.column_stack([xs, ys])) if xs else np.zeros((0, 2))
+    scale = fig.dpi / 72.0
+    placed: list = []
+    out = []
+    for i in sorted(range(len(xs)), key=lambda k: (-points[k][1], points[k][0])):
+        best, best_cost = None, math.inf
+        for dx, dy in _OFFSETS:
+            ann = ax.annotate(texts[i], (xs[i], ys[i]), textcoords="offset points",
+                              xytext=(dx, dy), fontsize=fontsize,
+                              ha="left" if dx >= 0 else "right")
+            box = ann.get_window_extent(renderer)
+            cost = sum(_overlap(box, b) for b in placed)
+            cost += sum(_overlap(box, _marker_box(p, 4 * scale)) for j, p in enumerate(points)
+                        if j != i)
+            cost += _outside(box, frame)
+            if cost < best_cost:
+                if best is not None:
+                    best[0].remove()
+                best, best_cost = (ann, box), cost
+            else:
+                ann.remove()
+            if cost == 0:
+                break
+        placed.append(best[1])
+        out.append(best[0])
+    return out
+
+
+def _marker_box(p, r):
+    from matplotlib.transforms import Bbox
+
+    return Bbox.from_extents(p[0] - r, p[1] - r, p[0] + r, p[1] + r)
+
+
+def _overlap(a, b) -> float:
+    w = min(a.x1, b.x1) - max(a.x0, b.x0)
+    h = min(a.y1, b.y1) - max(a.y0, b.y0)
+    return w * h if w > 0 and h > 0 else 0.0
+
+
+def _outside(box, frame) -> float:
+    inside = _overlap(box, frame)
+    return (box.width * box.height - inside) * 4.0
+
+
+SPEED_BASELINE = "esanet-r34"
+"""The row every network's speed is divided by in :func:`speed_ratios` (the paper's baseline
+for its speed claims)."""
+
+
+def speed_ratios(points: list[dict[str, Any]],
+                 base: str = SPEED_BASELINE) -> list[dict[str, Any]]:
+    """Per speed series of :func:`network_points`, each network's FPS over ``base``'s FPS in
+    the same series: ``measured`` (both timed in this run) and ``paper`` (both printed, else
+    ``None``). Empty for a series without a measured ``base``."""
+    out = []
+    for series in dict.fromkeys(p["series"] for p in points):
+        pts = [p for p in points if p["series"] == series]
+        ref = next((p for p in pts if p["row"] == base), None)
+        if ref is None or not ref["fps"]:
+            continue
+        for p in pts:
+            if p is ref:
+                continue
+            paper = (p["paper_fps"] / ref["paper_fps"]
+                     if p["paper_fps"] is not None and ref["paper_fps"] else None)
+            out.append({"series": series, "marker": p["marker"], "row": p["row"],
+                        "label": p["label"], "base_label": ref["label"],
+                        "measured": p["fps"] / ref["fps"], "paper": paper})
+    return out
+
+
+def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
+                  records: Iterable[CellRecord] = ()) -> bool:
+    """Two panels. Left: measured FPS against measured FLOPs (log axes where the values span
+    decades), with lines of constant throughput (G MAC/s). Right: each network's speed over
+    ESANet-R34's at the same resolution, measured here beside the paper's ratio - the
+    comparison that carries across machines (the paper's absolute FPS are a Jetson's).
+    ``False`` when no network has a measured speed."""
+    points = network_points(frames, records)
+    if not points:
+        return False
+    series = list(dict.fromkeys(p["series"] for p in points))
+    colors = {s: f"C{i}" for i, s in enumerate(series)}
+    fig = _figure(13, 5.6)
+    left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.0, 1.1]})
+
+    shown = [p for p in points if p["flops"] is not None]
+    if shown:
+        for s in series:
+            pts = [p for p in shown if p["series"] == s]
+            if pts:
+                left.scatter([p["flops"] for p in pts], [p["fps"] for p in pts],
+                             marker=pts[0]["marker"], color=colors[s], s=40, zorder=3,
+                             label=s)
+        flops = [p["flops"] for p in shown]
+        fps = [p["fps"] for p in shown]
+        _log_axis(left, "x", flops)
+        _log_axis(left, "y", fps)
+        lo, hi = min(flops) / 1.5, max(flops) * 1.5
+        left.set_xlim(lo, hi)
+        left.set_ylim(min(fps) / 1.6, max(fps) * 1.6)
+        grid = np.geomspace(lo, hi, 50)
+        for rate in _iso_rates(flops, fps):
+            left.plot(grid, rate / grid, "--", color="0.75", lw=0.7, zorder=1)
+            x_at = min(hi / 1.1, max(lo * 1.1, rate / (max(fps) * 1.4)))
+            left.text(x_at, rate / x_at, f"{rate:g} G MAC/s", fontsize=7, color="0.45",
+                      rotation=0, va="bottom")
+        left.set_xlabel("FLOPs (G, fvcore; one multiply-add = one flop)")
+        left.set_ylabel("FPS measured here (batch 1)")
+        left.grid(True, which="major", alpha=0.3)
+        left.legend(fontsize=7, loc="lower left")
+        place_labels(left, [p["flops"] for p in shown], [p["fps"] for p in shown],
+                     [p["label"] for p in shown])
+    else:
+        _empty(left, "no network with measured FLOPs")
+    left.set_title("Speed against cost, this machine", fontsize=10)
+
+    ratios = speed_ratios(points)
+    if ratios:
+        y = np.arange(len(ratios))[::-1].astype(float)
+        h = 0.38
+        for yi, r in zip(y, ratios, strict=True):
+            c = colors[r["series"]]
+            left_bar = right.barh(yi + h / 2, r["measured"], h, color=c)
+            right.bar_label(left_bar, [f"{r['measured']:.2f}x here"], fontsize=7, padding=2)
+            if r["paper"] is not None:
+                bar = right.barh(yi - h / 2, r["paper"], h, facecolor="white", edgecolor=c,
+                                 hatch="///")
+                right.bar_label(bar, [f"{r['paper']:.2f}x paper"], fontsize=7, padding=2,
+                                color="0.35")
+        right.set_yticks(y, [f"{r['label']}\n{r['series']}" for r in ratios], fontsize=7)
+        right.axvline(1.0, color="0.3", lw=0.8)
+        values = [r["measured"] for r in ratios] + [r["paper"] for r in ratios if r["paper"]]
+        _log_axis(right, "x", values + [1.0])
+        from matplotlib.ticker import FuncFormatter
+
+        right.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}x"))
+        right.set_xlim(min(values + [1.0]) / 1.5, max(values) * 2.2)
+        right.set_xlabel(f"FPS / {ratios[0]['base_label']} FPS at the same resolution")
+        right.grid(True, axis="x", which="major", alpha=0.3)
+        from matplotlib.patches import Patch
+
+        right.legend(handles=[Patch(color="0.4", label="measured here (same run)"),
+                              Patch(facecolor="white", edgecolor="0.4", hatch="///",
+                                    label="the paper (Jetson, TensorRT)")],
+                     fontsize=7, loc="lower right")
+    else:
+        _empty(right, f"{SPEED_BASELINE} not timed in this run: no speed ratio")
+    right.set_title("Speed relative to the paper's baseline (carries across machines)",
+                    fontsize=10)
     fig.tight_layout()
     _save(fig, path)
     return True
+
+
+def _iso_rates(flops: list[float], fps: list[float]) -> list[float]:
+    """Round throughputs (G MAC/s, 1-2-5 steps) spanning the measured points' FLOPs x FPS."""
+    got = [f * s for f, s in zip(flops, fps, strict=True) if f > 0 and s > 0]
+    if not got:
+        return []
+    lo, hi = min(got) / 1.2, max(got) * 1.2
+    rates = []
+    for exp in range(math.floor(math.log10(lo)) - 1, math.ceil(math.log10(hi)) + 1):
+        for m in (1, 2, 5):
+            v = m * 10.0 ** exp
+            if lo <= v <= hi:
+                rates.append(v)
+    return rates[:: max(1, len(rates) // 4)]
+
+
+def _empty(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, fontsize=9)
+    ax.set_axis_off()
 
 
 # ------------------------------------------------------------------------------- mapping
@@ -190,14 +346,27 @@ def mapping_entries(records: Iterable[CellRecord],
         if seq:
             add(seq, rec.inputs.get("voxel_size"), rec,
                 {k: rec.details.get(k) for k in ("update_hz", "end_to_end_hz", "map_bytes")})
+    # systems that could not map a sequence here (a network without trained weights on a
+    # sequence without labels): an entry without values, so the plot says n/a
+    for rec in records:
+        if rec.status == "na" and rec.key.startswith("extra/mapping/"):
+            seq, voxel = rec.inputs.get("sequence"), rec.inputs.get("voxel_size")
+            voxel = float(voxel) if isinstance(voxel, (int, float)) else None
+            if seq:
+                entries.setdefault((str(seq), voxel, rec.row), {
+                    "sequence": str(seq), "voxel_size": voxel, "row": rec.row,
+                    "label": rec.label or rec.row, "na": rec.reason})
     return [e for e in entries.values()
-            if any(e.get(k) is not None for k in ("update_hz", "end_to_end_hz", "map_bytes"))]
+            if e.get("na") or any(e.get(k) is not None
+                                  for k in ("update_hz", "end_to_end_hz", "map_bytes"))]
 
 
 def mapping_plot(records: Iterable[CellRecord], path: Path,
                  tables: Mapping[str, PaperTable] | None = None) -> bool:
-    """Grouped bars: map update rate, end-to-end rate (Hz) and map size (MB) per sequence
-    (groups) and system (bars). ``False`` without any measured mapping record."""
+    """Grouped bars, one panel per quantity (map update rate, end-to-end rate in Hz, map size in
+    MB), stacked: sequences are the groups, systems the bars, each bar labelled with its value;
+    a system mapped on a sequence without that quantity reads "n/a", never a zero-height bar.
+    ``False`` without any measured mapping record."""
     entries = mapping_entries(records, tables)
     if not entries:
         return False
@@ -213,40 +382,64 @@ def mapping_plot(records: Iterable[CellRecord], path: Path,
     order = {r: i for i, r in enumerate(MAP_ROWS)}
     systems = sorted({(e["row"], e["label"]) for e in entries},
                      key=lambda s: (order.get(s[0], len(order)), s[0]))
-    panels = (("update_hz", "Map update (Hz)", 1.0), ("end_to_end_hz", "End-to-end (Hz)", 1.0),
-              ("map_bytes", "Map size (MB)", 1e6))
-    fig = _figure(max(8.0, 1.2 + 1.1 * len(groups) * max(1, len(systems)) * 0.45 * 3), 4.2)
-    axes = fig.subplots(1, 3)
-    width = 0.8 / max(1, len(systems))
+    panels = (("update_hz", "Map update rate (Hz, median over frames)", 1.0, "{:.3g}"),
+              ("end_to_end_hz", "End-to-end rate (Hz: segmentation + update)", 1.0, "{:.3g}"),
+              ("map_bytes", "Map size (MB, the file each system writes)", 1e6, "{:.3g}"))
+    fig = _figure(max(9.0, 2.0 + 0.34 * len(groups) * len(systems)), 3.0 * len(panels) + 0.9)
+    axes = fig.subplots(len(panels), 1)
+    width = 0.84 / max(1, len(systems))
     x = np.arange(len(groups))
     by_key = {(group_name(e), e["row"]): e for e in entries}
-    for ax, (key, title, div) in zip(axes, panels, strict=True):
-        drawn = False
+    for ax, (key, title, div, fmt) in zip(axes, panels, strict=True):
+        drawn = []
         for i, (row, label) in enumerate(systems):
-            heights = []
-            for g in groups:
+            xs = x - 0.42 + width * (i + 0.5)
+            heights, missing = [], []
+            for xi, g in zip(xs, groups, strict=True):
                 e = by_key.get((g, row))
                 v = None if e is None else e.get(key)
                 heights.append(np.nan if v is None else v / div)
-            if all(np.isnan(heights)):
-                continue
-            drawn = True
-            ax.bar(x - 0.4 + width * (i + 0.5), heights, width, label=label, color=f"C{i}")
-        ax.set_xticks(x, groups, rotation=20 if len(groups) > 3 else 0, fontsize=8)
+                if e is not None and v is None:
+                    missing.append(xi)
+            bars = ax.bar(xs, heights, width, label=label, color=f"C{i}")
+            ax.bar_label(bars, [("" if np.isnan(h) else fmt.format(h)) for h in heights],
+                         fontsize=6.5, rotation=90, padding=2)
+            drawn += [h for h in heights if not np.isnan(h)]
+            for xi in missing:
+                ax.annotate("n/a", (xi, 0.0), xycoords=ax.get_xaxis_transform(), xytext=(0, 3),
+                            textcoords="offset points",
+                            ha="center", va="bottom", rotation=90, fontsize=6.5, color="0.45")
+        ax.set_xticks(x, groups, fontsize=8)
         ax.set_xlim(-0.5, len(groups) - 0.5)
-        ax.set_title(title, fontsize=10)
+        ax.set_title(title, fontsize=9, loc="left")
+        ax.tick_params(axis="y", labelsize=7)
         ax.grid(True, axis="y", alpha=0.3)
-        if not drawn:
+        if drawn:
+            positive = [h for h in drawn if h > 0]
+            if positive and max(positive) / min(positive) > 50:
+                from matplotlib.ticker import FuncFormatter
+
+                ax.set_yscale("log")
+                ax.set_ylim(min(positive) / 3, max(positive) * 12)
+                ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            else:
+                ax.set_ylim(0, max(drawn) * 1.3 or 1.0)
+        else:
             ax.text(0.5, 0.5, "not measured", ha="center", va="center", transform=ax.transAxes)
-    handles, labels = [], []
-    for ax in axes:
-        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
-            if lab not in labels:
-                handles.append(h)
-                labels.append(lab)
-    if handles:
-        fig.legend(handles, labels, loc="upper center", ncol=min(6, len(labels)), fontsize=8)
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    from matplotlib.patches import Patch
+
+    handles = [Patch(color=f"C{i}", label=label) for i, (_, label) in enumerate(systems)]
+    ncol = min(4, len(handles))
+    fig.legend(handles=handles, loc="upper center", ncol=ncol, fontsize=8)
+    rows = math.ceil(len(handles) / ncol)
+    bottom = 0.0
+    if any(e.get("na") for e in entries) or any(
+            e.get(k) is None for e in entries for k, *_ in panels):
+        fig.text(0.01, 0.005, "n/a: not measured for that system on that sequence here (a "
+                 "network without trained weights cannot label a sequence without ground "
+                 "truth; table4.md says why for each)", fontsize=7, color="0.35", va="bottom")
+        bottom = 0.25 / fig.get_figheight()
+    fig.tight_layout(rect=(0, bottom, 1, 1 - (0.12 + 0.22 * rows) / fig.get_figheight()))
     _save(fig, path)
     return True
 
@@ -399,7 +592,12 @@ def qualitative_plot(artifacts: Path, path: Path,
     map_cols = min(4, max(1, len(map_data)))
     map_rows = math.ceil(len(map_data) / map_cols) if map_data else 0
     seg_h, map_h = 2.6 * len(seg_data), 3.4 * map_rows
-    fig = _figure(max(9.0, 3.2 * map_cols), seg_h + map_h + 0.6, layout="constrained")
+    present = _classes_present([d["gt"] for _, d in seg_data],
+                               [d["pred"] for _, d in seg_data]
+                               + [d["labels"] for _, _, d in map_data if "labels" in d])
+    legend_h = 0.35 + 0.2 * math.ceil(len(present) / 8) if present else 0.0
+    fig = _figure(max(9.0, 3.2 * map_cols), seg_h + map_h + 0.6 + legend_h,
+                  layout="constrained")
     if seg_data and map_data:
         top, bottom = fig.subfigures(2, 1, height_ratios=[seg_h, map_h])
     else:
@@ -420,8 +618,45 @@ def qualitative_plot(artifacts: Path, path: Path,
                 sized.append((ax, drawn))
         bottom.suptitle("Maps seen from above (topmost voxel of each column), coloured by "
                         "class, RGB or height", fontsize=9)
+    if present:
+        _class_legend(fig, present)
+    if map_data:
         fig.draw_without_rendering()  # settle the layout, then size the voxels
         for ax, drawn in sized:
             _size_markers(ax, drawn)
     _save(fig, path)
     return True
+
+
+def _classes_present(truth: Iterable[np.ndarray], other: Iterable[np.ndarray],
+                     min_share: float = 0.01) -> list[int]:
+    """Sorted class ids (0..254) in any ``truth`` array, or covering at least ``min_share`` of
+    one of the ``other`` arrays (predictions, maps: the scattered noise of a few pixels would
+    fill the legend); void (255) and "no class" (negative) left out."""
+    ids: set[int] = set()
+    for a in truth:
+        a = np.asarray(a).reshape(-1)
+        ids.update(int(v) for v in np.unique(a[(a >= 0) & (a < 255)]))
+    for a in other:
+        a = np.asarray(a).reshape(-1)
+        a = a[(a >= 0) & (a < 255)]
+        if a.size:
+            values, counts = np.unique(a, return_counts=True)
+            ids.update(int(v) for v, c in zip(values, counts, strict=True)
+                       if c >= min_share * a.size)
+    return sorted(ids)
+
+
+def _class_legend(fig, ids: list[int]) -> None:
+    """A legend of the classes drawn (their names, NYUv2-40 order; ids past it by number),
+    below the panels."""
+    from matplotlib.patches import Patch
+
+    n = max(len(NYU40_CLASSES), ids[-1] + 1)
+    colors = palette(n).astype(np.float64) / 255.0
+    handles = [Patch(color=colors[i], label=NYU40_CLASSES[i] if i < len(NYU40_CLASSES)
+                     else f"class {i}") for i in ids]
+    ncol = min(8, len(handles))
+    fig.legend(handles=handles, loc="outside lower center", ncol=ncol, fontsize=7,
+               title="classes (in the ground truth, or on at least 1 % of a prediction or "
+                     "map; grey in a map: no class)", title_fontsize=7, frameon=False)

@@ -19,6 +19,7 @@ reruns everything.
 from __future__ import annotations
 
 import multiprocessing
+import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -100,6 +101,44 @@ def _fresh_executor() -> Executor:
     """One task per fresh interpreter, one at a time."""
     return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
                                max_tasks_per_child=1)
+
+
+def _slowdown(record: CellRecord) -> float | None:
+    machine = record.details.get("contention") if record.status == "ok" else None
+    return None if not machine else float(machine["slowdown"])
+
+
+def _timed_mapping(run: MappingRun, ctx: RunContext,
+                   fresh: Callable[[], Executor]) -> CellRecord:
+    """A mapping run in a fresh process. One that the calibration says ran on a busy machine is
+    run once more after a pause (as a contended speed cell is), and the less contended of the
+    two kept; with ``--strict-timing`` one still contended is recorded as not measured."""
+    from evsmap.runner.execute import RETRY_PAUSE_S, STRICT_PAUSE_S
+
+    def once() -> CellRecord:
+        with fresh() as ex:
+            return CellRecord.from_dict(ex.submit(_mapping_worker, run, ctx.as_dict()).result())
+
+    record = once()
+    slowdown = _slowdown(record)
+    if slowdown is None or not record.details["contention"]["contended"]:
+        return record
+    time.sleep(STRICT_PAUSE_S if ctx.strict_timing else RETRY_PAUSE_S)
+    again = once()
+    if (_slowdown(again) or float("inf")) < slowdown:
+        record = again
+    machine = record.details["contention"]
+    if ctx.strict_timing and machine["contended"]:
+        return CellRecord(
+            key=record.key, table=record.table, row=record.row, label=record.label,
+            kind=record.kind, metrics=list(record.metrics), status="na",
+            needs=["an idle machine"], inputs=dict(record.inputs), details=dict(record.details),
+            reason=f"n/a - --strict-timing: the machine was busy (the calibration ran "
+                   f"{machine['slowdown']:.2f}x slower than the best seen) in both tries; "
+                   f"rerun when it is idle", environment=record.environment)
+    record.notes.append(f"timed twice: the first try was contended (slowdown "
+                        f"{slowdown:.2f}x); kept the less contended")
+    return record
 
 
 def _unlabelled(ctx: RunContext, sequence: str, cache: dict[str, bool]) -> bool:
@@ -190,8 +229,7 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
             rec.environment = env = env or environment(ctx.threads)
             keep(rec)
             continue
-        with fresh() as ex:
-            keep(CellRecord.from_dict(ex.submit(_mapping_worker, run, ctx.as_dict()).result()))
+        keep(_timed_mapping(run, ctx, fresh))
 
     # 4. Table IV from the mapping runs
     runs = {r.key: done[r.key] for r in the_plan.runs if r.key in done}

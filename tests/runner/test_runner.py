@@ -264,3 +264,52 @@ def test_record_files_are_readable_by_others(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
+
+
+def _contended(slowdown):
+    rec = _run_record("evsmap", "synthetic", end_to_end_hz=7.5 / slowdown, map_bytes=1e6)
+    rec.details = {"contention": {"slowdown": slowdown, "contended": slowdown > 1.4}}
+    return rec
+
+
+@pytest.mark.parametrize("strict", [False, True])
+def test_a_contended_mapping_run_is_run_again_and_the_calmer_try_kept(ctx, monkeypatch, strict):
+    from dataclasses import replace
+
+    tries = iter([_contended(2.0), _contended(1.1)])
+    monkeypatch.setattr(matrix, "_mapping_worker", lambda run, data: next(tries).as_dict())
+    monkeypatch.setattr(matrix.time, "sleep", lambda s: None)
+    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", voxel_size=0.05,
+                     updater=Component("multiclass-bayes"), segmenter=None)
+    rec = matrix._timed_mapping(run, replace(ctx, strict_timing=strict), Inline)
+    assert rec.status == "ok" and rec.details["contention"]["slowdown"] == 1.1
+    assert "first try was contended (slowdown 2.00x)" in rec.notes[-1]
+
+
+def test_strict_timing_refuses_a_mapping_run_contended_twice(ctx, monkeypatch):
+    from dataclasses import replace
+
+    tries = iter([_contended(2.0), _contended(3.0)])
+    monkeypatch.setattr(matrix, "_mapping_worker", lambda run, data: next(tries).as_dict())
+    monkeypatch.setattr(matrix.time, "sleep", lambda s: None)
+    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", voxel_size=0.05,
+                     updater=Component("multiclass-bayes"), segmenter=None)
+    loose = matrix._timed_mapping(run, ctx, Inline)
+    assert loose.status == "ok" and loose.details["contention"]["slowdown"] == 2.0
+    tries = iter([_contended(2.0), _contended(3.0)])
+    rec = matrix._timed_mapping(run, replace(ctx, strict_timing=True), Inline)
+    assert rec.status == "na" and rec.needs == ["an idle machine"]
+    assert "2.00x slower" in rec.reason
+
+
+def test_a_calm_mapping_run_runs_once(ctx, monkeypatch):
+    calls = []
+
+    def worker(run, data):
+        calls.append(run)
+        return _contended(1.05).as_dict()
+
+    monkeypatch.setattr(matrix, "_mapping_worker", worker)
+    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", voxel_size=0.05,
+                     updater=Component("multiclass-bayes"), segmenter=None)
+    assert matrix._timed_mapping(run, ctx, Inline).status == "ok" and len(calls) == 1

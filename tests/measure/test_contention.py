@@ -1,0 +1,40 @@
+"""The calibration that tells a contended timing from a clean one."""
+
+from __future__ import annotations
+
+import pytest
+
+from evsmap.measure import contention
+
+
+def _clock(durations):
+    """A perf_counter whose successive (start, end) pairs are ``durations`` seconds apart."""
+    stamps, t = [], 0.0
+    for d in durations:
+        stamps += [t, t + d]
+        t += d + 1.0
+    it = iter(stamps)
+    return lambda: next(it)
+
+
+@pytest.mark.parametrize(("durations", "expected_ms"), [
+    ([2e-3] * 5 + [1e-3] * 10, 1.0),  # a blip under the first burst only: not contention
+    ([2e-3] * 15, 2.0),  # every burst slow: a job shares the cores
+    ([1e-3, 9e-3, 1e-3, 9e-3, 9e-3] * 3, 9.0),  # gaps of full speed do not hide it
+])
+def test_calibration_is_the_best_burst_median(monkeypatch, durations, expected_ms):
+    monkeypatch.setattr(contention.time, "perf_counter", _clock(durations))
+    monkeypatch.setattr(contention.time, "sleep", lambda s: None)
+    got = contention.calibration_gmacs(size=100, repeats=5, bursts=3, warmup=0)
+    assert got == pytest.approx(100.0 ** 3 / (expected_ms * 1e-3) / 1e9)
+
+
+def test_contention_flags_a_slow_probe_against_the_best():
+    def probe(g):
+        return contention.Probe(load1=0.1, load5=0.1, cores=2, calibration_gmacs=g)
+
+    log = contention.CalibrationLog()
+    calm = contention.contention(probe(100.0), probe(95.0), log)
+    assert not calm["contended"] and calm["slowdown"] == pytest.approx(100 / 95)
+    busy = contention.contention(probe(50.0), probe(98.0), log)
+    assert busy["contended"] and busy["slowdown"] == pytest.approx(2.0)
