@@ -133,12 +133,14 @@ def build_report(run_dir: str | Path) -> list[Path]:
     if not table_ids:
         table_ids = sorted(tables)
     extras = extra_records(records)
+    skipped = {str(pair[0]): str(pair[1]) for pair in run.get("skipped") or []
+               if isinstance(pair, (list, tuple)) and len(pair) == 2}
 
     written: list[Path] = []
     frames: dict[str, pd.DataFrame] = {}
     for tid in table_ids:
         table = tables[tid]
-        frame = table_frame(table, by_key, specs)
+        frame = table_frame(table, by_key, specs, skipped)
         frames[tid] = frame
         md = table_markdown(table, by_key, specs, frame=frame,
                             extras=extras if tid == "table4" else None)

@@ -21,7 +21,7 @@ from evsmap.runner.records import CellRecord, needs_text
 from evsmap.tables.schema import CellSpec, Column, PaperTable, expand
 
 FRAME_COLUMNS = ("table", "row", "label", "column", "header", "unit", "measured", "paper",
-                 "ratio", "status", "note", "timing_flag")
+                 "paper_printed", "paper_best", "ratio", "status", "note", "timing_flag")
 """Columns of :func:`table_frame`."""
 
 STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
@@ -38,6 +38,10 @@ networks')."""
 
 PROXY_SECTION = "Synthetic proxy (evsmap's synthrooms, not the paper's datasets)"
 """Title of the ``reproduce --train`` sections (``extra/proxy...`` records)."""
+
+EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "memory_bytes", "memory_nbytes",
+                          "nodes", "leaves", "frames"})
+"""Value keys that are counts (bytes, nodes, frames): integers in :func:`extra_frame`."""
 
 EXTRA_COLUMNS = ("key", "row", "label", "sequence", "voxel_size", "status", *EXTRA_VALUES,
                  "note")
@@ -83,15 +87,17 @@ def format_number(value: float, decimals: int | None) -> str:
 
 
 def format_ratio(ratio: float) -> str:
-    """``0.95x``; two significant digits below 0.1."""
+    """``0.95x``; two significant digits (trailing zeros kept: ``0.040x``) below 0.1."""
     if ratio != 0 and abs(ratio) < 0.1:
-        return f"{ratio:.2g}x"
+        return f"{ratio:#.2g}x"
     return f"{ratio:.2f}x"
 
 
 def header_with_unit(col: Column) -> str:
-    """The printed header, with the unit added when the header does not show it."""
-    if not col.unit or col.header == col.unit or f"({col.unit})" in col.header:
+    """The printed header, with the unit added when the header does not show it (neither as
+    the whole header, nor in brackets, nor as its last word: "1024x512 (val) FPS")."""
+    if (not col.unit or col.header == col.unit or f"({col.unit})" in col.header
+            or col.header.split()[-1] == col.unit):
         return col.header
     return f"{col.header} ({col.unit})"
 
@@ -149,13 +155,16 @@ def _cell_index(table: PaperTable, records: Mapping[str, CellRecord],
 
 # ------------------------------------------------------------------------------- frames
 def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
-                specs: Iterable[CellSpec] | None = None) -> pd.DataFrame:
+                specs: Iterable[CellSpec] | None = None,
+                skipped: Mapping[str, str] | None = None) -> pd.DataFrame:
     """One line per row (paper order) and non-flag column (paper order) of ``table``.
 
     Args:
         records: the run's records by key.
         specs: the cell specs the records were run from (``expand`` of the tables; specs of
             other tables are ignored). ``None``: :func:`~evsmap.tables.expand` of ``table``.
+        skipped: cell key -> why the run left it out on purpose (``--quick``); such a cell
+            without a record is ``not run`` with that reason as its note.
 
     ``measured`` and ``paper`` are in the column's printed unit (base value / ``Column.scale``),
     ``ratio = measured / paper`` where both exist; ``status`` is one of :data:`STATUSES`;
@@ -164,6 +173,10 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
     """
     specs = None if specs is None else list(specs)
     index = _cell_index(table, records, specs)
+    skipped = skipped or {}
+    why_skipped = {(s.row, cid): skipped[s.key]
+                   for s in (expand(table) if specs is None else specs)
+                   if s.table == table.id and s.key in skipped for cid in s.metrics}
     lines = []
     for system in table.rows:
         for col in table.columns:
@@ -176,7 +189,8 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
             if not system.implemented:
                 status, note = "paper only", ""
             elif (system.id, col.id) not in index or index[(system.id, col.id)] is None:
-                status, note = "not run", "not run"
+                status = "not run"
+                note = why_skipped.get((system.id, col.id), "not run")
             else:
                 rec = index[(system.id, col.id)]
                 assert rec is not None
@@ -198,7 +212,9 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                      else None)
             lines.append({"table": table.id, "row": system.id, "label": system.label,
                           "column": col.id, "header": col.header, "unit": col.unit,
-                          "measured": measured, "paper": paper, "ratio": ratio,
+                          "measured": measured, "paper": paper,
+                          "paper_printed": cell.printed, "paper_best": bool(cell.bold),
+                          "ratio": ratio,
                           "status": status, "note": note, "timing_flag": flag})
     frame = pd.DataFrame(lines, columns=list(FRAME_COLUMNS))
     for name in ("measured", "paper", "ratio"):
@@ -231,7 +247,9 @@ def extra_frame(records: Iterable[CellRecord]) -> pd.DataFrame:
         lines.append(line)
     frame = pd.DataFrame(lines, columns=list(EXTRA_COLUMNS))
     for name in ("voxel_size", *EXTRA_VALUES):
-        frame[name] = pd.to_numeric(frame[name]).astype("float64")
+        # counts stay integers in the CSV (nullable: a cell without a value stays empty)
+        kind = "Int64" if name in EXTRA_COUNTS else "float64"
+        frame[name] = pd.to_numeric(frame[name]).astype(kind)
     return frame
 
 
@@ -259,18 +277,22 @@ def _paper_text(cell) -> str:
     return f"**{text}**" if cell.bold and cell.number is not None else text
 
 
-def _cell_markdown(line: Mapping[str, Any], cell, notes: Footnotes) -> str:
+def _cell_markdown(line: Mapping[str, Any], cell, notes: Footnotes,
+                   timing: bool = False) -> str:
+    """One cell. ``timing``: a speed or rate column, whose ``measured ÷ paper`` would divide
+    this CPU by the paper's GPU or Jetson, so no ratio is printed (the table's relative view
+    compares systems instead)."""
     paper = _paper_text(cell)
     status = line["status"]
     if status == "paper only":
         return f"- / {paper}"
-    ref = notes.ref(line["note"]) if line["note"] and status != "not run" else ""
+    ref = notes.ref(line["note"]) if line["note"] and line["note"] != "not run" else ""
     if status == "ok":
         measured = format_number(line["measured"], cell.decimals if cell.number is not None
                                  else None)
         flagged = isinstance(line.get("timing_flag"), str) and line["timing_flag"]
         text = f"{measured}{TIMING_MARK if flagged else ''} / {paper}"
-        if not pd.isna(line["ratio"]):
+        if not pd.isna(line["ratio"]) and not timing:
             text += f" ({format_ratio(line['ratio'])})"
     elif status == "n/a":
         text = f"n/a / {paper}"
@@ -335,11 +357,12 @@ def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
         out += [f"*{table.caption}*", ""]
     if table.note:
         out += [f"Note: {' '.join(table.note.split())}", ""]
-    out += ["Each cell: measured / paper (measured ÷ paper). Measured values are evsmap's on "
-            "this machine; bold marks the paper's best values; `paper only`: evsmap does not "
-            "implement the row; `~` after a measured speed: its timing is flagged (it never "
-            "reached a steady median, or the machine was busy; the note says which). "
-            "Bracketed numbers refer to the notes below the table.", ""]
+    out += ["Each cell: measured / paper (measured ÷ paper; not for speeds and rates, where it "
+            "would compare this machine with the paper's: see the relative view below). "
+            "Measured values are evsmap's on this machine; bold marks the paper's best values; "
+            "`paper only`: evsmap does not implement the row; `~` after a measured speed: its "
+            "timing is flagged (it never reached a steady median, or the machine was busy; the "
+            "note says which). Bracketed numbers refer to the notes below the table.", ""]
     headers = ["System"] + [_md_escape(header_with_unit(c) + _measured_on(table, c, records))
                             for c in table.columns]
     out.append("| " + " | ".join(headers) + " |")
@@ -358,8 +381,8 @@ def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
                 cells.append(cell.printed)
                 continue
             line = by_cell.get((system.id, col.id))
-            cells.append(_md_escape(_cell_markdown(line, cell, notes)) if line is not None
-                         else _paper_text(cell))
+            cells.append(_md_escape(_cell_markdown(line, cell, notes, col.timing))
+                         if line is not None else _paper_text(cell))
         out.append("| " + " | ".join(cells) + " |")
     out.append("")
     if table.footnotes:

@@ -130,8 +130,13 @@ def run_complexity(spec: CellSpec, ctx: RunContext) -> CellRecord:
     quantities = _quantities(spec)
     values = {col: float(rec.params if q == "params" else rec.flops)
               for col, q in quantities.items()}
-    notes = [f"fvcore at {w}x{h} (1 MAC = 1 FLOP, as fvcore and the paper's lineage count)"]
-    if rec.uncounted_ops:
+    if set(quantities.values()) == {"params"}:  # no input size in a parameter count
+        notes = ["every parameter of the network, training-only heads included where it has them; "
+                 "the count does not depend on the input size"]
+    else:
+        notes = [f"fvcore at {w}x{h} (1 MAC = 1 FLOP, as fvcore and the paper's lineage "
+                 f"count)"]
+    if rec.uncounted_ops and "flops" in quantities.values():
         notes.append("operators fvcore does not count: " + ", ".join(sorted(rec.uncounted_ops)))
     return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
                       details=rec.as_dict())

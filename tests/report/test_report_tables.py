@@ -132,7 +132,8 @@ def test_markdown_cells(tables, records, specs):
     assert tables["table1"].note.split(";")[0] in md
     # measured / paper (ratio), measured with the paper's decimals (>= 2 significant digits)
     assert md_cell(md, "FEAGNet-V2", "Params (M)").startswith("4.28 / 4.5 (0.95x)")
-    assert md_cell(md, "FEAGNet-V2", "FPS").startswith("20.1 / 37.7 (0.53x)")
+    # no measured ÷ paper for a speed: it would divide this CPU by the paper's GPU
+    assert md_cell(md, "FEAGNet-V2", "FPS").startswith("20.1 / 37.7 [")
     # n/a: the reason as a footnote, never a number on the measured side
     na = md_cell(md, "FEAGNet-V2", "MIoU NYUv2 (%)")
     assert re.fullmatch(r"n/a / 47\.6 \[\d+\]", na), na
@@ -182,7 +183,7 @@ def test_table4_extras_section(tables, records, specs):
     md = table_markdown(tables["table4"], records, specs, extras=extras)
     # every rate in the fixture comes from the synthetic room, and the header says so
     assert md_cell(md, "MVSMMap", "Runtime (Hz), measured on synthetic").startswith(
-        "3.21 / 14.4 (0.22x)")
+        "3.21 / 14.4 [")
     section = md.split("## Measured beyond the paper", 1)[1]
     assert "### Sequence `synthetic`, voxel size 0.05 m" in section
     assert "### Sequence `tum`, voxel size 0.05 m" in section
@@ -248,3 +249,25 @@ def test_flagged_timings_are_marked_in_the_table(tables, specs):
     frame = table_frame(table, records, specs)
     flagged = frame[frame["timing_flag"].notna()]
     assert len(flagged) == 1 and "unstable" in flagged.iloc[0]["timing_flag"]
+
+
+def test_cosmetics_headers_ratios_counts_and_skipped_cells(tables):
+    from evsmap.report.tables import extra_frame, header_with_unit
+
+    t2 = tables["table2"]
+    fps = next(c for c in t2.columns if c.id == "fps_1024")
+    assert header_with_unit(fps) == "1024×512 (val) FPS"  # not "... FPS (FPS)"
+    assert format_ratio(0.04) == "0.040x" and format_ratio(0.0634) == "0.063x"
+    spec = next(s for s in expand_all(tables) if s.table == "table2" and s.kind == "speed"
+                and "fps_2048" in s.metrics)
+    frame = table_frame(t2, {}, None, {spec.key: "skipped by --quick (input above 1024x512)"})
+    line = frame[(frame["column"] == "fps_2048") & (frame["row"] == spec.row)].iloc[0]
+    assert line["status"] == "not run" and line["note"].startswith("skipped by --quick")
+    paper = frame[(frame["row"] == "esanet-r34") & (frame["column"] == "fps_1024")].iloc[0]
+    assert paper["paper_printed"] == "17.6†"  # the paper's marks survive in the CSV
+    rec = CellRecord(key="extra/mapping/evsmap/synthetic@0.05m", table="extra", row="evsmap",
+                     label="EVSMap", kind="mapping", metrics=[], status="ok",
+                     values={"map_bytes": 1234.0, "nodes": 7.0, "update_hz": 2.5},
+                     inputs={"sequence": "synthetic", "voxel_size": 0.05})
+    csv = extra_frame([rec]).to_csv(index=False)
+    assert ",1234," in csv and ",7," in csv and "1234.0" not in csv
