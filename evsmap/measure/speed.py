@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import platform
 import time
@@ -45,8 +46,13 @@ class SpeedRecord:
         rounds: rounds of ``runs`` passes timed (more than one when repeating until stable).
         rel_iqr: ``ms_iqr / ms_median`` of the kept round.
         stable: the kept round met the requested ``stable_rel_iqr`` (None: none requested).
-        contention: the machine around the timing (:func:`evsmap.measure.contention.
+        contention: the machine around the kept round (:func:`evsmap.measure.contention.
             contention`: load, calibration slowdown against the run's best, ``contended``).
+        calibration_gmacs: the calibration matmul's throughput around the kept round (the
+            geometric mean of the probes just before and just after it): how fast the machine
+            ran while this figure was taken. Two speeds each divided by their own calibration
+            compare without the drift of a shared machine between them
+            (:func:`calibrated_ratio`).
     """
 
     backend: str
@@ -70,6 +76,7 @@ class SpeedRecord:
     rel_iqr: float = 0.0
     stable: bool | None = None
     contention: dict[str, Any] = field(default_factory=dict)
+    calibration_gmacs: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -222,7 +229,7 @@ def measure_speed(
         if threads is not None:
             torch.set_num_threads(threads)
         used_threads = torch.get_num_threads()
-        before = Probe.take()
+        probes = [Probe.take()]  # one before every round and one after the last
         if backend == "torch":
             def timed(n_warm: int) -> list[float]:
                 return _time_torch(module, inputs, runs, n_warm)
@@ -232,18 +239,18 @@ def measure_speed(
 
             def timed(n_warm: int) -> list[float]:
                 return _time_calls(forward, runs, n_warm)
-        kept, kept_rel, rounds = None, float("inf"), 0
+        kept, kept_rel, kept_round, rounds = None, float("inf"), 0, 0
         for r in range(max_rounds):
             times = timed(warmup if r == 0 else 0)
+            probes.append(Probe.take())
             rounds += 1
             rel = _rel_iqr(times)
-            if rel < kept_rel:
-                kept, kept_rel = times, rel
+            if rel < kept_rel or (stable_rel_iqr is not None and rel <= stable_rel_iqr):
+                kept, kept_rel, kept_round = times, rel, r
             if stable_rel_iqr is not None and rel <= stable_rel_iqr:
-                kept, kept_rel = times, rel
                 break
         times = kept
-        after = Probe.take()
+        before, after = probes[kept_round], probes[kept_round + 1]
         roofline = roofline_gmacs(roofline_size)
     finally:
         torch.set_num_threads(previous_threads)
@@ -263,7 +270,19 @@ def measure_speed(
         rounds=rounds, rel_iqr=(q75 - q25) / median,
         stable=None if stable_rel_iqr is None else bool(kept_rel <= stable_rel_iqr),
         contention=contention(before, after, calibration_log),
+        calibration_gmacs=math.sqrt(before.calibration_gmacs * after.calibration_gmacs),
     )
+
+
+def calibrated_ratio(fps_a: float, cal_a: float | None, fps_b: float,
+                     cal_b: float | None) -> float:
+    """``fps_a / fps_b`` with each speed first divided by the calibration taken around it
+    (:attr:`SpeedRecord.calibration_gmacs`), so a machine that ran slower while one of the two
+    was timed (another VM on the host, a frequency step) does not move the ratio; the plain
+    ratio when either calibration is missing."""
+    if cal_a and cal_b and cal_a > 0 and cal_b > 0:
+        return (fps_a / cal_a) / (fps_b / cal_b)
+    return fps_a / fps_b
 
 
 def _rel_iqr(times: list[float]) -> float:

@@ -77,6 +77,24 @@ def _paper(cell: Mapping | None) -> float | None:
     return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
 
 
+def _calibration(cell: Mapping | None) -> float | None:
+    v = None if cell is None else cell.get("calibration_gmacs")
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) or v <= 0 else float(v)
+
+
+def measured_ratio(a: Mapping | None, b: Mapping | None) -> tuple[float | None, float | None]:
+    """(ratio, raw ratio) of two frame cells' measured values. For timings with a calibration
+    (:func:`~evsmap.measure.speed.calibrated_ratio`) the ratio is drift-corrected and the raw
+    one is kept beside it; otherwise both are the plain ratio. ``(None, None)`` when either
+    value is missing."""
+    ma, mb = _measured(a), _measured(b)
+    if ma is None or not mb:
+        return None, None
+    from evsmap.measure.speed import calibrated_ratio
+
+    return calibrated_ratio(ma, _calibration(a), mb, _calibration(b)), ma / mb
+
+
 def _why(cell: Mapping | None, row: str) -> str:
     if cell is None:
         return f"{row}: not in this run"
@@ -96,9 +114,9 @@ def check(claim: Claim, frame: pd.DataFrame) -> dict:
     if ma is None or not mb:
         missing = ([_why(a, claim.row)] if ma is None else []) + \
             ([_why(b, claim.base)] if not mb else [])
-        return {"claim": claim.text, "measured": None, "paper": paper,
+        return {"claim": claim.text, "measured": None, "raw": None, "paper": paper,
                 "verdict": "cannot be checked here", "why": "; ".join(missing)}
-    ratio = ma / mb
+    ratio, raw = measured_ratio(a, b)
     if claim.mode == "higher":
         holds = ratio > 1.0
     elif claim.mode == "lower":
@@ -107,7 +125,7 @@ def check(claim: Claim, frame: pd.DataFrame) -> dict:
         holds = paper is not None and abs(ratio / paper - 1.0) <= MATCH_TOLERANCE
     flagged = any(isinstance(c.get("timing_flag"), str) and c.get("timing_flag")
                   for c in (a, b) if c is not None)
-    return {"claim": claim.text, "measured": ratio, "paper": paper,
+    return {"claim": claim.text, "measured": ratio, "raw": raw, "paper": paper,
             "verdict": "holds" if holds else "does not hold",
             "why": "a timing in it is flagged (~)" if flagged else ""}
 
@@ -122,10 +140,14 @@ def claims_markdown(frames: Mapping[str, pd.DataFrame],
     out = ["## What reproduces here", "",
            "The paper's comparative claims, each as a ratio of two systems measured the same "
            "way in this run (ratios carry across machines; this CPU against the paper's GPU or "
-           "Jetson does not).", "",
+           "Jetson does not). A ratio of two timings divides each by the calibration matmul "
+           "timed around it first, so the machine running faster or slower between the two "
+           "does not move it; the plain ratio follows in brackets.", "",
            "| claim | measured ratio | paper's ratio | here |", "|---|---:|---:|---|"]
     for r in rows:
         measured = "-" if r["measured"] is None else f"{r['measured']:.2f}x"
+        if r.get("raw") is not None and f"{r['raw']:.2f}" != f"{r['measured']:.2f}":
+            measured += f" (plain {r['raw']:.2f}x)"
         paper = "-" if r["paper"] is None else f"{r['paper']:.2f}x"
         verdict = r["verdict"] + (f" ({_short(r['why'])})" if r["why"] else "")
         out.append(f"| {r['claim']} | {measured} | {paper} | {verdict} |")
@@ -171,7 +193,9 @@ def relative_markdown(table: PaperTable, frame: pd.DataFrame) -> list[str]:
     out = [f"## Relative to {base_label} (the paper's baseline row)", "",
            f"Each cell: this row / {base_label} measured here, then the same ratio of the "
            f"paper's figures. Ratios of systems measured the same way compare methods; they "
-           f"carry across machines where absolute figures do not.", "",
+           f"carry across machines where absolute figures do not. Speeds and rates are each "
+           f"divided by the calibration matmul timed around them before the ratio is taken "
+           f"(drift-corrected).", "",
            "| System | " + " | ".join(c.header for c in columns) + " |",
            "|---|" + "|".join("---:" for _ in columns) + "|"]
     for system in table.rows:
@@ -180,8 +204,9 @@ def relative_markdown(table: PaperTable, frame: pd.DataFrame) -> list[str]:
         line = [system.label]
         for col in columns:
             a, b = cells.get((system.id, col.id)), cells.get((base, col.id))
-            ma, mb, pa, pb = _measured(a), _measured(b), _paper(a), _paper(b)
-            m = f"{ma / mb:.2f}x" if ma is not None and mb else "-"
+            ratio, _ = measured_ratio(a, b)
+            pa, pb = _paper(a), _paper(b)
+            m = f"{ratio:.2f}x" if ratio is not None else "-"
             p = f"{pa / pb:.2f}x" if pa is not None and pb else "-"
             line.append(f"{m} / {p}" if (m, p) != ("-", "-") else "-")
         out.append("| " + " | ".join(line) + " |")

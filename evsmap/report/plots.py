@@ -88,6 +88,7 @@ def network_points(frames: Mapping[str, pd.DataFrame],
                 "table": tid, "series": legend, "marker": marker, "row": row,
                 "label": fps["label"],
                 "fps": float(fps["measured"]), "params": _value(cells, "params", "measured"),
+                "calibration": _value(cells, fps_col, "calibration_gmacs"),
                 "flops": timed_macs.get((tid, row, fps_col), _value(cells, "flops", "measured")),
                 "paper_fps": _value(cells, fps_col, "paper"),
                 "paper_params": _value(cells, "params", "paper"),
@@ -177,14 +178,17 @@ for its speed claims)."""
 def speed_ratios(points: list[dict[str, Any]],
                  base: str = SPEED_BASELINE) -> list[dict[str, Any]]:
     """Per speed series of :func:`network_points`, each network's FPS over ``base``'s FPS in
-    the same series: ``measured`` (both timed in this run) and ``paper`` (both printed, else
-    ``None``). Empty for a series without a measured ``base``."""
+    the same series: ``measured`` (both timed in this run, drift-corrected by their
+    calibrations: :func:`~evsmap.measure.speed.calibrated_ratio`) and ``paper`` (both
+    printed, else ``None``). Empty for a series without a measured ``base``."""
     out = []
     for series in dict.fromkeys(p["series"] for p in points):
         pts = [p for p in points if p["series"] == series]
         ref = next((p for p in pts if p["row"] == base), None)
         if ref is None or not ref["fps"]:
             continue
+        from evsmap.measure.speed import calibrated_ratio
+
         for p in pts:
             if p is ref:
                 continue
@@ -192,7 +196,9 @@ def speed_ratios(points: list[dict[str, Any]],
                      if p["paper_fps"] is not None and ref["paper_fps"] else None)
             out.append({"series": series, "marker": p["marker"], "row": p["row"],
                         "label": p["label"], "base_label": ref["label"],
-                        "measured": p["fps"] / ref["fps"], "paper": paper})
+                        "measured": calibrated_ratio(p["fps"], p.get("calibration"),
+                                                     ref["fps"], ref.get("calibration")),
+                        "paper": paper})
     return out
 
 
@@ -267,7 +273,7 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
         right.grid(True, axis="x", which="major", alpha=0.3)
         from matplotlib.patches import Patch
 
-        right.legend(handles=[Patch(color="0.4", label="measured here (same run)"),
+        right.legend(handles=[Patch(color="0.4", label="measured here (same run, drift-corrected)"),
                               Patch(facecolor="white", edgecolor="0.4", hatch="///",
                                     label="the paper (Jetson, TensorRT)")],
                      fontsize=7, loc="lower right")

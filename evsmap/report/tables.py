@@ -21,7 +21,8 @@ from evsmap.runner.records import CellRecord, needs_text
 from evsmap.tables.schema import CellSpec, Column, PaperTable, expand
 
 FRAME_COLUMNS = ("table", "row", "label", "column", "header", "unit", "measured", "paper",
-                 "paper_printed", "paper_best", "ratio", "status", "note", "timing_flag")
+                 "paper_printed", "paper_best", "ratio", "status", "note", "timing_flag",
+                 "calibration_gmacs")
 """Columns of :func:`table_frame`."""
 
 STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
@@ -153,6 +154,22 @@ def _cell_index(table: PaperTable, records: Mapping[str, CellRecord],
     return out
 
 
+def record_calibration(rec: CellRecord) -> float | None:
+    """The calibration (G MAC/s) a timing record was taken under: ``calibration_gmacs``, else
+    (records written before it existed) the geometric mean of its two contention probes."""
+    details = rec.details or {}
+    value = _number(details.get("calibration_gmacs"))
+    if value is not None:
+        return value
+    machine = details.get("contention") or {}
+    try:
+        a = float(machine["before"]["calibration_gmacs"])
+        b = float(machine["after"]["calibration_gmacs"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return math.sqrt(a * b) if a > 0 and b > 0 else None
+
+
 # ------------------------------------------------------------------------------- frames
 def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                 specs: Iterable[CellSpec] | None = None,
@@ -185,7 +202,7 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
             cell = table.cell(system.id, col.id)
             paper = None if cell.number is None else float(cell.number)
             measured = None
-            flag = None
+            flag = calibration = None
             if not system.implemented:
                 status, note = "paper only", ""
             elif (system.id, col.id) not in index or index[(system.id, col.id)] is None:
@@ -208,6 +225,8 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                     else:
                         status, measured = "ok", value / col.scale
                         flag = (rec.details or {}).get("timing_flag")
+                        if col.timing:
+                            calibration = record_calibration(rec)
             ratio = (measured / paper if measured is not None and paper not in (None, 0.0)
                      else None)
             lines.append({"table": table.id, "row": system.id, "label": system.label,
@@ -215,9 +234,10 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                           "measured": measured, "paper": paper,
                           "paper_printed": cell.printed, "paper_best": bool(cell.bold),
                           "ratio": ratio,
-                          "status": status, "note": note, "timing_flag": flag})
+                          "status": status, "note": note, "timing_flag": flag,
+                          "calibration_gmacs": calibration})
     frame = pd.DataFrame(lines, columns=list(FRAME_COLUMNS))
-    for name in ("measured", "paper", "ratio"):
+    for name in ("measured", "paper", "ratio", "calibration_gmacs"):
         frame[name] = pd.to_numeric(frame[name]).astype("float64")
     return frame
 

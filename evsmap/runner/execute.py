@@ -11,6 +11,7 @@ records, beyond the paper's tables); Table IV's cells are then read from those r
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import socket
 import subprocess
@@ -478,6 +479,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     notes.append(f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians "
                  f"over frames (update only; end to end = segmentation + update)")
     details["contention"] = machine
+    details["calibration_gmacs"] = math.sqrt(machine["before"]["calibration_gmacs"]
+                                             * machine["after"]["calibration_gmacs"])
     if machine["contended"]:
         flag = (f"contended: the calibration matmul ran {machine['slowdown']:.2f}x slower than "
                 f"the run's best around this mapping run (load {machine['before']['load1']:.1f}"
@@ -582,8 +585,9 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
                          + (" (no sequence of the paper's could be mapped by every system "
                             "here)" if fallback else "") + "; " + "; ".join(source.notes))
             details[col] = {"source": source.key}
-            if (source.details or {}).get("timing_flag"):
-                details["timing_flag"] = source.details["timing_flag"]
+            for name in ("timing_flag", "calibration_gmacs"):
+                if (source.details or {}).get(name):
+                    details[name] = source.details[name]
     return CellRecord(**base, status="ok", values=values, notes=notes, details=details,
                       started=_now())
 

@@ -38,3 +38,11 @@ def test_contention_flags_a_slow_probe_against_the_best():
     assert not calm["contended"] and calm["slowdown"] == pytest.approx(100 / 95)
     busy = contention.contention(probe(50.0), probe(98.0), log)
     assert busy["contended"] and busy["slowdown"] == pytest.approx(2.0)
+
+
+def test_calibrated_ratio_cancels_the_machine_drift_between_two_timings():
+    from evsmap.measure.speed import calibrated_ratio
+
+    # the same two networks, the machine 25 % slower while the second was timed
+    assert calibrated_ratio(20.0, 100.0, 2.0 * 0.75, 75.0) == pytest.approx(10.0)
+    assert calibrated_ratio(20.0, None, 2.0, 75.0) == pytest.approx(10.0)  # plain without

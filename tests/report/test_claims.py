@@ -56,3 +56,14 @@ def test_index_section_and_relative_view():
     rel = "\n".join(relative_markdown(table, frame))
     assert "Relative to" in rel and "3.00x / 2.81x" in rel
     assert relative_markdown(load_tables()["table3"], frame) == []
+
+
+def test_a_timing_claim_is_drift_corrected_with_the_plain_ratio_kept():
+    frame = _frame({("feagnet-v2", "fps"): ("ok", 30.0, 28.1, "", None),
+                    ("esanet-r34", "fps"): ("ok", 8.0, 10.0, "", None)})
+    frame["calibration_gmacs"] = [100.0, 80.0]  # the machine ran 20 % slower for ESANet
+    claim = Claim("faster", "table1", "feagnet-v2", "esanet-r34", "fps", "higher")
+    r = check(claim, frame)
+    assert abs(r["measured"] - 3.0) < 1e-9 and abs(r["raw"] - 3.75) < 1e-9
+    md = "\n".join(claims_markdown({"table1": frame}))
+    assert "(plain 3.75x)" in md
