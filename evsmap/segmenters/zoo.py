@@ -1,7 +1,9 @@
 """Registers the FEAGNet variants as segmenters: ``feagnet-v1``, ``feagnet-v2`` (RGB-D, NYUv2
 40 classes, 480x640) and ``feagnet-s``, ``feagnet-l`` (RGB only, Cityscapes 19 classes,
 1024x512). The Table III ablation rows are the switches ``cfim``, ``dappf``, ``attention`` and
-``multiscale`` (see :data:`evsmap.models.feagnet.ABLATIONS`)."""
+``multiscale`` (see :data:`evsmap.models.feagnet.ABLATIONS`); ``cfim``, ``dappf`` and
+``attention`` also take a reading's name (``-o cfim=concat``, ``-o dappf=fullres``,
+``-o attention=lbu``: the readings before the Table III row fit)."""
 
 from __future__ import annotations
 
@@ -41,18 +43,22 @@ def _register(name: str) -> None:
         backend: str = "torch",
         weights: str | PathLike[str] | None = None,
         input_size: tuple[int, int] | None = None,
-        cfim: bool = True,
-        dappf: bool = True,
-        attention: bool = True,
+        cfim: bool | str = True,
+        dappf: bool | str = True,
+        attention: bool | str = True,
         multiscale: bool = True,
     ) -> NetworkSegmenter:
+        from evsmap.errors import EvsmapError
         from evsmap.models import feagnet
         from evsmap.segmenters.network import NetworkSegmenter
 
         switches = dict(dappf=dappf, attention=attention, multiscale=multiscale)
         if depth:
             switches["cfim"] = cfim
-        module = getattr(feagnet, builder)(num_classes=num_classes, **switches)
+        try:
+            module = getattr(feagnet, builder)(num_classes=num_classes, **switches)
+        except ValueError as exc:  # an unknown reading name: a user error
+            raise EvsmapError(f"segmenter {name!r}: {exc}") from None
         return NetworkSegmenter(
             name=name, module=module, num_classes=num_classes,
             class_names=class_names_for(num_classes, outdoor=not depth), uses_depth=depth,
