@@ -111,16 +111,23 @@ CFIM_READINGS = {"cross": CFIM, "concat": CFIMConcat}
 
 class AsymmetricSeparableConv(nn.Sequential):
     """Depthwise 3x1 then depthwise 1x3 convolution (both with ``dilation``), then a pointwise
-    1x1 conv-BN-ReLU: an asymmetric depthwise separable convolution."""
+    1x1 conv-BN-ReLU: an asymmetric depthwise separable convolution. ``norm=False``: the
+    pointwise conv carries a bias and no batch norm (for maps of a few pixels, where batch
+    statistics over a batch of single pixels blow up the gradients)."""
 
-    def __init__(self, channels: int, *, dilation: int = 1) -> None:
+    def __init__(self, channels: int, *, dilation: int = 1, norm: bool = True) -> None:
         super().__init__(
             nn.Conv2d(channels, channels, (3, 1), padding=(dilation, 0), dilation=(dilation, 1),
                       groups=channels, bias=False),
             nn.Conv2d(channels, channels, (1, 3), padding=(0, dilation), dilation=(1, dilation),
                       groups=channels, bias=False),
-            ConvBNReLU(channels, channels, 1),
+            ConvBNReLU(channels, channels, 1) if norm else _conv_relu(channels, channels),
         )
+
+
+def _conv_relu(in_channels: int, out_channels: int) -> nn.Sequential:
+    """1x1 conv with bias, then ReLU: no batch norm."""
+    return nn.Sequential(nn.Conv2d(in_channels, out_channels, 1), nn.ReLU(inplace=True))
 
 
 class DAPPF(nn.Module):
@@ -132,12 +139,13 @@ class DAPPF(nn.Module):
     vertical (``k x 1``) and a horizontal (``1 x k``) average pool, both with stride ``s``
     along both axes, so the cumulative strides are 2, 4, 8 with the default (5, 2) per level,
     as in DAPPM's pyramid. (b) On every level, at the level's pooled resolution, two asymmetric
-    depthwise separable convolutions, the second dilated with that level's rate (4, 8, 12). (c)
-    The branches carry ``C / q`` channels: level 1 reduces the input ``C -> C/q``, the deeper
-    levels stay at ``C/q``. As in DAPPM, the branch work happens at the pooled scale and only
+    depthwise separable convolutions, the second dilated with that level's rate (4, 8, 12);
+    the level's 1x1 convolutions carry biases and no batch norm (their maps have a few pixels).
+    (c) The branches carry ``C / q`` channels: level 1 reduces the input ``C -> C/q``, the
+    deeper levels stay at ``C/q``. As in DAPPM, the branch work happens at the pooled scale and only
     the 1x1 branch and the fusion run at the input's resolution: the levels are upsampled,
     concatenated with the 1x1 branch, fused back to ``C`` by a 1x1 conv and added to the input,
-    so the output has the input's size (Table III: +0.26 M, +0.04 G; here 0.256 M and 0.042 G
+    so the output has the input's size (Table III: +0.26 M, +0.04 G; here 0.257 M and 0.043 G
     on V2's 15 x 20 map).
 
     On FEAGNet-V1 (a 7 x 10 map at 480x640) the levels are 4 x 5, 2 x 3 and 1 x 2: the
@@ -166,10 +174,14 @@ class DAPPF(nn.Module):
         mid = channels // compression
         self.pools = tuple(pools)
         self.base = ConvBNReLU(channels, mid, 1)
-        self.reduce = nn.ModuleList(ConvBNReLU(channels if i == 0 else mid, mid, 1)
+        # the levels work on maps of a few pixels (1 x 2 on V1's deepest level at 480x640): no
+        # batch norm there, whose statistics over a batch of single pixels blow up the
+        # gradients; the fusion at the input's resolution normalises
+        self.reduce = nn.ModuleList(_conv_relu(channels if i == 0 else mid, mid)
                                     for i in range(len(pools)))
         self.process = nn.ModuleList(
-            nn.Sequential(AsymmetricSeparableConv(mid), AsymmetricSeparableConv(mid, dilation=d))
+            nn.Sequential(AsymmetricSeparableConv(mid, norm=False),
+                          AsymmetricSeparableConv(mid, dilation=d, norm=False))
             for d in dilations)
         self.fuse = ConvBNReLU(mid * (len(pools) + 1), channels, 1, relu=False)
         self.relu = nn.ReLU(inplace=True)
