@@ -230,14 +230,19 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
         _log_axis(left, "x", flops)
         _log_axis(left, "y", fps)
         lo, hi = min(flops) / 1.5, max(flops) * 1.5
+        y_lo = min(fps) / 1.6
         left.set_xlim(lo, hi)
-        left.set_ylim(min(fps) / 1.6, max(fps) * 1.6)
+        left.set_ylim(y_lo, max(fps) * 1.6)
         grid = np.geomspace(lo, hi, 50)
-        for rate in _iso_rates(flops, fps):
-            left.plot(grid, rate / grid, "--", color="0.75", lw=0.7, zorder=1)
-            x_at = min(hi / 1.1, max(lo * 1.1, rate / (max(fps) * 1.4)))
-            left.text(x_at, rate / x_at, f"{rate:g} G MAC/s", fontsize=7, color="0.45",
-                      rotation=0, va="bottom")
+        for k, rate in enumerate(_iso_rates(flops, fps)):
+            left.plot(grid, rate / grid, "--", color="0.75", lw=0.7, zorder=1,
+                      label="constant G MAC/s (value at the line)" if k == 0 else None)
+            # the value where the line leaves the plot at the bottom (the lines are a factor 2
+            # or more apart there, so the short labels do not meet)
+            x_at = rate / (y_lo * 1.15)
+            if lo < x_at < hi:
+                left.text(x_at, y_lo * 1.15, f"{rate:g}", fontsize=7, color="0.45",
+                          ha="right", va="bottom")
         left.set_xlabel("FLOPs (G, fvcore; one multiply-add = one flop)")
         left.set_ylabel("FPS measured here (batch 1)")
         left.grid(True, which="major", alpha=0.3)
