@@ -60,20 +60,58 @@ def calibration_gmacs(size: int = CALIBRATION_SIZE, repeats: int = 5, bursts: in
     return best
 
 
+OTHER_LIMIT = 0.15
+"""A cell during which other processes used more than this share of all cores' time (from
+``/proc/stat``) is flagged. An idle run shows 0.00-0.03; one single-threaded CPU-bound job on
+the 2-core VM shows about 0.5."""
+
+
+def cpu_clock() -> tuple[float, float, float] | None:
+    """(wall seconds, busy CPU seconds of the whole machine, CPU seconds of this process and its
+    waited-for children), or None where ``/proc/stat`` does not exist (not Linux)."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+    except OSError:
+        return None
+    if not fields or fields[0] != "cpu":
+        return None
+    ticks = [int(v) for v in fields[1:9]]
+    # user nice system idle iowait irq softirq steal: all but idle and iowait are busy
+    busy = sum(t for i, t in enumerate(ticks) if i not in (3, 4))
+    own = os.times()
+    return (time.monotonic(), busy / os.sysconf("SC_CLK_TCK"),
+            own.user + own.system + own.children_user + own.children_system)
+
+
+def other_share(before: tuple[float, float, float] | None,
+                after: tuple[float, float, float] | None, cores: int) -> float | None:
+    """The share of all cores' time that processes other than this one used between two
+    :func:`cpu_clock` readings (another VM's steal included): the direct measure of "other work
+    shared the cores", whichever way it slows the timed code."""
+    if before is None or after is None or after[0] <= before[0]:
+        return None
+    others = (after[1] - before[1]) - (after[2] - before[2])
+    return max(0.0, others) / ((after[0] - before[0]) * max(cores, 1))
+
+
 @dataclass(frozen=True)
 class Probe:
-    """One look at the machine: load averages (1 and 5 min), cores, calibration G MAC/s."""
+    """One look at the machine: load averages (1 and 5 min), cores, calibration G MAC/s, and
+    the CPU clocks (:func:`cpu_clock`) at the start of the probe."""
 
     load1: float
     load5: float
     cores: int
     calibration_gmacs: float
+    cpu: tuple[float, float, float] | None = None
 
     @classmethod
     def take(cls) -> Probe:
+        clock = cpu_clock()
         load1, load5, _ = os.getloadavg()
         return cls(load1=float(load1), load5=float(load5), cores=os.cpu_count() or 1,
-                   calibration_gmacs=calibration_gmacs())
+                   calibration_gmacs=calibration_gmacs(), cpu=clock)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -150,11 +188,33 @@ def _write(path: Path, data: dict) -> None:
 
 def contention(before: Probe, after: Probe, log: CalibrationLog | None = None) -> dict:
     """What the two probes around a timed cell say: the slowdown of its slower calibration
-    against the run's best, the load, and ``contended`` when the slowdown passes
-    :data:`SLOWDOWN_LIMIT`."""
+    against the run's best, the share of the cores other processes used in between
+    (``other_share``), the load, and ``contended`` when the slowdown passes
+    :data:`SLOWDOWN_LIMIT` or the share :data:`OTHER_LIMIT`. ``severity``: the larger of the
+    two against its limit (above 1: contended), to pick the calmer of two tries."""
     log = log or CalibrationLog()
     slowest = min(before.calibration_gmacs, after.calibration_gmacs)
     best = log.best(max(before.calibration_gmacs, after.calibration_gmacs))
     slowdown = best / slowest if slowest > 0 else float("inf")
+    share = other_share(before.cpu, after.cpu, before.cores)
+    severity = max(slowdown / SLOWDOWN_LIMIT, 0.0 if share is None else share / OTHER_LIMIT)
     return {"before": before.as_dict(), "after": after.as_dict(), "slowdown": slowdown,
-            "contended": bool(slowdown > SLOWDOWN_LIMIT)}
+            "other_share": share, "severity": severity, "contended": bool(severity > 1.0)}
+
+
+def severity(machine: dict) -> float:
+    """:func:`contention`'s ``severity`` (records written before it: slowdown / limit)."""
+    if machine.get("severity") is not None:
+        return float(machine["severity"])
+    return float(machine["slowdown"]) / SLOWDOWN_LIMIT
+
+
+def describe(machine: dict) -> str:
+    """One phrase for a contended cell: what the probes saw."""
+    parts = [f"the calibration matmul ran {machine['slowdown']:.2f}x slower than the run's best"]
+    if machine.get("other_share") is not None:
+        parts.append(f"other processes used {100 * machine['other_share']:.0f} % of the cores")
+    before = machine.get("before") or {}
+    load = (f" (load {before['load1']:.1f} on {before['cores']} cores)"
+            if "load1" in before and "cores" in before else "")
+    return "contended: " + "; ".join(parts) + load

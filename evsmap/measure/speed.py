@@ -90,10 +90,9 @@ class SpeedRecord:
             reasons.append(f"unstable: IQR/median {self.rel_iqr:.2f} after {self.rounds} "
                            f"rounds of {self.runs}")
         if self.contention.get("contended"):
-            reasons.append(f"contended: the calibration matmul ran "
-                           f"{self.contention['slowdown']:.2f}x slower than the run's best "
-                           f"(load {self.contention['before']['load1']:.1f} on "
-                           f"{self.contention['before']['cores']} cores)")
+            from evsmap.measure.contention import describe
+
+            reasons.append(describe(self.contention))
         return "; ".join(reasons) or None
 
 

@@ -172,7 +172,9 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
         # one more try once the other work may have passed; keep the less contended
         time.sleep(STRICT_PAUSE_S if ctx.strict_timing else RETRY_PAUSE_S)
         again = measure()
-        if again.contention["slowdown"] < rec.contention["slowdown"]:
+        from evsmap.measure.contention import severity
+
+        if severity(again.contention) < severity(rec.contention):
             rec = again
         if ctx.strict_timing and rec.contention.get("contended"):
             return CellRecord(**_base(spec), status="na", needs=["an idle machine"],
@@ -482,9 +484,9 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     details["calibration_gmacs"] = math.sqrt(machine["before"]["calibration_gmacs"]
                                              * machine["after"]["calibration_gmacs"])
     if machine["contended"]:
-        flag = (f"contended: the calibration matmul ran {machine['slowdown']:.2f}x slower than "
-                f"the run's best around this mapping run (load {machine['before']['load1']:.1f}"
-                f" on {machine['before']['cores']} cores)")
+        from evsmap.measure.contention import describe
+
+        flag = describe(machine) + " around this mapping run"
         details["timing_flag"] = flag
         notes.append(f"timing flagged - {flag}")
     if run.sequence == "synthetic" and hasattr(updater, "occupied_labels"):

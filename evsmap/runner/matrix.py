@@ -103,9 +103,11 @@ def _fresh_executor() -> Executor:
                                max_tasks_per_child=1)
 
 
-def _slowdown(record: CellRecord) -> float | None:
+def _severity(record: CellRecord) -> float | None:
+    from evsmap.measure.contention import severity
+
     machine = record.details.get("contention") if record.status == "ok" else None
-    return None if not machine else float(machine["slowdown"])
+    return None if not machine else severity(machine)
 
 
 def _timed_mapping(run: MappingRun, ctx: RunContext,
@@ -119,13 +121,16 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
         with fresh() as ex:
             return CellRecord.from_dict(ex.submit(_mapping_worker, run, ctx.as_dict()).result())
 
+    from evsmap.measure.contention import describe
+
     record = once()
-    slowdown = _slowdown(record)
-    if slowdown is None or not record.details["contention"]["contended"]:
+    first = _severity(record)
+    if first is None or not record.details["contention"]["contended"]:
         return record
+    why = describe(record.details["contention"])
     time.sleep(STRICT_PAUSE_S if ctx.strict_timing else RETRY_PAUSE_S)
     again = once()
-    if (_slowdown(again) or float("inf")) < slowdown:
+    if (_severity(again) or float("inf")) < first:
         record = again
     machine = record.details["contention"]
     if ctx.strict_timing and machine["contended"]:
@@ -133,11 +138,10 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
             key=record.key, table=record.table, row=record.row, label=record.label,
             kind=record.kind, metrics=list(record.metrics), status="na",
             needs=["an idle machine"], inputs=dict(record.inputs), details=dict(record.details),
-            reason=f"n/a - --strict-timing: the machine was busy (the calibration ran "
-                   f"{machine['slowdown']:.2f}x slower than the best seen) in both tries; "
-                   f"rerun when it is idle", environment=record.environment)
-    record.notes.append(f"timed twice: the first try was contended (slowdown "
-                        f"{slowdown:.2f}x); kept the less contended")
+            reason=f"n/a - --strict-timing: the machine was busy in both tries "
+                   f"({describe(machine)}); rerun when it is idle",
+            environment=record.environment)
+    record.notes.append(f"timed twice: the first try was {why}; kept the less contended")
     return record
 
 

@@ -46,3 +46,28 @@ def test_calibrated_ratio_cancels_the_machine_drift_between_two_timings():
     # the same two networks, the machine 25 % slower while the second was timed
     assert calibrated_ratio(20.0, 100.0, 2.0 * 0.75, 75.0) == pytest.approx(10.0)
     assert calibrated_ratio(20.0, None, 2.0, 75.0) == pytest.approx(10.0)  # plain without
+
+
+def test_other_processes_share_of_the_cores_flags_a_cell_the_matmul_misses():
+    # 2 cores, 10 s: the machine was busy 15 CPU-s, of which 5 were ours -> others used half
+    before, after = (100.0, 1000.0, 50.0), (110.0, 1015.0, 55.0)
+    assert contention.other_share(before, after, 2) == pytest.approx(0.5)
+    assert contention.other_share(before, None, 2) is None
+
+    def probe(g, cpu):
+        return contention.Probe(load1=1.0, load5=1.0, cores=2, calibration_gmacs=g, cpu=cpu)
+
+    machine = contention.contention(probe(100.0, before), probe(99.0, after))
+    assert machine["slowdown"] < 1.4 and machine["other_share"] == pytest.approx(0.5)
+    assert machine["contended"] and machine["severity"] == pytest.approx(0.5 / 0.15)
+    assert "other processes used 50 % of the cores" in contention.describe(machine)
+    calm = contention.contention(probe(100.0, before), probe(99.0, (110.0, 1005.2, 55.0)))
+    assert not calm["contended"] and calm["other_share"] == pytest.approx(0.01)
+
+
+def test_cpu_clock_reads_this_machine():
+    clock = contention.cpu_clock()
+    if clock is None:
+        pytest.skip("no /proc/stat here")
+    wall, busy, own = clock
+    assert busy > 0 and own > 0 and wall > 0

@@ -283,7 +283,7 @@ def test_a_contended_mapping_run_is_run_again_and_the_calmer_try_kept(ctx, monke
                      updater=Component("multiclass-bayes"), segmenter=None)
     rec = matrix._timed_mapping(run, replace(ctx, strict_timing=strict), Inline)
     assert rec.status == "ok" and rec.details["contention"]["slowdown"] == 1.1
-    assert "first try was contended (slowdown 2.00x)" in rec.notes[-1]
+    assert "first try was contended: the calibration matmul ran 2.00x slower" in rec.notes[-1]
 
 
 def test_strict_timing_refuses_a_mapping_run_contended_twice(ctx, monkeypatch):
