@@ -130,6 +130,20 @@ def _conv_relu(in_channels: int, out_channels: int) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(in_channels, out_channels, 1), nn.ReLU(inplace=True))
 
 
+def _pyramid_setup(module: nn.Module, channels: int, compression: int,
+                   pools: tuple[tuple[int, int], ...], dilations: tuple[int, ...]) -> int:
+    """What both DAPPF readings share: the level check, the 1x1 branch, the fusion of the
+    branches back to ``channels`` and the final ReLU; returns the branch width ``C / q``."""
+    if len(pools) != len(dilations):
+        raise ValueError("DAPPF needs one dilation per pyramid level")
+    mid = channels // compression
+    module.pools = tuple(pools)
+    module.base = ConvBNReLU(channels, mid, 1)
+    module.fuse = ConvBNReLU(mid * (len(pools) + 1), channels, 1, relu=False)
+    module.relu = nn.ReLU(inplace=True)
+    return mid
+
+
 class DAPPF(nn.Module):
     """Dilated Asymmetric Pooling Pyramid Fusion module (Fig. 4), the "pooled" reading (default).
 
@@ -169,11 +183,7 @@ class DAPPF(nn.Module):
         dilations: tuple[int, ...] = (4, 8, 12),
     ) -> None:
         super().__init__()
-        if len(pools) != len(dilations):
-            raise ValueError("DAPPF needs one dilation per pyramid level")
-        mid = channels // compression
-        self.pools = tuple(pools)
-        self.base = ConvBNReLU(channels, mid, 1)
+        mid = _pyramid_setup(self, channels, compression, pools, dilations)
         # the levels work on maps of a few pixels (1 x 2 on V1's deepest level at 480x640): no
         # batch norm there, whose statistics over a batch of single pixels blow up the
         # gradients; the fusion at the input's resolution normalises
@@ -183,8 +193,6 @@ class DAPPF(nn.Module):
             nn.Sequential(AsymmetricSeparableConv(mid, norm=False),
                           AsymmetricSeparableConv(mid, dilation=d, norm=False))
             for d in dilations)
-        self.fuse = ConvBNReLU(mid * (len(pools) + 1), channels, 1, relu=False)
-        self.relu = nn.ReLU(inplace=True)
 
     @staticmethod
     def _cross_pool(x: torch.Tensor, kernel: int, stride: int) -> torch.Tensor:
@@ -233,17 +241,11 @@ class DAPPFFullRes(nn.Module):
         dilations: tuple[int, ...] = (4, 8, 12),
     ) -> None:
         super().__init__()
-        if len(pools) != len(dilations):
-            raise ValueError("DAPPF needs one dilation per pyramid level")
-        mid = channels // compression
-        self.pools = tuple(pools)
-        self.base = ConvBNReLU(channels, mid, 1)
+        mid = _pyramid_setup(self, channels, compression, pools, dilations)
         self.reduce = nn.ModuleList(ConvBNReLU(channels, mid, 1) for _ in pools)
         self.process = nn.ModuleList(
             nn.Sequential(AsymmetricSeparableConv(mid), AsymmetricSeparableConv(mid, dilation=d))
             for d in dilations)
-        self.fuse = ConvBNReLU(mid * (len(pools) + 1), channels, 1, relu=False)
-        self.relu = nn.ReLU(inplace=True)
 
     @staticmethod
     def _strip_pools(x: torch.Tensor, kernel: int, stride: int) -> torch.Tensor:
