@@ -63,10 +63,11 @@ def _value(cells: Mapping[str, Mapping[str, Any]], col: str, which: str) -> floa
 
 def network_points(frames: Mapping[str, pd.DataFrame],
                    records: Iterable[CellRecord] = ()) -> list[dict[str, Any]]:
-    """Rows of Tables I/II with a measured FPS: the measured and printed FPS, parameters (M) and
-    FLOPs (G) for each speed column (``frames``: :func:`~evsmap.report.tables.table_frame` by
-    table id). ``flops`` is the speed record's own count at the resolution it timed (fvcore,
-    ``details["macs"]``, from ``records``), else the table's FLOPs column."""
+    """Rows of Tables I/II with a measured FPS: the measured and printed FPS, the timing's
+    calibration and the FLOPs (G) for each speed column (``frames``:
+    :func:`~evsmap.report.tables.table_frame` by table id). ``flops`` is the speed record's
+    own count at the resolution it timed (fvcore, ``details["macs"]``, from ``records``), else
+    the table's FLOPs column."""
     timed_macs = {}
     for rec in records:
         macs = (rec.details or {}).get("macs") if rec.status == "ok" else None
@@ -87,12 +88,10 @@ def network_points(frames: Mapping[str, pd.DataFrame],
             points.append({
                 "table": tid, "series": legend, "marker": marker, "row": row,
                 "label": fps["label"],
-                "fps": float(fps["measured"]), "params": _value(cells, "params", "measured"),
+                "fps": float(fps["measured"]),
                 "calibration": _value(cells, fps_col, "calibration_gmacs"),
                 "flops": timed_macs.get((tid, row, fps_col), _value(cells, "flops", "measured")),
-                "paper_fps": _value(cells, fps_col, "paper"),
-                "paper_params": _value(cells, "params", "paper"),
-                "paper_flops": _value(cells, "flops", "paper")})
+                "paper_fps": _value(cells, fps_col, "paper")})
     return points
 
 
