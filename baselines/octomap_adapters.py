@@ -82,7 +82,7 @@ class OctoMapAdapter(MapUpdater):
 
     def stats(self) -> MapStats:
         return MapStats(nodes=int(self.tree.size()), leaves=int(self.tree.getNumLeafNodes()),
-                        memory_bytes=int(self.tree.memoryUsage()))
+                        octomap_memory_bytes=int(self.tree.memoryUsage()))
 
     def write(self, path: str | PathLike[str], file_format: str = "full") -> int:
         """OctoMap's own file (the same for ``full`` and ``published``)."""

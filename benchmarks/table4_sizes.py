@@ -69,7 +69,7 @@ def main() -> None:
         row = {"sequence": args.sequence, "resolution": args.resolution, "frames": len(frames),
                "system": label, "published_bytes": sizes["published"],
                "full_bytes": sizes["full"], "nodes": stats.nodes, "leaves": stats.leaves,
-               "pruned_share": pruned_share(m), "memory_cpp_bytes": stats.memory_bytes,
+               "pruned_share": pruned_share(m), "memory_cpp_bytes": stats.octomap_memory_bytes,
                "memory_nbytes": memory_nbytes(m), "update_ms_median": float(np.median(times))}
         if truth is not None and semantic:
             q = evaluate_map(m, truth)

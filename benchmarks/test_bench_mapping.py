@@ -42,5 +42,6 @@ def test_integrate_frame(benchmark, tum_observed, name, resolution, tmp_path):
     stats = updater.stats()
     benchmark.extra_info.update(
         frames=len(tum_observed), hz_median=1.0 / benchmark.stats.stats.median,
-        map_bytes=updater.write(tmp_path / "map.ot"), memory_bytes=stats.memory_bytes,
+        map_bytes=updater.write(tmp_path / "map.ot"),
+        octomap_memory_bytes=stats.octomap_memory_bytes,
         nodes=stats.nodes, leaves=stats.leaves)

@@ -48,11 +48,18 @@ class Segmenter(abc.ABC):
 
 @dataclass(frozen=True)
 class MapStats:
-    """Size of a map: octree nodes, leaves and bytes held in memory."""
+    """Size of a map.
+
+    Attributes:
+        nodes, leaves: octree nodes and leaves (a plug-in without an octree: its cells).
+        octomap_memory_bytes: OctoMap's ``memoryUsage()`` for a tree of these nodes in the
+            compared system's C++ node type - a formula over the counts, not a measurement
+            (measured memory: :mod:`evsmap.measure.memory`); ``None`` where it does not apply.
+    """
 
     nodes: int
     leaves: int
-    memory_bytes: int
+    octomap_memory_bytes: int | None = None
 
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 1

@@ -43,7 +43,7 @@ class VoxelSet(MapUpdater):
 
     def stats(self):
         return MapStats(nodes=len(self.cells), leaves=len(self.cells),
-                        memory_bytes=32 * len(self.cells))
+                        octomap_memory_bytes=32 * len(self.cells))
 
     def write(self, path):
         data = np.array([(*k, v) for k, v in self.cells.items()], dtype=np.int64)

@@ -188,11 +188,27 @@ def format_record(r: dict[str, Any]) -> str:
                                     r.get("stage_ms_median", {}).items()) + " (medians)",
         f"map file     {r['map_bytes'] / 1e6:.3f} MB {r['file_format']}" + (
             f"  ({r['map_file']})" if r["map_file"] else "") + _other_size(r),
-        f"in memory    {r['memory_bytes'] / 1e6:.3f} MB, {r['nodes']:,} nodes, "
-        f"{r['leaves']:,} leaves",
+        f"map          {r['nodes']:,} nodes, {r['leaves']:,} leaves",
+        "memory       " + _memory_text(r),
     ] + ply + ([f"note         {r['extra']['segmenter_not_run']}"]
                 if r.get("extra", {}).get("segmenter_not_run") else [])
         + _quality_lines(r.get("quality")))
+
+
+def _memory_text(r: dict[str, Any]) -> str:
+    """Measured memory first (the map's arrays, the run's peak RSS), then the formula."""
+    parts = []
+    if r.get("map_nbytes") is not None:
+        parts.append(f"map arrays {r['map_nbytes'] / 1e6:.3f} MB")
+    if r.get("peak_rss_bytes") is not None:
+        since = "run" if r.get("peak_scope") == "run" else "process"
+        parts.append(f"peak RSS {r['peak_rss_bytes'] / 1e6:.0f} MB (the {since}'s; "
+                     f"{r['start_rss_bytes'] / 1e6:.0f} MB at its start)")
+    parts = [", ".join(parts) + " (measured)"] if parts else []
+    if r.get("octomap_memory_bytes") is not None:
+        parts.append(f"OctoMap memoryUsage() formula "
+                     f"{r['octomap_memory_bytes'] / 1e6:.3f} MB")
+    return "; ".join(parts) or "not measured"
 
 
 def _quality_lines(q: dict[str, Any] | None) -> list[str]:

@@ -16,6 +16,7 @@ import numpy as np
 from evsmap.data import Sequence
 from evsmap.errors import InvalidDataError
 from evsmap.interfaces import MapUpdater, Segmenter
+from evsmap.measure.memory import PeakMemory
 from evsmap.readers.skipping import SkippedFrames, read_frames
 
 
@@ -43,7 +44,16 @@ class MappingRecord:
             system itself writes), see :meth:`OctreeUpdater.write`.
         map_bytes_full, map_bytes_published: the ``.ot`` size in each format (both always
             measured; equal where the system writes its full state).
-        memory_bytes, nodes, leaves: the updater's in-memory size and octree counts.
+        nodes, leaves: the map's octree counts.
+        octomap_memory_bytes: OctoMap's ``memoryUsage()`` formula over the tree's nodes in the
+            compared system's C++ node type (a model of the C++ memory, not a measurement).
+        map_nbytes: measured - the bytes of the arrays evsmap holds the map in (the sum of
+            their ``nbytes``); ``None`` for a map held by a C++ library (see the peak RSS).
+        peak_rss_bytes: measured - the process's peak resident memory while the sequence was
+            read, segmented and mapped and the map written (``start_rss_bytes`` when it
+            began, after the network and the reader were loaded); ``peak_scope`` is
+            ``"run"``, or ``"process"`` where the kernel's peak could not be reset (then
+            since the process started).
     """
 
     updater: str
@@ -57,13 +67,17 @@ class MappingRecord:
     hz_end_to_end: float
     map_bytes: int
     map_file: str | None
-    memory_bytes: int
+    octomap_memory_bytes: int | None
     nodes: int
     leaves: int
     file_format: str = "full"
     map_bytes_full: int | None = None
     map_bytes_published: int | None = None
     stages_ms: dict[str, list[float]] = field(default_factory=dict)
+    map_nbytes: int | None = None
+    peak_rss_bytes: int | None = None
+    start_rss_bytes: int | None = None
+    peak_scope: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def stage_medians(self) -> dict[str, float]:
@@ -148,37 +162,38 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         segmenter = segmenter_name = None
     oracle = isinstance(segmenter, OracleSegmenter)
     frames_read = iter(read_frames(sequence, indices, skip_bad=skip_bad, skipped=skipped))
-    while True:
-        t0 = time.perf_counter()
-        try:
-            _, frame = next(frames_read)
-        except StopIteration:
-            break
-        stages.setdefault("read", []).append((time.perf_counter() - t0) * 1000.0)
-        observation = None
-        if segmenter is not None:
+    with PeakMemory() as memory:
+        while True:
             t0 = time.perf_counter()
-            observation = segmenter.predict(frame)
-            ms = (time.perf_counter() - t0) * 1000.0
-            if oracle:
-                stages.setdefault("oracle", []).append(ms)
-            else:
-                segment_ms.append(ms)
-                for stage, value in getattr(segmenter, "last_timings", {}).items():
-                    stages.setdefault(stage, []).append(float(value))
-        t0 = time.perf_counter()
-        updater.integrate(frame, observation)
-        update_ms.append((time.perf_counter() - t0) * 1000.0)
-        stages.setdefault("update", []).append(update_ms[-1])
-    stats = updater.stats()
-    sizes = map_sizes(updater)
-    if out is not None:
-        path = Path(out)
-        map_bytes = write_map(updater, path, file_format)
-        map_file: str | None = str(path)
-    else:
-        map_bytes = sizes[file_format]
-        map_file = None
+            try:
+                _, frame = next(frames_read)
+            except StopIteration:
+                break
+            stages.setdefault("read", []).append((time.perf_counter() - t0) * 1000.0)
+            observation = None
+            if segmenter is not None:
+                t0 = time.perf_counter()
+                observation = segmenter.predict(frame)
+                ms = (time.perf_counter() - t0) * 1000.0
+                if oracle:
+                    stages.setdefault("oracle", []).append(ms)
+                else:
+                    segment_ms.append(ms)
+                    for stage, value in getattr(segmenter, "last_timings", {}).items():
+                        stages.setdefault(stage, []).append(float(value))
+            t0 = time.perf_counter()
+            updater.integrate(frame, observation)
+            update_ms.append((time.perf_counter() - t0) * 1000.0)
+            stages.setdefault("update", []).append(update_ms[-1])
+        stats = updater.stats()  # the tree and the files are part of the run's memory
+        sizes = map_sizes(updater)
+        if out is not None:
+            path = Path(out)
+            map_bytes = write_map(updater, path, file_format)
+            map_file: str | None = str(path)
+        else:
+            map_bytes = sizes[file_format]
+            map_file = None
     n = len(update_ms)
     upd = np.asarray(update_ms)
     total = upd + (np.asarray(segment_ms) if segment_ms else 0.0)
@@ -188,7 +203,11 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         update_ms=update_ms, segment_ms=segment_ms,
         hz_median=float(1000.0 / np.median(upd)) if n else float("nan"),
         hz_end_to_end=float(1000.0 / np.median(total)) if n else float("nan"),
-        map_bytes=int(map_bytes), map_file=map_file, memory_bytes=stats.memory_bytes,
-        nodes=stats.nodes, leaves=stats.leaves, file_format=file_format,
+        map_bytes=int(map_bytes), map_file=map_file,
+        octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,
+        leaves=stats.leaves, file_format=file_format,
         map_bytes_full=sizes["full"], map_bytes_published=sizes["published"],
-        stages_ms=stages, extra={**extra, **({"skipped": skipped.as_dict()} if skip_bad else {})})
+        stages_ms=stages, map_nbytes=memory_nbytes(updater),
+        peak_rss_bytes=memory.peak_rss_bytes, start_rss_bytes=memory.start_rss_bytes,
+        peak_scope="run" if memory.scope == "block" else "process",
+        extra={**extra, **({"skipped": skipped.as_dict()} if skip_bad else {})})

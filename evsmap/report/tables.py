@@ -30,18 +30,22 @@ STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
 missing); the run failed; no record; a record without a value for the column; a row evsmap does
 not implement."""
 
-EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "map_bytes_full", "memory_bytes",
-                "memory_nbytes", "nodes", "leaves", "pruned_share", "precision", "recall",
+EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "map_bytes_full",
+                "octomap_memory_bytes", "map_nbytes", "rss_added_bytes", "peak_rss_bytes",
+                "nodes", "leaves", "pruned_share", "precision", "recall",
                 "semantic_accuracy", "semantic_accuracy_all", "map_miou", "frames", "miou")
 """Value keys of the ``extra`` records (base units; ``map_bytes``: the file the system itself
-writes, ``map_bytes_full``: evsmap's resumable state; ``miou``: the synthrooms proxy
-networks')."""
+writes, ``map_bytes_full``: evsmap's resumable state; ``octomap_memory_bytes``: OctoMap's
+``memoryUsage()`` formula over the tree's nodes, a model; ``map_nbytes``: the bytes of the
+arrays evsmap holds the map in, measured; ``peak_rss_bytes``: the peak resident memory of the
+process while it mapped, measured, and ``rss_added_bytes`` that peak less the RSS before the
+updater was built (the map's own working memory); ``miou``: the synthrooms proxy networks')."""
 
 PROXY_SECTION = "Synthetic proxy (evsmap's synthrooms, not the paper's datasets)"
 """Title of the ``reproduce --train`` sections (``extra/proxy...`` records)."""
 
-EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "memory_bytes", "memory_nbytes",
-                          "nodes", "leaves", "frames"})
+EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "octomap_memory_bytes", "map_nbytes",
+                          "rss_added_bytes", "peak_rss_bytes", "nodes", "leaves", "frames"})
 """Value keys that are counts (bytes, nodes, frames): integers in :func:`extra_frame`."""
 
 EXTRA_COLUMNS = ("key", "row", "label", "sequence", "voxel_size", "status", *EXTRA_VALUES,
@@ -54,8 +58,9 @@ _EXTRA_PRINT = (
     ("end_to_end_hz", "End-to-end (Hz)", 1.0, 1),
     ("map_bytes", "Map size (MB)", 1e6, 2),
     ("map_bytes_full", "Full state (MB)", 1e6, 2),
-    ("memory_bytes", "Memory, C++ nodes (MB)", 1e6, 2),
-    ("memory_nbytes", "Memory, evsmap arrays (MB)", 1e6, 2),
+    ("octomap_memory_bytes", "OctoMap memoryUsage() formula (MB)", 1e6, 2),
+    ("map_nbytes", "Map arrays, measured (MB)", 1e6, 2),
+    ("rss_added_bytes", "Peak RSS added by mapping, measured (MB)", 1e6, 1),
     ("nodes", "Nodes", 1.0, 0),
     ("leaves", "Leaves", 1.0, 0),
     ("pruned_share", "Pruned (%)", 0.01, 1),
@@ -437,10 +442,12 @@ def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
             "and end-to-end (segmentation + update), the size of the map file each system "
             "itself writes (Table IV's \"Map Size\"; classic-semantic: semantic_slam's "
             "ColorOcTree) and of evsmap's full resumable state, the memory the map would take "
-            "in the original C++ node types (OctoMap 16 B a node, semantic_slam 48 B a "
-            "Bayesian and 32 B a max node, EVSMap 32 B, plus 64 B per inner node's child "
-            "array) and the bytes of the arrays evsmap holds it in, its nodes, leaves and the "
-            "share of the finest leaves pruned, and the map's quality against "
+            "by OctoMap's memoryUsage() formula in the original C++ node types (OctoMap 16 B "
+            "a node, semantic_slam 48 B a Bayesian and 32 B a max node, EVSMap 32 B, plus 64 B "
+            "per inner node's child array; a model, not a measurement), the bytes of the "
+            "arrays evsmap holds it in and the peak resident memory mapping added to the "
+            "process (both measured), its nodes, leaves and the share of the finest leaves "
+            "pruned, and the map's quality against "
             "the ground truth (occupancy precision and recall, semantic accuracy and mIoU of "
             "the occupied voxels), so a smaller map is never bought unseen with a worse one.",
             ""]

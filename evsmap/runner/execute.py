@@ -445,33 +445,39 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
             return CellRecord(**base, status="na", needs=[need],
                               reason=needs_text([need]) + f" ({run.sequence} has no "
                               f"ground-truth labels for the oracle)", started=_now())
-    updater = UPDATERS.create(run.updater.name, resolution=run.voxel_size,
-                              **run.updater.config)
-    update_ms = []
-    for k, i in enumerate(indices):
-        frame = sequence.frame(i)
-        obs = observations[k] if observations is not None else None
-        t0 = time.perf_counter()
-        updater.integrate(frame, obs)
-        update_ms.append((time.perf_counter() - t0) * 1000.0)
+    from evsmap.measure.mapping import map_sizes, memory_nbytes, pruned_share
+    from evsmap.measure.memory import PeakMemory
+
+    with PeakMemory() as memory:  # the map's own: from before the updater to its files
+        updater = UPDATERS.create(run.updater.name, resolution=run.voxel_size,
+                                  **run.updater.config)
+        update_ms = []
+        for k, i in enumerate(indices):
+            frame = sequence.frame(i)
+            obs = observations[k] if observations is not None else None
+            t0 = time.perf_counter()
+            updater.integrate(frame, obs)
+            update_ms.append((time.perf_counter() - t0) * 1000.0)
+        stats = updater.stats()
+        sizes = map_sizes(updater)  # Table IV's "Map Size": the file each system itself writes
     machine = contention(before, Probe.take(),
                          CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
                                         machine_path=machine_log_path()))
-    from evsmap.measure.mapping import map_sizes, memory_nbytes, pruned_share
-
-    stats = updater.stats()
-    sizes = map_sizes(updater)  # Table IV's "Map Size": the file each system itself writes
     map_bytes = sizes["published"]
     upd = np.asarray(update_ms)
     total = upd + (np.asarray(segment_ms) if segment_ms else 0.0)
     values: dict[str, float] = {
         "frames": float(n), "update_hz": float(1000.0 / np.median(upd)),
         "end_to_end_hz": float(1000.0 / np.median(total)), "map_bytes": float(map_bytes),
-        "map_bytes_full": float(sizes["full"]), "memory_bytes": float(stats.memory_bytes),
-        "nodes": float(stats.nodes), "leaves": float(stats.leaves)}
+        "map_bytes_full": float(sizes["full"]), "nodes": float(stats.nodes),
+        "leaves": float(stats.leaves),
+        "peak_rss_bytes": float(memory.peak_rss_bytes),
+        "rss_added_bytes": float(memory.added_bytes)}
+    if stats.octomap_memory_bytes is not None:
+        values["octomap_memory_bytes"] = float(stats.octomap_memory_bytes)
     measured = memory_nbytes(updater)
     if measured is not None:
-        values["memory_nbytes"] = float(measured)
+        values["map_nbytes"] = float(measured)
     share = pruned_share(updater)
     if share is not None:
         values["pruned_share"] = float(share)

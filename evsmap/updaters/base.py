@@ -241,7 +241,7 @@ class OctreeUpdater(MapUpdater):
     def stats(self) -> MapStats:
         tree = self.tree()
         return MapStats(nodes=int(tree.num_nodes), leaves=int(tree.num_leaves),
-                        memory_bytes=int(tree.memory_bytes(node_bytes=self._node_bytes(),
+                        octomap_memory_bytes=int(tree.memory_bytes(node_bytes=self._node_bytes(),
                                                            base_bytes=OCTOMAP_BASE_BYTES)))
 
     def write(self, path: str | PathLike[str], file_format: str = "full") -> int:

@@ -164,9 +164,12 @@ def test_map_synthetic_json_has_the_record_keys(tmp_path):
                 "--resolution", "0.1", "--out", str(out), "--json")
     assert r.returncode == 0, r.stderr
     rec = json.loads(r.stdout)
-    for key in ("frames", "hz_median", "hz_end_to_end", "map_bytes", "memory_bytes", "nodes",
-                "leaves"):
+    for key in ("frames", "hz_median", "hz_end_to_end", "map_bytes", "octomap_memory_bytes",
+                "nodes", "leaves"):
         assert key in rec
+    # measured memory: the map's arrays and the run's peak RSS, above its start
+    assert rec["map_nbytes"] > 0 and rec["peak_scope"] == "run"
+    assert rec["peak_rss_bytes"] >= rec["start_rss_bytes"] > 10e6
     assert rec["frames"] == 2 and rec["segmenter"] == "oracle"
     assert rec["map_bytes"] == out.stat().st_size
     assert rec["hz_end_to_end"] <= rec["hz_median"]
