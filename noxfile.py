@@ -35,6 +35,14 @@ def lint(session: nox.Session) -> None:
 
 
 @nox.session
+def gates(session: nox.Session) -> None:
+    """Regression gates on speed and memory against benchmarks/baseline.json (`evsmap gate`;
+    `nox -s gates -- --update` records a new baseline, `-- --only 'net/*'` a subset)."""
+    _install(session)
+    session.run("evsmap", "gate", *session.posargs)
+
+
+@nox.session
 def bench(session: nox.Session) -> None:
     """pytest-benchmark suites under benchmarks/ (results saved under .benchmarks/)."""
     _install(session)

@@ -62,6 +62,17 @@ def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Nor
     return rgb_t, depth_t
 
 
+def seeded_inputs(uses_depth: bool, height: int, width: int) -> tuple[torch.Tensor, ...]:
+    """Inputs drawn from seed 0 for a network of these inputs (batch 1): an RGB tensor
+    (1, 3, H, W), then a depth tensor (1, 1, H, W) for an RGB-D network. The same in every
+    process, so an export and its timing (``evsmap speed``, ``evsmap gate``) see one input."""
+    gen = torch.Generator().manual_seed(0)
+    rgb = torch.randn(1, 3, height, width, generator=gen)
+    if not uses_depth:
+        return (rgb,)
+    return rgb, torch.randn(1, 1, height, width, generator=gen)
+
+
 class NetworkSegmenter(Segmenter):
     """A segmentation network as a segmenter plug-in.
 
@@ -133,11 +144,7 @@ class NetworkSegmenter(Segmenter):
 
     def example_inputs(self, height: int, width: int) -> tuple[torch.Tensor, ...]:
         """Deterministic random inputs of the network's shapes (batch 1)."""
-        gen = torch.Generator().manual_seed(0)
-        rgb = torch.randn(1, 3, height, width, generator=gen)
-        if not self.uses_depth:
-            return (rgb,)
-        return rgb, torch.randn(1, 1, height, width, generator=gen)
+        return seeded_inputs(self.uses_depth, height, width)
 
     # -- preprocessing ---------------------------------------------------------------------
 

@@ -1,0 +1,137 @@
+"""``evsmap gate``: regression gates on speed and memory against a committed baseline."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from evsmap.cli.options import positive_int
+from evsmap.errors import EvsmapError
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    from evsmap.gate.compare import MEMORY_THRESHOLD, TIME_THRESHOLD
+    from evsmap.gate.run import DEFAULT_BASELINE
+
+    p = sub.add_parser(
+        "gate", help="regression gates on speed and memory against a baseline",
+        description="Measure every workload (each network's forward pass on torch and ONNX "
+                    "Runtime at 480x640, each map updater on real TUM frames at 5 and 2 cm, "
+                    "`evsmap map` end to end, the TUM and ROS bag readers, the report build) "
+                    "in a fresh process: its time as a ratio to a calibration workload "
+                    "alternated with it, its peak resident memory above the idle process, and "
+                    "exact counts. Compare with the baseline: a count that changed, a time "
+                    f"ratio more than {TIME_THRESHOLD:.0%} or a peak more than "
+                    f"{MEMORY_THRESHOLD:.0%} above it fails (exit 1). See docs/gates.md.")
+    p.add_argument("--baseline", type=Path, default=DEFAULT_BASELINE, metavar="FILE",
+                   help=f"the baseline file (default {DEFAULT_BASELINE})")
+    p.add_argument("--update", action="store_true",
+                   help="write the measured workloads into the baseline (the others are kept) "
+                        "instead of failing on them")
+    p.add_argument("--only", nargs="+", action="extend", metavar="NAME",
+                   help="measure only these workloads (names or shell patterns such as "
+                        "'net/*' or 'update/*/2cm'; see --list)")
+    p.add_argument("--list", action="store_true", help="list the workloads and exit")
+    p.add_argument("--budget", type=_positive_float, default=4.0, metavar="S",
+                   help="seconds of timed runs per workload (at least 5 and at most 25 "
+                        "calibration/workload pairs; default 4)")
+    p.add_argument("--threads", type=positive_int, default=1, metavar="N",
+                   help="intra-op threads of torch, ONNX Runtime and BLAS (default 1: the "
+                        "least sensitive to a neighbour; must match the baseline's)")
+    p.add_argument("--results", type=Path, metavar="FILE",
+                   help="also write every measurement (all repeats' summaries) as JSON here")
+    p.add_argument("--json", action="store_true",
+                   help="print the verdicts and measurements as JSON instead of the table")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from evsmap.gate.compare import compare, summary, table
+    from evsmap.gate.run import (
+        discover,
+        measure_all,
+        plan,
+        prepare_inputs,
+        read_baseline,
+        select,
+        selected_names,
+        updated_baseline,
+        write_baseline,
+    )
+
+    baseline = None
+    if not (args.update and not args.baseline.exists()) and not args.list:
+        baseline = read_baseline(args.baseline)
+        threads = baseline.get("settings", {}).get("threads")
+        if threads is not None and int(threads) != args.threads and not args.update:
+            raise EvsmapError(f"{args.baseline} was measured with --threads {threads}, not "
+                              f"{args.threads}: time ratios differ with the thread count")
+    log = (lambda msg: sys.stderr.write(f"evsmap gate: {msg}\n")) if not args.json else \
+        (lambda msg: None)
+    t0 = time.perf_counter()
+    context, built = discover(threads=args.threads)
+    workloads = plan(context)
+    if args.list:
+        for w in workloads:
+            print(f"{w.name:44s} {w.description}")
+        return 0
+    chosen = select(workloads, args.only)
+    with tempfile.TemporaryDirectory(prefix="evsmap-gate-") as tmp:
+        prepare_inputs(context, built, chosen, Path(tmp), log=log)
+        del built
+        log(f"measuring {len(chosen)} workloads, each in a fresh process "
+            f"({args.threads} thread{'s' if args.threads > 1 else ''})")
+        measured = measure_all(chosen, context, Path(tmp), budget_s=args.budget,
+                               progress=not args.json)
+    seconds = time.perf_counter() - t0
+    base_entries = {}
+    if baseline is not None:
+        keep = selected_names(baseline["workloads"], args.only)
+        base_entries = {k: v for k, v in baseline["workloads"].items() if k in keep}
+    from evsmap.gate.run import machine_info
+
+    here = machine_info(args.threads)
+    theirs = (baseline or {}).get("machine", {})
+    same = theirs.get("kind") == here["kind"]
+    if baseline is not None and not same:
+        log(f"the baseline is of another machine kind ({theirs.get('cpu')}, "
+            f"{theirs.get('cpus')} cores, {', '.join(theirs.get('cpu_flags') or [])}) than this "
+            f"one ({here['cpu']}, {here['cpus']} cores, {', '.join(here['cpu_flags'])})")
+    rows = compare(base_entries, measured, same_machine=same) if baseline is not None else []
+    passed, text = summary(rows) if rows else (True, "")
+    if args.results:
+        args.results.write_text(json.dumps({"seconds": seconds, "workloads": measured},
+                                           indent=1))
+    if args.update:
+        settings = {"threads": args.threads, "budget_s": args.budget}
+        write_baseline(args.baseline, updated_baseline(baseline, measured, settings))
+        errors = {k: v.get("error") or v.get("skipped") for k, v in measured.items()
+                  if "error" in v or "skipped" in v}
+        text = (f"{args.baseline}: {len(measured) - len(errors)} workloads recorded"
+                + "".join(f"\n  not recorded: {k}: {why}" for k, why in errors.items()))
+        passed = True
+    if args.json:
+        print(json.dumps({"passed": passed, "seconds": seconds,
+                          "rows": [r.as_dict() for r in rows], "workloads": measured},
+                         indent=1))
+    else:
+        if rows:
+            print(table(rows))
+            print()
+        print(text)
+        print(f"({len(chosen)} workloads in {seconds:.0f} s)")
+    return 0 if passed else 1

@@ -1,0 +1,177 @@
+"""Hold gate measurements against a baseline: verdicts and the table that names them.
+
+Rules (``docs/gates.md``):
+
+* every exact count (any key of a baseline entry but ``time_ratio``, ``peak_rss_bytes`` and
+  ``context``) must be equal;
+* ``time_ratio`` fails above ``baseline * (1 + time)`` (15 % by default);
+* ``peak_rss_bytes`` fails above ``baseline * (1 + memory)`` (10 %) when it also grew by more
+  than ``memory_slack_bytes`` (2 MiB: the page and allocator granularity of a small workload);
+* a figure below ``baseline * (1 - threshold)`` is ``better``: it passes, with a hint to
+  ``--update``;
+* a workload of the baseline that did not run (missing data, an error) fails; a workload the
+  baseline does not have is ``new``: it passes, with the same hint;
+* on a machine of another kind than the baseline's (:func:`evsmap.gate.run.machine_kind`: CPU
+  model and vector extensions, cores, library versions) only the counts that do not depend on
+  floating point are held: time ratios, peaks and the :data:`MACHINE_DEPENDENT` counts are
+  shown as ``not compared`` - a baseline holds on machines of its own kind; record one there
+  with ``--update``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+TIME_THRESHOLD = 0.15
+MEMORY_THRESHOLD = 0.10
+MEMORY_SLACK_BYTES = 2 * 1024 * 1024
+MEASURED_KEYS = ("time_ratio", "peak_rss_bytes")
+NOT_COUNTS = frozenset({*MEASURED_KEYS, "context"})
+MACHINE_DEPENDENT = frozenset({"output_sha256", "nodes", "leaves", "file_bytes", "file_sha256"})
+"""Counts computed through floating point (a network's labels, a map's pruning and file):
+bit-exact on one machine kind, but another CPU's vector kernels may round differently."""
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    time: float = TIME_THRESHOLD
+    memory: float = MEMORY_THRESHOLD
+    memory_slack_bytes: int = MEMORY_SLACK_BYTES
+
+
+@dataclass(frozen=True)
+class Row:
+    """One line of the verdict table: ``workload``, ``measure`` (``time_ratio``,
+    ``peak_rss_bytes``, a count's key, or ``-`` for the workload as a whole), ``baseline`` and
+    ``now`` (``None`` where absent), ``change`` (relative, measured figures only) and
+    ``verdict``: ``ok``, ``better``, ``new``, ``FAIL``."""
+
+    workload: str
+    measure: str
+    baseline: Any
+    now: Any
+    change: float | None
+    verdict: str
+    why: str = ""
+
+    @property
+    def failed(self) -> bool:
+        return self.verdict == "FAIL"
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def entry_of(record: dict[str, Any]) -> dict[str, Any]:
+    """The baseline entry of one worker record: the two measured figures, the counts flat
+    beside them and the figures they came from under ``context``."""
+    ctx = {k: record[k] for k in ("workload_ms", "calibration_ms", "calibration_parts_ms",
+                                  "time_ratio_rel_iqr", "pairs", "idle_rss_bytes",
+                                  "peak_scope", "threads", "description") if k in record}
+    return {"time_ratio": record["time_ratio"], "peak_rss_bytes": record["peak_rss_bytes"],
+            **record.get("counts", {}), "context": ctx}
+
+
+def _measured_row(name: str, key: str, base: float, now: float, th: Thresholds) -> Row:
+    limit = th.time if key == "time_ratio" else th.memory
+    change = now / base - 1.0 if base > 0 else (0.0 if now == base else math.inf)
+    verdict = "ok"
+    if change > limit and (key == "time_ratio" or now - base > th.memory_slack_bytes):
+        verdict = "FAIL"
+    elif change < -limit and (key == "time_ratio" or base - now > th.memory_slack_bytes):
+        verdict = "better"
+    why = f"more than {limit:.0%} above the baseline" if verdict == "FAIL" else ""
+    return Row(name, key, base, now, change, verdict, why)
+
+
+def compare(baseline: dict[str, dict[str, Any]], measured: dict[str, dict[str, Any]],
+            thresholds: Thresholds | None = None, *, same_machine: bool = True) -> list[Row]:
+    """Verdict rows of ``measured`` (workload -> worker record) against ``baseline``
+    (workload -> entry, the ``"workloads"`` object of a baseline file). Workloads are the
+    union of both; pass only the selected part of the baseline. ``same_machine=False``: the
+    baseline is of another machine kind (see the module docstring)."""
+    th = thresholds or Thresholds()
+    other = "another machine kind than the baseline's"
+    rows: list[Row] = []
+    for name in sorted(set(baseline) | set(measured)):
+        base, rec = baseline.get(name), measured.get(name)
+        if rec is None or "error" in rec or "skipped" in rec:
+            why = ("not measured" if rec is None else rec.get("error") or rec.get("skipped"))
+            if base is None:  # neither baselined nor measurable here: say so, do not fail
+                rows.append(Row(name, "-", None, None, None, "skipped", why))
+            else:
+                rows.append(Row(name, "-", "baselined", None, None, "FAIL", why))
+            continue
+        if base is None:
+            rows.append(Row(name, "-", None, "measured", None, "new",
+                            "not in the baseline"))
+            now = entry_of(rec)
+            for key in MEASURED_KEYS:
+                rows.append(Row(name, key, None, now[key], None, "new"))
+            continue
+        now = entry_of(rec)
+        for key in MEASURED_KEYS:
+            row = _measured_row(name, key, float(base[key]), float(now[key]), th)
+            if not same_machine:
+                row = Row(name, key, row.baseline, row.now, row.change, "not compared", other)
+            rows.append(row)
+        for key in sorted(set(base) - NOT_COUNTS | set(now) - NOT_COUNTS):
+            b, n = base.get(key), now.get(key)
+            if b == n:
+                continue
+            if not same_machine and key in MACHINE_DEPENDENT and b is not None and n is not None:
+                rows.append(Row(name, key, b, n, None, "not compared", other))
+                continue
+            rows.append(Row(name, key, b, n, None, "FAIL",
+                            "an exact count changed" if b is not None and n is not None
+                            else "a count is missing on one side"))
+    return rows
+
+
+def _fmt(measure: str, value: Any) -> str:
+    if value is None:
+        return "-"
+    if measure == "time_ratio" and isinstance(value, (int, float)):
+        return f"{value:.4g}"
+    if measure == "peak_rss_bytes" and isinstance(value, (int, float)):
+        return f"{value / 2**20:.1f} MiB"
+    if isinstance(value, int):
+        return f"{value:,}"
+    return str(value)
+
+
+def table(rows: list[Row], *, all_rows: bool = True) -> str:
+    """The verdict table as Markdown: workload, measure, baseline, now, change, verdict."""
+    shown = rows if all_rows else [r for r in rows if r.verdict != "ok"]
+    lines = ["| workload | measure | baseline | now | change | verdict |",
+             "|---|---|---|---|---|---|"]
+    for r in shown:
+        change = "-" if r.change is None else f"{r.change:+.1%}"
+        verdict = r.verdict + (f": {r.why}" if r.why and r.verdict != "ok" else "")
+        lines.append(f"| {r.workload} | {r.measure} | {_fmt(r.measure, r.baseline)} | "
+                     f"{_fmt(r.measure, r.now)} | {change} | {verdict} |")
+    return "\n".join(lines)
+
+
+def summary(rows: list[Row]) -> tuple[bool, str]:
+    """(passed, one paragraph): how many workloads failed and which, and the ``--update``
+    hint when some figure is clearly better or a workload is new."""
+    failed = sorted({r.workload for r in rows if r.failed})
+    better = sorted({r.workload for r in rows if r.verdict in ("better", "new")})
+    workloads = len({r.workload for r in rows})
+    lines = []
+    if failed:
+        lines.append(f"gate FAILED: {len(failed)} of {workloads} workloads regressed or "
+                     f"changed: {', '.join(failed)}")
+    else:
+        lines.append(f"gate passed: {workloads} workloads within the thresholds")
+    if any(r.verdict == "not compared" for r in rows):
+        lines.append("WARNING: this machine is of another kind than the baseline's: time "
+                     "ratios, peaks and floating-point counts were not compared (record a "
+                     "baseline on this kind of machine with `evsmap gate --update`)")
+    if better:
+        lines.append(f"{len(better)} workloads are clearly better than or new to the baseline "
+                     f"({', '.join(better)}): run `evsmap gate --update` to record them")
+    return not failed, "\n".join(lines)

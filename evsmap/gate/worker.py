@@ -1,0 +1,131 @@
+"""Measure one gate workload in this (fresh) process: ``python -m evsmap.gate.worker``.
+
+The phases, in order:
+
+1. import, load the workload's inputs (:class:`evsmap.gate.workloads.Job`), make the
+   calibration buffers and run the calibration once;
+2. collect garbage, return freed heap to the system (``malloc_trim``), take the idle RSS and
+   reset the peak (:mod:`evsmap.measure.memory`);
+3. build the workload and run it once, untimed (lazy initialisation, compiled kernels);
+4. time ``calibration, workload`` pairs, ending with a calibration, until the time budget is
+   spent (at least ``min_pairs``, at most ``max_pairs``); each workload time is divided by the
+   mean of the calibrations just before and after it, and ``time_ratio`` is the median of those
+   ratios;
+5. read the peak RSS (over phases 3 and 4: a workload whose memory grows from run to run shows
+   it) and the exact counts of the last run.
+
+The result is one JSON object written to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import ctypes.util
+import gc
+import json
+import math
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                    "NUMBA_NUM_THREADS")
+
+
+def _trim_heap() -> None:
+    """Give freed heap pages back to the system (glibc), so the idle RSS is the live data."""
+    name = ctypes.util.find_library("c")
+    if not name:
+        return
+    try:
+        ctypes.CDLL(name).malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: int,
+            max_pairs: int) -> dict[str, Any]:
+    """Run workload ``name`` through the phases of the module docstring; returns the record."""
+    import numpy as np
+    import torch
+
+    from evsmap.gate.calibration import Calibration
+    from evsmap.gate.workloads import make_job
+    from evsmap.measure.memory import current_rss, peak_rss, reset_peak
+
+    threads = int(context.get("threads", 1))
+    torch.set_num_threads(threads)
+    job = make_job(name, context)
+    calibration = Calibration()
+    calibration.run()
+    gc.collect()
+    _trim_heap()
+    idle = current_rss()
+    scope = "workload" if reset_peak() else "process"
+
+    t0 = time.perf_counter()
+    job.build()
+    t1 = time.perf_counter()
+    job.run()
+    first = time.perf_counter() - t1
+    build = t1 - t0
+    pairs = max(min_pairs, min(max_pairs, math.ceil(budget_s / max(first, 1e-3))))
+    cal = [calibration.run()]
+    parts = [calibration.parts]
+    work = []
+    for _ in range(pairs):
+        t = time.perf_counter()
+        job.run()
+        work.append(time.perf_counter() - t)
+        cal.append(calibration.run())
+        parts.append(calibration.parts)
+    peak = peak_rss()
+    counts = job.counts()
+    cal_arr = np.asarray(cal)
+    around = (cal_arr[:-1] + cal_arr[1:]) / 2.0
+    ratios = np.asarray(work) / around
+    q25, q50, q75 = np.percentile(ratios, [25, 50, 75])
+    return {
+        "name": name, "time_ratio": float(q50), "time_ratio_rel_iqr": float((q75 - q25) / q50),
+        "pairs": pairs, "workload_ms": float(np.median(work) * 1e3),
+        "calibration_ms": float(np.median(cal_arr) * 1e3),
+        "calibration_parts_ms": {k: float(np.median([p[k] for p in parts]) * 1e3)
+                                 for k in parts[0]},
+        "first_run_ms": first * 1e3, "build_ms": build * 1e3,
+        "peak_rss_bytes": int(max(0, peak - idle)), "idle_rss_bytes": int(idle),
+        "peak_scope": scope, "threads": threads, "counts": counts,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m evsmap.gate.worker")
+    p.add_argument("--workload", required=True)
+    p.add_argument("--context", required=True, type=Path)
+    p.add_argument("--out", required=True, type=Path)
+    p.add_argument("--budget", type=float, default=4.0)
+    p.add_argument("--min-pairs", type=int, default=5)
+    p.add_argument("--max-pairs", type=int, default=25)
+    args = p.parse_args(argv)
+    context = json.loads(args.context.read_text())
+    try:
+        record = measure(args.workload, context, budget_s=args.budget,
+                         min_pairs=args.min_pairs, max_pairs=args.max_pairs)
+    except Exception as exc:  # noqa: BLE001 - reported to the parent as the workload's error
+        from evsmap.errors import EvsmapError
+
+        detail = "" if isinstance(exc, EvsmapError) else "\n" + traceback.format_exc()
+        record = {"name": args.workload, "error": f"{type(exc).__name__}: {exc}",
+                  "traceback": detail}
+    args.out.write_text(json.dumps(record, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    # one intra-op thread everywhere unless the parent set otherwise: before numpy or torch load
+    for var in THREAD_VARIABLES:
+        os.environ.setdefault(var, "1")
+    sys.exit(main())

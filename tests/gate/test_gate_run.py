@@ -1,0 +1,127 @@
+"""The gate's baseline file, its workload selection and digests, the worker on a real workload
+and ``evsmap gate`` end to end: it passes on its own fresh baseline and fails, naming the
+workloads, on the baseline scaled as the issue asks (time x 0.7, memory x 0.8)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.gate.run import read_baseline, select, updated_baseline
+from evsmap.gate.workloads import Workload, digest, frame_digest, make_job
+
+
+def _evsmap(*args: str, timeout: int = 600):
+    return subprocess.run([sys.executable, "-m", "evsmap", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("content, message", [
+    (None, "no such baseline file"),
+    ("{not json", "not a readable JSON baseline"),
+    ('{"format": 1}', 'no top-level "workloads" object'),
+    ('{"workloads": {"read/tum": {"time_ratio": 3.0}}}', "has no valid 'peak_rss_bytes'"),
+    ('{"workloads": {"read/tum": {"time_ratio": -1, "peak_rss_bytes": 5}}}',
+     "has no valid 'time_ratio'"),
+])
+def test_a_bad_baseline_names_the_file(tmp_path, content, message):
+    path = tmp_path / "baseline.json"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(DataFormatError, match=message) as err:
+        read_baseline(path)
+    assert str(path) in str(err.value)
+
+
+def test_the_cli_rejects_a_bad_baseline_in_one_line_with_exit_2(tmp_path):
+    path = tmp_path / "b.json"
+    path.write_text("[]")
+    r = _evsmap("gate", "--baseline", str(path))
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and str(path) in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_select_by_name_and_pattern_and_an_unknown_pattern_is_a_user_error():
+    ws = [Workload(n, n.split("/")[0], "") for n in
+          ("net/a/torch", "net/a/onnxruntime", "update/u/5cm", "update/u/2cm", "read/tum")]
+    assert [w.name for w in select(ws, None)] == [w.name for w in ws]
+    assert [w.name for w in select(ws, ["update/*/2cm", "read/tum", "update/u/2cm"])] == [
+        "update/u/2cm", "read/tum"]
+    with pytest.raises(EvsmapError, match=r"--only 'net/b/\*' matches no gate workload"):
+        select(ws, ["net/b/*"])
+    with pytest.raises(EvsmapError, match="unknown gate workload"):
+        make_job("net/a/tensorflow", {})
+
+
+def test_update_keeps_other_workloads_and_records_no_failed_ones():
+    old = {"workloads": {"read/tum": {"time_ratio": 3.0, "peak_rss_bytes": 10, "frames": 37}}}
+    measured = {
+        "read/rosbag": {"name": "read/rosbag", "time_ratio": 2.0, "peak_rss_bytes": 7,
+                        "counts": {"frames": 5}, "pairs": 5},
+        "report/build": {"name": "report/build", "error": "boom"},
+    }
+    new = updated_baseline(old, measured, {"threads": 1})
+    assert set(new["workloads"]) == {"read/tum", "read/rosbag"}
+    assert new["workloads"]["read/rosbag"]["frames"] == 5
+    assert new["settings"] == {"threads": 1} and new["machine"]["threads"] == 1
+
+
+def test_digests_see_dtype_shape_and_values():
+    a = np.arange(6, dtype=np.int16)
+    assert digest(a) == digest(a.copy())
+    assert digest(a) != digest(a.astype(np.int32))
+    assert digest(a) != digest(a.reshape(2, 3))
+    b = a.copy()
+    b[3] += 1
+    assert digest(a) != digest(b)
+
+    class F:
+        def __init__(self, depth):
+            self.depth, self.rgb, self.pose = depth, None, np.eye(4)
+
+    assert frame_digest([F(a)]) != frame_digest([F(b)])
+
+
+def test_gate_end_to_end_passes_on_its_baseline_and_fails_on_the_scaled_ones(tmp_path):
+    """One cheap real workload (the ROS bag reader on the shared sample) through the whole
+    command: --update writes the baseline; the same tree passes against it; a copy with every
+    time ratio x 0.7 fails on time, one with every peak x 0.8 on memory, both naming it."""
+    from evsmap.testing import require_sample
+
+    require_sample("lidar-odometry-bag")
+    base = tmp_path / "baseline.json"
+    r = _evsmap("gate", "--only", "read/rosbag", "--update", "--baseline", str(base),
+                "--budget", "0.5")
+    assert r.returncode == 0, r.stderr
+    data = json.loads(base.read_text())
+    entry = data["workloads"]["read/rosbag"]
+    assert entry["frames"] == 5 and entry["time_ratio"] > 0 and entry["peak_rss_bytes"] > 0
+    assert entry["context"]["pairs"] >= 5 and data["settings"]["threads"] == 1
+
+    r = _evsmap("gate", "--only", "read/rosbag", "--baseline", str(base), "--budget", "0.5",
+                "--json")
+    out = json.loads(r.stdout)
+    counts = [row for row in out["rows"] if row["measure"] in ("frames", "frames_sha256")]
+    assert counts == []  # exact counts equal: no row for them
+    time_row = next(row for row in out["rows"] if row["measure"] == "time_ratio")
+    assert abs(time_row["change"]) < 0.5  # a noisy shared machine; the gate's own band is 15 %
+
+    for key, factor, why in (("time_ratio", 0.7, "time_ratio"),
+                             ("peak_rss_bytes", 0.8, "peak_rss_bytes")):
+        scaled = json.loads(base.read_text())
+        w = scaled["workloads"]["read/rosbag"]
+        w[key] = w[key] * factor
+        if key == "peak_rss_bytes":
+            w[key] = int(w[key])
+        copy = tmp_path / f"scaled-{key}.json"
+        copy.write_text(json.dumps(scaled))
+        r = _evsmap("gate", "--only", "read/rosbag", "--baseline", str(copy), "--budget", "0.5")
+        assert r.returncode == 1, r.stdout + r.stderr
+        assert "gate FAILED" in r.stdout and "read/rosbag" in r.stdout
+        assert f"| read/rosbag | {why} |" in r.stdout
