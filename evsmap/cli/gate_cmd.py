@@ -80,6 +80,15 @@ def run(args: argparse.Namespace) -> int:
         if threads is not None and int(threads) != args.threads and not args.update:
             raise EvsmapError(f"{args.baseline} was measured with --threads {threads}, not "
                               f"{args.threads}: time ratios differ with the thread count")
+    from evsmap.gate.run import machine_info
+
+    here = machine_info(args.threads)
+    theirs = (baseline or {}).get("machine", {})
+    same = theirs.get("kind") == here["kind"] and theirs.get("threads", 1) == args.threads
+    if args.update and args.only and baseline is not None and not same:
+        raise EvsmapError(f"{args.baseline} was recorded on another machine kind or thread "
+                          f"count: --update --only would mix figures of two machines in it; "
+                          f"record every workload here (no --only) or use another --baseline")
     log = (lambda msg: sys.stderr.write(f"evsmap gate: {msg}\n")) if not args.json else \
         (lambda msg: None)
     t0 = time.perf_counter()
@@ -102,11 +111,6 @@ def run(args: argparse.Namespace) -> int:
     if baseline is not None:
         keep = selected_names(baseline["workloads"], args.only)
         base_entries = {k: v for k, v in baseline["workloads"].items() if k in keep}
-    from evsmap.gate.run import machine_info
-
-    here = machine_info(args.threads)
-    theirs = (baseline or {}).get("machine", {})
-    same = theirs.get("kind") == here["kind"]
     if baseline is not None and not same:
         log(f"the baseline is of another machine kind ({theirs.get('cpu')}, "
             f"{theirs.get('cpus')} cores, {', '.join(theirs.get('cpu_flags') or [])}) than this "

@@ -2,8 +2,8 @@
 
 The phases, in order:
 
-1. import, load the workload's inputs (:class:`evsmap.gate.workloads.Job`), make the
-   calibration buffers and run the calibration once;
+1. import, load the workload's inputs (:class:`evsmap.gate.workloads.Job`), warm its compiled
+   kernels on a small input, make the calibration buffers and run the calibration once;
 2. collect garbage, return freed heap to the system (``malloc_trim``), take the idle RSS and
    reset the peak (:mod:`evsmap.measure.memory`);
 3. build the workload and run it once, untimed (lazy initialisation, compiled kernels);
@@ -60,6 +60,7 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     threads = int(context.get("threads", 1))
     torch.set_num_threads(threads)
     job = make_job(name, context)
+    job.warm()
     calibration = Calibration()
     calibration.run()
     gc.collect()
