@@ -64,7 +64,6 @@ def run(args: argparse.Namespace) -> int:
     from evsmap.gate.run import (
         discover,
         measure_all,
-        plan,
         prepare_inputs,
         read_baseline,
         select,
@@ -72,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         updated_baseline,
         write_baseline,
     )
+    from evsmap.gate.workloads import plan
 
     baseline = None
     if not (args.update and not args.baseline.exists()) and not args.list:
