@@ -62,6 +62,27 @@ def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Nor
     return rgb_t, depth_t
 
 
+def as_size(value: object, what: str = "input_size") -> tuple[int, int]:
+    """(height, width) from a pair of positive integers or a ``HxW`` string (``-o
+    input_size=240x320``).
+
+    Raises:
+        InvalidDataError: anything else (names ``what`` and the value).
+    """
+    parts = value
+    if isinstance(value, str):
+        h, sep, w = value.lower().partition("x")
+        parts = (h, w) if sep else ()
+    try:
+        size = tuple(int(v) for v in parts)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        size = ()
+    if len(size) != 2 or min(size) < 1:
+        raise InvalidDataError(f"{what} must be HEIGHTxWIDTH in pixels (e.g. 480x640), "
+                               f"got {value!r}")
+    return size  # type: ignore[return-value]
+
+
 def seeded_inputs(uses_depth: bool, height: int, width: int) -> tuple[torch.Tensor, ...]:
     """Inputs drawn from seed 0 for a network of these inputs (batch 1): an RGB tensor
     (1, 3, H, W), then a depth tensor (1, 1, H, W) for an RGB-D network. The same in every
@@ -123,7 +144,8 @@ class NetworkSegmenter(Segmenter):
         self.default_size = tuple(default_size)
         self.normalization = normalization
         self.backend = backend
-        self.input_size = tuple(input_size) if input_size is not None else self.default_size
+        self.input_size = (as_size(input_size, f"{name}: input_size")
+                           if input_size is not None else self.default_size)
         self.config = dict(config or {})
         self.weights = str(weights) if weights is not None else None
         if weights is not None:

@@ -333,3 +333,24 @@ def test_complexity_command_at_a_small_size(capsys, segmenter):
     assert (record["height"], record["width"]) == (64, 96)
     assert record["params"] == sum(p.numel() for p in segmenter("feagnet-v2").module.parameters())
     assert 0 < record["conv_macs"] <= record["flops"]
+
+
+def test_input_size_option_reads_hxw_and_rejects_anything_else_in_one_line():
+    from evsmap.errors import InvalidDataError
+    from evsmap.segmenters.network import as_size
+
+    assert as_size("240x320") == (240, 320) and as_size([480, 640]) == (480, 640)
+    for bad in ("240,320", "[240,320]", "0x320", (1, 2, 3), "big"):
+        with pytest.raises(InvalidDataError, match="input_size must be HEIGHTxWIDTH"):
+            as_size(bad)
+
+
+def test_eval_with_a_bad_input_size_is_a_user_error_not_a_traceback(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "evsmap", "eval", "feagnet-s", "--dataset",
+                        "synthetic", "--allow-random", "--limit", "1", "-o",
+                        "input_size=[240,320]"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "input_size must be HEIGHTxWIDTH" in r.stderr
