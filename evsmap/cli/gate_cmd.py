@@ -52,6 +52,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=positive_int, default=1, metavar="N",
                    help="intra-op threads of torch, ONNX Runtime and BLAS (default 1: the "
                         "least sensitive to a neighbour; must match the baseline's)")
+    p.add_argument("--repeats", type=positive_int, metavar="N",
+                   help="fresh processes per workload, in rounds, the median kept (default 1; "
+                        "3 with --update, so a baseline is not one process's luck)")
+    p.add_argument("--confirm", type=int, default=2, metavar="N",
+                   help="a workload whose time or peak is outside the band after the first "
+                        "pass is measured in N more processes and judged on the median of all "
+                        "(default 2; 0 judges the first pass)")
+    p.add_argument("--cpu", type=int, metavar="K",
+                   help="pin every worker to this CPU (default: the lowest this process may "
+                        "use; two cores of a VM can differ in speed by 25 %%, and a process "
+                        "that migrates between them mixes both)")
     p.add_argument("--results", type=Path, metavar="FILE",
                    help="also write every measurement (all repeats' summaries) as JSON here")
     p.add_argument("--json", action="store_true",
@@ -62,8 +73,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from evsmap.gate.compare import compare, summary, table
     from evsmap.gate.run import (
+        combine,
         discover,
         measure_all,
+        outside_band,
+        pick_cpu,
         prepare_inputs,
         read_baseline,
         select,
@@ -99,18 +113,33 @@ def run(args: argparse.Namespace) -> int:
             print(f"{w.name:44s} {w.description}")
         return 0
     chosen = select(workloads, args.only)
-    with tempfile.TemporaryDirectory(prefix="evsmap-gate-") as tmp:
-        prepare_inputs(context, built, chosen, Path(tmp), log=log)
-        del built
-        log(f"measuring {len(chosen)} workloads, each in a fresh process "
-            f"({args.threads} thread{'s' if args.threads > 1 else ''})")
-        measured = measure_all(chosen, context, Path(tmp), budget_s=args.budget,
-                               progress=not args.json)
-    seconds = time.perf_counter() - t0
+    context["cpus"] = [pick_cpu(args.cpu)]
+    repeats = args.repeats or (3 if args.update else 1)
     base_entries = {}
     if baseline is not None:
         keep = selected_names(baseline["workloads"], args.only)
         base_entries = {k: v for k, v in baseline["workloads"].items() if k in keep}
+    with tempfile.TemporaryDirectory(prefix="evsmap-gate-") as tmp:
+        prepare_inputs(context, built, chosen, Path(tmp), log=log)
+        del built
+        log(f"measuring {len(chosen)} workloads, each in {repeats} fresh "
+            f"process{'es' if repeats > 1 else ''} on CPU {context['cpus'][0]} "
+            f"({args.threads} thread{'s' if args.threads > 1 else ''})")
+        runs = measure_all(chosen, context, Path(tmp), budget_s=args.budget, repeats=repeats,
+                           progress=not args.json)
+        measured = {name: combine(records) for name, records in runs.items()}
+        if base_entries and args.confirm > 0 and not args.update:
+            doubtful = outside_band(compare(base_entries, measured), chosen)
+            if doubtful:
+                log(f"{len(doubtful)} workloads outside the band after the first pass, "
+                    f"measured {args.confirm} more times: "
+                    f"{', '.join(w.name for w in doubtful)}")
+                more = measure_all(doubtful, context, Path(tmp), budget_s=args.budget,
+                                   repeats=args.confirm, progress=not args.json)
+                for name, records in more.items():
+                    runs[name] = runs[name] + records
+                    measured[name] = combine(runs[name])
+    seconds = time.perf_counter() - t0
     if baseline is not None and not same:
         log(f"the baseline is of another machine kind ({theirs.get('cpu')}, "
             f"{theirs.get('cpus')} cores, {', '.join(theirs.get('cpu_flags') or [])}) than this "
@@ -121,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         args.results.write_text(json.dumps({"seconds": seconds, "workloads": measured},
                                            indent=1))
     if args.update:
-        settings = {"threads": args.threads, "budget_s": args.budget}
+        settings = {"threads": args.threads, "budget_s": args.budget, "repeats": repeats}
         write_baseline(args.baseline, updated_baseline(baseline, measured, settings))
         errors = {k: v.get("error") or v.get("skipped") for k, v in measured.items()
                   if "error" in v or "skipped" in v}

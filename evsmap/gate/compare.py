@@ -69,7 +69,8 @@ def entry_of(record: dict[str, Any]) -> dict[str, Any]:
     beside them and the figures they came from under ``context``."""
     ctx = {k: record[k] for k in ("workload_ms", "calibration_ms", "calibration_parts_ms",
                                   "time_ratio_rel_iqr", "pairs", "idle_rss_bytes",
-                                  "peak_scope", "threads", "description") if k in record}
+                                  "peak_scope", "threads", "cpus", "processes",
+                                  "description") if k in record}
     return {"time_ratio": record["time_ratio"], "peak_rss_bytes": record["peak_rss_bytes"],
             **record.get("counts", {}), "context": ctx}
 

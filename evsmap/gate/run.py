@@ -263,26 +263,77 @@ def run_worker(workload: Workload, context_file: Path, out_dir: Path, *, budget_
 
 
 def measure_all(workloads: Sequence[Workload], context: dict[str, Any], workdir: Path, *,
-                budget_s: float, progress: bool = True) -> dict[str, dict[str, Any]]:
-    """Every workload measured in turn (a progress bar on stderr), its files under
-    ``workdir``; missing inputs are recorded as ``{"skipped": why}``."""
+                budget_s: float, repeats: int = 1,
+                progress: bool = True) -> dict[str, list[dict[str, Any]]]:
+    """Every workload measured in ``repeats`` fresh processes, in rounds (all workloads once,
+    then again), so a slow spell of the machine falls on different workloads' repeats; a
+    progress bar on stderr. Missing inputs give one ``{"skipped": why}`` record."""
     from tqdm import tqdm
 
     threads = int(context["threads"])
-    results: dict[str, dict[str, Any]] = {}
+    results: dict[str, list[dict[str, Any]]] = {}
     context_file = workdir / "context.json"
     context_file.write_text(json.dumps(context))
-    bar = tqdm(workloads, desc="gate", unit="workload", file=sys.stderr, disable=not progress,
+    jobs = [w for _ in range(repeats) for w in workloads]
+    bar = tqdm(jobs, desc="gate", unit="process", file=sys.stderr, disable=not progress,
                leave=False)
     for workload in bar:
         bar.set_postfix_str(workload.name)
         why = missing_input(workload, context)
         if why:
-            results[workload.name] = {"name": workload.name, "skipped": why}
+            results[workload.name] = [{"name": workload.name, "skipped": why}]
             continue
         t0 = time.perf_counter()
         record = run_worker(workload, context_file, workdir, budget_s=budget_s,
                             threads=threads)
         record["seconds"] = time.perf_counter() - t0
-        results[workload.name] = record
+        results.setdefault(workload.name, []).append(record)
     return results
+
+
+def outside_band(rows: Sequence[Any], workloads: Sequence[Workload]) -> list[Workload]:
+    """The workloads whose time ratio or peak a first pass put outside the band (``FAIL`` or
+    ``better``): the ones worth measuring again before a verdict. Count changes and errors are
+    not noise and are not re-measured."""
+    names = {r.workload for r in rows
+             if r.measure in ("time_ratio", "peak_rss_bytes") and r.verdict in ("FAIL", "better")}
+    return [w for w in workloads if w.name in names]
+
+
+def pick_cpu(cpu: int | None) -> int:
+    """The CPU every worker is pinned to: ``cpu``, else the lowest this process may use.
+
+    Raises:
+        EvsmapError: ``cpu`` is not one this process may use.
+    """
+    allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else [0]
+    if cpu is None:
+        return allowed[0]
+    if cpu not in allowed:
+        raise EvsmapError(f"--cpu {cpu}: not a CPU this process may use "
+                          f"({', '.join(map(str, allowed))})")
+    return cpu
+
+
+def combine(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One workload's processes as one record: the median ``time_ratio`` and
+    ``peak_rss_bytes``, the counts (an error if two processes disagree: the workload is not
+    deterministic), every process's ratio and peak under ``processes``."""
+    bad = [r for r in records if "error" in r or "skipped" in r]
+    if bad:
+        return dict(bad[0])
+    first = records[0]
+    out = dict(first)
+    out["time_ratio"] = float(np.median([r["time_ratio"] for r in records]))
+    out["peak_rss_bytes"] = int(np.median([r["peak_rss_bytes"] for r in records]))
+    out["seconds"] = float(sum(r.get("seconds", 0.0) for r in records))
+    out["processes"] = [{"time_ratio": r["time_ratio"], "peak_rss_bytes": r["peak_rss_bytes"],
+                         "time_ratio_rel_iqr": r.get("time_ratio_rel_iqr"),
+                         "workload_ms": r.get("workload_ms"),
+                         "calibration_ms": r.get("calibration_ms")} for r in records]
+    for r in records[1:]:
+        if r.get("counts") != first.get("counts"):
+            return {"name": first["name"], "error": f"the exact counts differ between two "
+                    f"processes ({first.get('counts')} and {r.get('counts')}): the workload "
+                    f"is not deterministic"}
+    return out

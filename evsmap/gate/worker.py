@@ -58,6 +58,9 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     from evsmap.measure.memory import current_rss, peak_rss, reset_peak
 
     threads = int(context.get("threads", 1))
+    cpus = context.get("cpus")
+    if cpus and hasattr(os, "sched_setaffinity"):  # no migration between unequal cores
+        os.sched_setaffinity(0, {int(c) for c in cpus})
     torch.set_num_threads(threads)
     job = make_job(name, context)
     job.warm()
@@ -98,7 +101,8 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
                                  for k in parts[0]},
         "first_run_ms": first * 1e3, "build_ms": build * 1e3,
         "peak_rss_bytes": int(max(0, peak - idle)), "idle_rss_bytes": int(idle),
-        "peak_scope": scope, "threads": threads, "counts": counts,
+        "peak_scope": scope, "threads": threads, "cpus": sorted(os.sched_getaffinity(0))
+        if hasattr(os, "sched_getaffinity") else None, "counts": counts,
     }
 
 
