@@ -12,8 +12,8 @@ Names:
 * ``update/<updater>/5cm``, ``update/<updater>/2cm``: every registered updater integrating
   10 real TUM fr1_xyz frames (every 4th of the 37) into a fresh map, max range 4 m, with the
   top-3 of the seeded FEAGNet-V1 computed beforehand;
-* ``map/feagnet-v1+multiclass-bayes``: ``evsmap map`` end to end (reading, the seeded
-  FEAGNet-V1 on torch, the update, the written file) on the first 10 TUM frames at 5 cm;
+* ``map/feagnet-v1+multiclass-bayes``: ``evsmap map``'s pipeline end to end (reading, the
+  seeded FEAGNet-V1 on torch, the update, the written file) on the first 10 TUM frames at 5 cm;
 * ``read/tum``, ``read/rosbag``: opening and reading every frame of the TUM sample and of the
   ROS 1 lidar bag sample;
 * ``report/build``: :func:`evsmap.report.build.build_report` on a stored run of
@@ -22,9 +22,7 @@ Names:
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
 import shutil
 import tarfile
 import tempfile
@@ -93,7 +91,7 @@ def plan(context: dict[str, Any]) -> list[Workload]:
                                 f"{name}: integrate {len(UPDATE_FRAMES)} TUM frames at "
                                 f"{res:g} m", needs=("tum", "observations")))
     out.append(Workload(f"map/{MAP_NETWORK}+{MAP_UPDATER}", "map",
-                        f"evsmap map end to end: {MAP_FRAMES} TUM frames, {MAP_NETWORK} "
+                        f"evsmap map's pipeline: {MAP_FRAMES} TUM frames, {MAP_NETWORK} "
                         f"(torch), {MAP_UPDATER} at 0.05 m, the map file written",
                         needs=("tum",)))
     out.append(Workload("read/tum", "read", "open the TUM fr1_xyz sample and read its 37 frames",
@@ -245,10 +243,15 @@ class Integrate(Job):
 
 
 class MapCommand(Job):
+    """``evsmap map``'s pipeline (:func:`evsmap.measure.mapping.map_sequence`, what the command
+    runs): the TUM reader, the seeded FEAGNet-V1 on torch, the update and the map file. The
+    command's own argument parsing and printing are left out: the gate sits below the command
+    line (``tests/test_layers.py``)."""
+
     def __init__(self, context: dict[str, Any]) -> None:
         self.tum = str(context["tum"])
         self.tmp = Path(tempfile.mkdtemp(prefix="evsmap-gate-map-"))
-        self.record: dict[str, Any] = {}
+        self.record: Any = None
         self.frames = MAP_FRAMES
 
     def warm(self) -> None:
@@ -259,27 +262,23 @@ class MapCommand(Job):
             self.frames = MAP_FRAMES
 
     def run(self) -> None:
-        import json
-
         import torch
 
-        from evsmap.cli.main import main
+        from evsmap.measure.mapping import map_sequence
+        from evsmap.registry import SEGMENTERS, UPDATERS
 
+        self.record = None
         torch.manual_seed(0)  # the network's random weights
-        out = io.StringIO()
-        with contextlib.redirect_stdout(out):
-            status = main(["map", self.tum, "--updater", MAP_UPDATER, "--segmenter",
-                           MAP_NETWORK, "--frames", str(self.frames), "--resolution", "0.05",
-                           "--max-range", str(MAX_RANGE), "--out", str(self.tmp / "map.ot"),
-                           "--json"])
-        if status != 0:
-            raise EvsmapError(f"evsmap map exited with status {status}")
-        self.record = json.loads(out.getvalue())
+        segmenter = SEGMENTERS.create(MAP_NETWORK)
+        updater = UPDATERS.create(MAP_UPDATER, resolution=0.05, max_range=MAX_RANGE)
+        self.record = map_sequence(tum_sequence(self.tum), updater, updater_name=MAP_UPDATER,
+                                   segmenter=segmenter, segmenter_name=MAP_NETWORK,
+                                   frames=self.frames, out=self.tmp / "map.ot")
 
     def counts(self) -> dict[str, Any]:
         path = self.tmp / "map.ot"
-        counts = {"frames": int(self.record["frames"]), "nodes": int(self.record["nodes"]),
-                  "leaves": int(self.record["leaves"]), "file_bytes": path.stat().st_size,
+        counts = {"frames": int(self.record.frames), "nodes": int(self.record.nodes),
+                  "leaves": int(self.record.leaves), "file_bytes": path.stat().st_size,
                   "file_sha256": digest(path.read_bytes())}
         shutil.rmtree(self.tmp, ignore_errors=True)
         return counts
