@@ -9,18 +9,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from evsmap.cli.options import positive_int
+from evsmap.cli.options import positive_float, positive_int
 from evsmap.errors import EvsmapError
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -46,7 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="measure only these workloads (names or shell patterns such as "
                         "'net/*' or 'update/*/2cm'; see --list)")
     p.add_argument("--list", action="store_true", help="list the workloads and exit")
-    p.add_argument("--budget", type=_positive_float, default=4.0, metavar="S",
+    p.add_argument("--budget", type=positive_float, default=4.0, metavar="S",
                    help="seconds of timed runs per workload (at least 5 and at most 25 "
                         "calibration/workload pairs; default 4)")
     p.add_argument("--threads", type=positive_int, default=1, metavar="N",

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.gate.worker import THREAD_VARIABLES
 from evsmap.gate.workloads import (
     MAP_NETWORK,
     NETWORK_SIZE,
@@ -28,8 +29,6 @@ from evsmap.gate.workloads import (
 BASELINE_FORMAT = 1
 DEFAULT_BASELINE = Path("benchmarks") / "baseline.json"
 WORKER_TIMEOUT_S = 600
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                    "NUMBA_NUM_THREADS")
 
 
 # -- the baseline file ---------------------------------------------------------------------------
