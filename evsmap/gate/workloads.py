@@ -22,6 +22,7 @@ Names:
 
 from __future__ import annotations
 
+import abc
 import hashlib
 import shutil
 import tarfile
@@ -102,19 +103,22 @@ def plan(context: dict[str, Any]) -> list[Workload]:
     return out
 
 
-class Job:
+class Job(abc.ABC):
     """A workload's timed unit; see the module docstring for the phases."""
 
     def warm(self) -> None:
         """Before the idle footprint: compile what is compiled on first use (numba kernels,
         when their on-disk cache is cold) on a small input, so the compiler's memory is not
         counted as the workload's and a cold cache measures like a warm one."""
+        return None
 
     def build(self) -> None:
         """What the workload holds while it runs (counted in its memory, not timed)."""
+        return None
 
+    @abc.abstractmethod
     def run(self) -> None:
-        raise NotImplementedError
+        """The timed unit."""
 
     def counts(self) -> dict[str, Any]:
         return {}
