@@ -44,7 +44,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "least sensitive to a neighbour; must match the baseline's)")
     p.add_argument("--repeats", type=positive_int, metavar="N",
                    help="fresh processes per workload, in rounds, the median kept (default 1; "
-                        "3 with --update, so a baseline is not one process's luck)")
+                        "5 with --update, in rounds spread over the run, so a baseline is not "
+                        "one process's or one slow spell's luck)")
     p.add_argument("--confirm", type=int, default=2, metavar="N",
                    help="a workload whose time or peak is outside the band after the first "
                         "pass is measured in N more processes and judged on the median of all "
@@ -104,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     chosen = select(workloads, args.only)
     context["cpus"] = [pick_cpu(args.cpu)]
-    repeats = args.repeats or (3 if args.update else 1)
+    repeats = args.repeats or (5 if args.update else 1)
     base_entries = {}
     if baseline is not None:
         keep = selected_names(baseline["workloads"], args.only)

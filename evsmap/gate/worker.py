@@ -4,15 +4,20 @@ The phases, in order:
 
 1. import, load the workload's inputs (:class:`evsmap.gate.workloads.Job`), warm its compiled
    kernels on a small input, make the calibration buffers and run the calibration once;
-2. collect garbage, return freed heap to the system (``malloc_trim``), take the idle RSS and
-   reset the peak (:mod:`evsmap.measure.memory`);
-3. build the workload and run it once, untimed (lazy initialisation, compiled kernels);
-4. time ``calibration, workload`` pairs, ending with a calibration, until the time budget is
-   spent (at least ``min_pairs``, at most ``max_pairs``); each workload time is divided by the
-   mean of the calibrations just before and after it, and ``time_ratio`` is the median of those
-   ratios;
-5. read the peak RSS (over phases 3 and 4: a workload whose memory grows from run to run shows
-   it) and the exact counts of the last run.
+2. collect garbage, return freed heap to the system, take the idle RSS, fix glibc's mmap
+   threshold at its floor (128 KiB: every larger block is mapped on allocation and unmapped
+   on free, so the peak is what the workload held, not what the allocator kept; see
+   :mod:`evsmap.measure.memory`) and reset the peak;
+3. build the workload and run it once, untimed (lazy initialisation, compiled kernels); the
+   peak RSS over this phase less the idle RSS is ``peak_rss_bytes``;
+4. fix the mmap threshold at glibc's ceiling (32 MiB, where its dynamic threshold settles in a
+   long run, so blocks are reused rather than mapped afresh on every run), then time
+   ``calibration, workload`` pairs, ending with a calibration, until the time budget is spent
+   (at least ``min_pairs``, at most ``max_pairs``); each workload time is divided by the mean
+   of the calibrations just before and after it, and ``time_ratio`` is the median of those
+   ratios; the RSS growth over this phase is recorded (a workload that keeps memory from run
+   to run shows it);
+5. the exact counts of the last run.
 
 The result is one JSON object written to ``--out``.
 """
@@ -20,8 +25,6 @@ The result is one JSON object written to ``--out``.
 from __future__ import annotations
 
 import argparse
-import ctypes
-import ctypes.util
 import gc
 import json
 import math
@@ -36,17 +39,6 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"
                     "NUMBA_NUM_THREADS")
 
 
-def _trim_heap() -> None:
-    """Give freed heap pages back to the system (glibc), so the idle RSS is the live data."""
-    name = ctypes.util.find_library("c")
-    if not name:
-        return
-    try:
-        ctypes.CDLL(name).malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-
-
 def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: int,
             max_pairs: int) -> dict[str, Any]:
     """Run workload ``name`` through the phases of the module docstring; returns the record."""
@@ -55,7 +47,15 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
 
     from evsmap.gate.calibration import Calibration
     from evsmap.gate.workloads import make_job
-    from evsmap.measure.memory import current_rss, peak_rss, reset_peak
+    from evsmap.measure.memory import (
+        MMAP_THRESHOLD_MAX,
+        MMAP_THRESHOLD_MIN,
+        current_rss,
+        fixed_mmap_threshold,
+        peak_rss,
+        reset_peak,
+        trim_heap,
+    )
 
     threads = int(context.get("threads", 1))
     cpus = context.get("cpus")
@@ -67,8 +67,10 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     calibration = Calibration()
     calibration.run()
     gc.collect()
-    _trim_heap()
+    trim_heap()
     idle = current_rss()
+    allocator = "glibc, fixed mmap threshold" if fixed_mmap_threshold(MMAP_THRESHOLD_MIN) \
+        else "not glibc: the C library's defaults"
     scope = "workload" if reset_peak() else "process"
 
     t0 = time.perf_counter()
@@ -77,6 +79,9 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     job.run()
     first = time.perf_counter() - t1
     build = t1 - t0
+    peak = max(peak_rss(), current_rss())
+    fixed_mmap_threshold(MMAP_THRESHOLD_MAX)
+    before = current_rss()
     pairs = max(min_pairs, min(max_pairs, math.ceil(budget_s / max(first, 1e-3))))
     cal = [calibration.run()]
     parts = [calibration.parts]
@@ -87,7 +92,7 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
         work.append(time.perf_counter() - t)
         cal.append(calibration.run())
         parts.append(calibration.parts)
-    peak = peak_rss()
+    growth = current_rss() - before
     counts = job.counts()
     cal_arr = np.asarray(cal)
     around = (cal_arr[:-1] + cal_arr[1:]) / 2.0
@@ -101,7 +106,8 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
                                  for k in parts[0]},
         "first_run_ms": first * 1e3, "build_ms": build * 1e3,
         "peak_rss_bytes": int(max(0, peak - idle)), "idle_rss_bytes": int(idle),
-        "peak_scope": scope, "threads": threads, "cpus": sorted(os.sched_getaffinity(0))
+        "peak_scope": scope, "allocator": allocator, "timed_rss_growth_bytes": int(growth),
+        "threads": threads, "cpus": sorted(os.sched_getaffinity(0))
         if hasattr(os, "sched_getaffinity") else None, "counts": counts,
     }
 

@@ -5,10 +5,19 @@ OctoMap, so memory is read from the kernel instead: the current RSS (``psutil``)
 (``VmHWM`` in ``/proc/self/status``, else ``getrusage``'s ``ru_maxrss``). On Linux the peak can
 be reset (``5`` written to ``/proc/self/clear_refs``, Linux 4.0 and later), so the peak of one
 run is measured from where that run started rather than from the interpreter's start.
+
+glibc's allocator keeps freed blocks for reuse, and by default it decides at run time which
+blocks it maps separately (and unmaps on free) and which it carves from its heap: its *dynamic
+mmap threshold* rises to the size of the largest mapped block freed so far. The same code can
+then end with different RSS peaks (20-30 % apart, measured on the gate's mapping workload),
+depending on the order of its frees. :func:`fixed_mmap_threshold` turns that off, so a peak is
+the memory the code held, reproducibly; :func:`trim_heap` returns free heap pages.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import gc
 import resource
 import sys
@@ -18,6 +27,39 @@ from typing import Any
 
 _STATUS = Path("/proc/self/status")
 _CLEAR_REFS = Path("/proc/self/clear_refs")
+_M_MMAP_THRESHOLD = -3  # mallopt parameter numbers, glibc's malloc.h
+_M_TRIM_THRESHOLD = -1
+MMAP_THRESHOLD_MIN = 128 * 1024  # glibc's initial threshold: blocks above it are mapped
+MMAP_THRESHOLD_MAX = 32 * 1024 * 1024  # where glibc's dynamic threshold stops rising (64-bit)
+
+
+def _libc() -> Any:
+    name = ctypes.util.find_library("c")
+    if not name:
+        return None
+    try:
+        lib = ctypes.CDLL(name)
+    except OSError:
+        return None
+    return lib if hasattr(lib, "mallopt") else None  # glibc; musl and macOS have no mallopt
+
+
+def fixed_mmap_threshold(nbytes: int) -> bool:
+    """Fix glibc's mmap threshold at ``nbytes`` (and its trim threshold at twice that), which
+    also stops its dynamic adjustment; False where the C library is not glibc."""
+    lib = _libc()
+    if lib is None:
+        return False
+    return bool(lib.mallopt(_M_MMAP_THRESHOLD, int(nbytes))
+                and lib.mallopt(_M_TRIM_THRESHOLD, 2 * int(nbytes)))
+
+
+def trim_heap() -> None:
+    """Give free heap pages back to the system (glibc's ``malloc_trim``), so the RSS that
+    follows is the live data; nothing elsewhere."""
+    lib = _libc()
+    if lib is not None:
+        lib.malloc_trim(0)
 
 
 def current_rss() -> int:
