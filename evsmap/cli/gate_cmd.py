@@ -122,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
         if base_entries and args.confirm > 0 and not args.update:
             doubtful = outside_band(compare(base_entries, measured), chosen)
             if doubtful:
-                log(f"{len(doubtful)} workloads outside the band after the first pass, "
+                log(f"{len(doubtful)} workload{'s' if len(doubtful) > 1 else ''} outside the "
+                    f"band after the first pass, "
                     f"measured {args.confirm} more times: "
                     f"{', '.join(w.name for w in doubtful)}")
                 more = measure_all(doubtful, context, Path(tmp), budget_s=args.budget,

@@ -1,10 +1,19 @@
-"""The calibration workload a gate divides every time by.
+"""The calibration workloads a gate divides every time by.
 
-Two fixed parts, each about 5 ms on one core of the 2-core EPYC VM: dense fp32 arithmetic
-(twelve 256x256 torch matmuls, what the networks do) and a memory-bound numpy pass (copying and
-sorting 131,072 floats, like the map updaters' key sorts). A machine that runs faster or slower -
-another CPU of the same kind, turbo, a noisy neighbour on a shared host - moves the
-calibration and the workload together, so their ratio stays put.
+A machine that runs faster or slower - another CPU of the same kind, turbo, a noisy neighbour
+on a shared host - moves the calibration and the workload together, so their ratio stays put.
+Workloads do not all move alike, so there are two calibrations (:data:`KINDS`):
+
+- ``compute``, for the networks, the end-to-end map and the TUM reader (PNG decoding): dense
+  fp32 arithmetic (twelve 256x256 torch matmuls) and copying and sorting 131,072 floats, both
+  resident in the 2 MiB L2, about 5 and 4 ms on one core of the 2-core EPYC VM;
+- ``memory``, for the map updaters, the ROS bag reader and the report: a random gather of
+  1,048,576 floats from a 64 MiB table, beyond the 32 MiB L3 that the VM shares with its host's
+  other tenants, about 11 ms: what octree and hash-table lookups do.
+
+Over a 10-run study these workloads slowed 1.5-2.3 times as much as the ``compute`` calibration
+whenever the host slowed (their time's elasticity to it; the networks' was about 1), so their
+ratios rose in every slow spell (docs/gates.md, "Calibration").
 
 One calibration is each part run three times back to back, keeping each part's fastest run: the
 first run after a large workload finds its caches cold (and, after a workload that leaves many
@@ -27,21 +36,38 @@ import torch
 MATMUL_SIZE = 256
 MATMUL_REPEATS = 12
 SORT_SIZE = 1 << 17
+GATHER_TABLE = 1 << 24  # floats: 64 MiB
+GATHER_SIZE = 1 << 20
 REPEATS = 3
+KINDS = {"compute": ("matmul", "sort"), "memory": ("gather",)}
 
 
 class Calibration:
     """``run()`` times the calibration once and returns its seconds (the sum of each part's
-    fastest of :data:`REPEATS` runs); ``parts`` holds those per-part seconds of the last call
-    (``matmul``, ``sort``)."""
+    fastest of :data:`REPEATS` runs); ``parts`` holds those per-part seconds of the last call.
 
-    def __init__(self) -> None:
+    Args:
+        kind: ``"compute"`` (parts ``matmul`` and ``sort``) or ``"memory"`` (``gather``).
+    """
+
+    def __init__(self, kind: str = "compute") -> None:
+        if kind not in KINDS:
+            raise ValueError(f"calibration kind {kind!r}: one of {', '.join(KINDS)}")
+        self.kind = kind
+        self._names = KINDS[kind]
         gen = torch.Generator().manual_seed(0)
-        self._a = torch.randn(MATMUL_SIZE, MATMUL_SIZE, generator=gen)
-        self._b = torch.randn(MATMUL_SIZE, MATMUL_SIZE, generator=gen)
-        self._out = torch.empty(MATMUL_SIZE, MATMUL_SIZE)
-        self._src = np.random.default_rng(0).random(SORT_SIZE, dtype=np.float32)
-        self._buf = np.empty_like(self._src)
+        rng = np.random.default_rng(0)
+        if "matmul" in self._names:
+            self._a = torch.randn(MATMUL_SIZE, MATMUL_SIZE, generator=gen)
+            self._b = torch.randn(MATMUL_SIZE, MATMUL_SIZE, generator=gen)
+            self._out = torch.empty(MATMUL_SIZE, MATMUL_SIZE)
+        if "sort" in self._names:
+            self._src = rng.random(SORT_SIZE, dtype=np.float32)
+            self._buf = np.empty_like(self._src)
+        if "gather" in self._names:
+            self._table = rng.random(GATHER_TABLE, dtype=np.float32)
+            self._index = rng.integers(0, GATHER_TABLE, GATHER_SIZE).astype(np.int32)
+            self._picked = np.empty(GATHER_SIZE, np.float32)
         self.parts: dict[str, float] = {}
 
     def _matmul(self) -> None:
@@ -52,15 +78,16 @@ class Calibration:
         self._buf[:] = self._src
         self._buf.sort()
 
+    def _gather(self) -> None:
+        np.take(self._table, self._index, out=self._picked)
+
     def run(self) -> float:
-        best = {"matmul": float("inf"), "sort": float("inf")}
+        best = dict.fromkeys(self._names, float("inf"))
         for _ in range(REPEATS):
-            t0 = time.perf_counter()
-            self._matmul()
-            t1 = time.perf_counter()
-            self._sort()
-            t2 = time.perf_counter()
-            best["matmul"] = min(best["matmul"], t1 - t0)
-            best["sort"] = min(best["sort"], t2 - t1)
+            for name in self._names:
+                part = getattr(self, f"_{name}")
+                t = time.perf_counter()
+                part()
+                best[name] = min(best[name], time.perf_counter() - t)
         self.parts = best
         return sum(best.values())

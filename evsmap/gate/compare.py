@@ -67,7 +67,8 @@ class Row:
 def entry_of(record: dict[str, Any]) -> dict[str, Any]:
     """The baseline entry of one worker record: the two measured figures, the counts flat
     beside them and the figures they came from under ``context``."""
-    ctx = {k: record[k] for k in ("workload_ms", "calibration_ms", "calibration_parts_ms",
+    ctx = {k: record[k] for k in ("workload_ms", "calibration", "calibration_ms",
+                                  "calibration_parts_ms",
                                   "time_ratio_rel_iqr", "pairs", "idle_rss_bytes",
                                   "peak_scope", "threads", "cpus", "processes",
                                   "description") if k in record}
@@ -113,8 +114,13 @@ def compare(baseline: dict[str, dict[str, Any]], measured: dict[str, dict[str, A
                 rows.append(Row(name, key, None, now[key], None, "new"))
             continue
         now = entry_of(rec)
+        was = base.get("context", {}).get("calibration", "compute")
         for key in MEASURED_KEYS:
             row = _measured_row(name, key, float(base[key]), float(now[key]), th)
+            if key == "time_ratio" and was != now["context"].get("calibration", "compute"):
+                row = Row(name, key, row.baseline, row.now, row.change, "FAIL",
+                          f"divided by another calibration than the baseline's ({was}): "
+                          f"record the baseline again (--update)")
             if not same_machine:
                 row = Row(name, key, row.baseline, row.now, row.change, "not compared", other)
             rows.append(row)

@@ -46,7 +46,7 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     import torch
 
     from evsmap.gate.calibration import Calibration
-    from evsmap.gate.workloads import make_job
+    from evsmap.gate.workloads import make_job, plan
     from evsmap.measure.memory import (
         MMAP_THRESHOLD_MAX,
         MMAP_THRESHOLD_MIN,
@@ -64,7 +64,8 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     torch.set_num_threads(threads)
     job = make_job(name, context)
     job.warm()
-    calibration = Calibration()
+    kinds = {w.name: w.calibration for w in plan(context)}
+    calibration = Calibration(kinds.get(name, "compute"))
     calibration.run()
     gc.collect()
     trim_heap()
@@ -101,7 +102,7 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     return {
         "name": name, "time_ratio": float(q50), "time_ratio_rel_iqr": float((q75 - q25) / q50),
         "pairs": pairs, "workload_ms": float(np.median(work) * 1e3),
-        "calibration_ms": float(np.median(cal_arr) * 1e3),
+        "calibration": calibration.kind, "calibration_ms": float(np.median(cal_arr) * 1e3),
         "calibration_parts_ms": {k: float(np.median([p[k] for p in parts]) * 1e3)
                                  for k in parts[0]},
         "first_run_ms": first * 1e3, "build_ms": build * 1e3,

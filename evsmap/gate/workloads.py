@@ -51,13 +51,15 @@ REPORT_FIXTURE = Path(__file__).with_name("fixtures") / "report-run.tar.gz"
 @dataclass(frozen=True)
 class Workload:
     """One gated workload: ``name`` (see the module docstring), ``kind`` (``net``,
-    ``update``, ``map``, ``read``, ``report``), what it does, and ``needs``: the inputs of the
-    gate context it cannot run without (``tum``, ``bag``, ``observations``, ``onnx``)."""
+    ``update``, ``map``, ``read``, ``report``), what it does, ``needs``: the inputs of the
+    gate context it cannot run without (``tum``, ``bag``, ``observations``, ``onnx``), and the
+    kind of calibration its time is divided by (:data:`evsmap.gate.calibration.KINDS`)."""
 
     name: str
     kind: str
     description: str
     needs: tuple[str, ...] = ()
+    calibration: str = "compute"
 
 
 def digest(*parts: Any) -> str:
@@ -90,7 +92,8 @@ def plan(context: dict[str, Any]) -> list[Workload]:
         for tag, res in RESOLUTIONS.items():
             out.append(Workload(f"update/{name}/{tag}", "update",
                                 f"{name}: integrate {len(UPDATE_FRAMES)} TUM frames at "
-                                f"{res:g} m", needs=("tum", "observations")))
+                                f"{res:g} m", needs=("tum", "observations"),
+                                calibration="memory"))
     out.append(Workload(f"map/{MAP_NETWORK}+{MAP_UPDATER}", "map",
                         f"evsmap map's pipeline: {MAP_FRAMES} TUM frames, {MAP_NETWORK} "
                         f"(torch), {MAP_UPDATER} at 0.05 m, the map file written",
@@ -98,8 +101,9 @@ def plan(context: dict[str, Any]) -> list[Workload]:
     out.append(Workload("read/tum", "read", "open the TUM fr1_xyz sample and read its 37 frames",
                         needs=("tum",)))
     out.append(Workload("read/rosbag", "read", "open the ROS 1 lidar bag sample and read its "
-                        "clouds", needs=("bag",)))
-    out.append(Workload("report/build", "report", "build the report of a stored reproduce run"))
+                        "clouds", needs=("bag",), calibration="memory"))
+    out.append(Workload("report/build", "report", "build the report of a stored reproduce run",
+                        calibration="memory"))
     return out
 
 

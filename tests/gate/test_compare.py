@@ -135,3 +135,13 @@ def test_on_another_machine_kind_only_structural_counts_are_held():
                                                              output_sha256="ab12")},
                    same_machine=False)
     assert [r.measure for r in rows if r.failed] == ["params"]
+
+
+def test_a_time_ratio_taken_against_another_calibration_is_not_judged_as_equal():
+    base = {"w": {"time_ratio": 10.0, "peak_rss_bytes": 100 * 2**20,
+                  "context": {"calibration": "compute"}}}
+    now = {"w": {"time_ratio": 10.0, "peak_rss_bytes": 100 * 2**20, "calibration": "memory",
+                 "counts": {}}}
+    rows = {r.measure: r for r in compare(base, now)}
+    assert rows["time_ratio"].verdict == "FAIL" and "calibration" in rows["time_ratio"].why
+    assert rows["peak_rss_bytes"].verdict == "ok"

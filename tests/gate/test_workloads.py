@@ -72,3 +72,15 @@ def test_the_report_build_writes_the_same_tables(one_thread):
     b = measure("report/build", {"threads": 1}, budget_s=0.1, min_pairs=1, max_pairs=1)
     assert a["counts"] == b["counts"]
     assert a["counts"]["files"] >= 10  # four tables (md + csv), extra.csv, plots, index.md
+
+
+def test_the_memory_calibration_gathers_beyond_the_cache_and_the_kinds_are_planned(tum_context):
+    from evsmap.gate.calibration import Calibration
+
+    cal = Calibration("memory")
+    assert cal.run() > 0 and set(cal.parts) == {"gather"}
+    assert cal._table.nbytes == 64 * 2**20  # beyond a 32 MiB L3
+    kinds = {w.name: w.calibration for w in plan({**tum_context, "networks": {"feagnet-v1": {}}})}
+    assert kinds["update/multiclass-bayes/5cm"] == kinds["read/rosbag"] == "memory"
+    assert kinds["net/feagnet-v1/torch"] == kinds["read/tum"] == "compute"
+    assert kinds["report/build"] == "memory"
