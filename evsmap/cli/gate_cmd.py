@@ -46,10 +46,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="fresh processes per workload, in rounds, the median kept (default 1; "
                         "5 with --update, in rounds spread over the run, so a baseline is not "
                         "one process's or one slow spell's luck)")
-    p.add_argument("--confirm", type=int, default=2, metavar="N",
+    p.add_argument("--confirm", type=int, default=4, metavar="N",
                    help="a workload whose time or peak is outside the band after the first "
                         "pass is measured in N more processes and judged on the median of all "
-                        "(default 2; 0 judges the first pass)")
+                        "(default 4: a verdict is then the median of five processes, like the "
+                        "baseline; 0 judges the first pass)")
     p.add_argument("--cpu", type=int, metavar="K",
                    help="pin every worker to this CPU (default: the lowest this process may "
                         "use; two cores of a VM can differ in speed by 25 %%, and a process "

@@ -146,7 +146,8 @@ def test_gate_end_to_end_passes_on_its_baseline_and_fails_on_the_scaled_ones(tmp
             w[key] = int(w[key])
         copy = tmp_path / f"scaled-{key}.json"
         copy.write_text(json.dumps(scaled))
-        r = _evsmap("gate", "--only", "read/rosbag", "--baseline", str(copy), "--budget", "0.5")
+        r = _evsmap("gate", "--only", "read/rosbag", "--baseline", str(copy), "--budget", "0.5",
+                    "--confirm", "1")
         assert r.returncode == 1, r.stdout + r.stderr
         assert "gate FAILED" in r.stdout and "read/rosbag" in r.stdout
         assert f"| read/rosbag | {why} |" in r.stdout
