@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     workloads = plan(context)
     if args.list:
         for w in workloads:
-            print(f"{w.name:44s} {w.description}")
+            print(f"{w.name:44s} {w.calibration:8s} {w.description}")
         return 0
     chosen = select(workloads, args.only)
     context["cpus"] = [pick_cpu(args.cpu)]
