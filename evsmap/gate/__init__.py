@@ -8,7 +8,9 @@ build - runs in a fresh process that measures three things:
   process, alternating with it (:mod:`evsmap.gate.calibration`), so machine speed and its drift
   cancel and one baseline holds on machines of the same kind;
 * ``peak_rss_bytes``: the process's peak resident memory over the workload, less the footprint
-  of the process idle just before it (:mod:`evsmap.measure.memory`);
+  of the process idle just before it (every plug-in imported) and less the pages of mapped
+  files (library code) the workload brought in, whose number follows the page cache, not the
+  code (:mod:`evsmap.measure.memory`);
 * exact counts (parameters, FLOPs, octree nodes, file bytes, a hash of a seeded output).
 
 :mod:`evsmap.gate.compare` holds them against a committed baseline

@@ -2,14 +2,19 @@
 
 The phases, in order:
 
-1. import, load the workload's inputs (:class:`evsmap.gate.workloads.Job`), warm its compiled
-   kernels on a small input, make the calibration buffers and run the calibration once;
+1. import, load every registered plug-in (the readers, segmenters and updaters and what they
+   import: numba, llvmlite, rosbags, OctoMap), load the workload's inputs
+   (:class:`evsmap.gate.workloads.Job`), warm its compiled kernels on a small input, make the
+   calibration buffers and run the calibration once;
 2. collect garbage, return freed heap to the system, take the idle RSS, fix glibc's mmap
    threshold at its floor (128 KiB: every larger block is mapped on allocation and unmapped
    on free, so the peak is what the workload held, not what the allocator kept; see
    :mod:`evsmap.measure.memory`) and reset the peak;
 3. build the workload and run it once, untimed (lazy initialisation, compiled kernels); the
-   peak RSS over this phase less the idle RSS is ``peak_rss_bytes``;
+   peak RSS over this phase less the idle RSS, less the file pages mapped over the phase (the
+   code of the libraries the workload first ran, whose count depends on the page cache, not on
+   the code: :mod:`evsmap.measure.memory`), is ``peak_rss_bytes``; the peak with them is
+   recorded beside it (``peak_rss_total_bytes``, ``file_rss_growth_bytes``);
 4. fix the mmap threshold at glibc's ceiling (32 MiB, where its dynamic threshold settles in a
    long run, so blocks are reused rather than mapped afresh on every run), then time
    ``calibration, workload`` pairs, ending with a calibration, until the time budget is spent
@@ -54,6 +59,7 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
         fixed_mmap_threshold,
         peak_rss,
         reset_peak,
+        resident_parts,
         trim_heap,
     )
 
@@ -62,6 +68,9 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     if cpus and hasattr(os, "sched_setaffinity"):  # no migration between unequal cores
         os.sched_setaffinity(0, {int(c) for c in cpus})
     torch.set_num_threads(threads)
+    from evsmap.registry import list_readers
+
+    list_readers()  # imports every plug-in: their libraries are the idle process's, not the run's
     job = make_job(name, context)
     job.warm()
     kinds = {w.name: w.calibration for w in plan(context)}
@@ -70,6 +79,7 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     gc.collect()
     trim_heap()
     idle = current_rss()
+    idle_parts = resident_parts()
     allocator = "glibc, fixed mmap threshold" if fixed_mmap_threshold(MMAP_THRESHOLD_MIN) \
         else "not glibc: the C library's defaults"
     scope = "workload" if reset_peak() else "process"
@@ -81,6 +91,9 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     first = time.perf_counter() - t1
     build = t1 - t0
     peak = max(peak_rss(), current_rss())
+    end_parts = resident_parts()
+    file_growth = max(0, end_parts["file"] - idle_parts["file"]) \
+        if idle_parts and end_parts else 0
     fixed_mmap_threshold(MMAP_THRESHOLD_MAX)
     before = current_rss()
     pairs = max(min_pairs, min(max_pairs, math.ceil(budget_s / max(first, 1e-3))))
@@ -106,7 +119,10 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
         "calibration_parts_ms": {k: float(np.median([p[k] for p in parts]) * 1e3)
                                  for k in parts[0]},
         "first_run_ms": first * 1e3, "build_ms": build * 1e3,
-        "peak_rss_bytes": int(max(0, peak - idle)), "idle_rss_bytes": int(idle),
+        "peak_rss_bytes": int(max(0, peak - idle - file_growth)),
+        "peak_rss_total_bytes": int(max(0, peak - idle)),
+        "file_rss_growth_bytes": int(file_growth), "idle_rss_bytes": int(idle),
+        "idle_rss_parts": idle_parts,
         "peak_scope": scope, "allocator": allocator, "timed_rss_growth_bytes": int(growth),
         "threads": threads, "cpus": sorted(os.sched_getaffinity(0))
         if hasattr(os, "sched_getaffinity") else None, "counts": counts,

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from evsmap.measure.memory import PeakMemory, peak_rss
+from evsmap.measure.memory import PeakMemory, peak_rss, resident_parts
 
 
 def test_peak_of_a_block_sees_a_numpy_allocation_that_is_gone_by_its_end():
@@ -57,3 +57,28 @@ def test_a_fixed_mmap_threshold_returns_freed_blocks_that_the_dynamic_one_keeps(
     # the second 12 MB comes from the heap and stays resident after its free
     assert _heap_kept_after_two_frees(fixed=False) > 10e6
     assert _heap_kept_after_two_frees(fixed=True) < 2e6
+
+
+def test_resident_parts_tell_a_mapped_file_from_allocated_memory(tmp_path):
+    import mmap
+
+    import pytest
+
+    if resident_parts() is None:
+        pytest.skip("the kernel does not split the RSS (not Linux >= 4.5)")
+    size = 32 * 2**20
+    path = tmp_path / "pages.bin"
+    path.write_bytes(b"\1" * size)
+    before = resident_parts()
+    with path.open("rb") as fh, mmap.mmap(fh.fileno(), size, access=mmap.ACCESS_READ) as view:
+        total = sum(view[i] for i in range(0, size, 4096))  # one read per page
+        mapped = resident_parts()
+    assert total == size // 4096
+    assert mapped["file"] - before["file"] >= 0.9 * size
+    assert abs(mapped["anon"] - before["anon"]) < 0.25 * size
+
+    block = np.ones(size, dtype=np.uint8)  # written: 32 MiB of private pages
+    allocated = resident_parts()
+    assert allocated["anon"] - mapped["anon"] >= 0.9 * size
+    assert allocated["file"] - mapped["file"] < 0.25 * size
+    del block
