@@ -29,9 +29,11 @@ def tests(session: nox.Session) -> None:
 
 @nox.session
 def lint(session: nox.Session) -> None:
-    """ruff over the code."""
-    session.install(*CONSTRAINTS, "ruff")
+    """ruff over the code, then the import contracts of pyproject.toml (import-linter: the
+    layers point downward, no cycles, evsmap never imports the baselines)."""
+    session.install(*CONSTRAINTS, "ruff", "import-linter")
     session.run("ruff", "check", "evsmap", "baselines", "benchmarks", "tests", "noxfile.py")
+    session.run("lint-imports", "--config", "pyproject.toml", "--no-cache")
 
 
 @nox.session

@@ -70,7 +70,7 @@ def roofline():
 def _ort_session(seg, inputs, key: str):
     import onnxruntime as ort
 
-    from evsmap.measure.onnx_export import cached_onnx
+    from evsmap.models.onnx_export import cached_onnx
 
     path = cached_onnx(seg.module, inputs, seg.input_names, key=key)
     options = ort.SessionOptions()

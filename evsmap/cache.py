@@ -5,7 +5,7 @@ second ``reproduce`` reuses the first one's work and a run folder keeps only its
 tables, plots and small artifacts:
 
 * ``onnx/`` - ONNX exports, keyed by the network, its options and a digest of its weights
-  (:mod:`evsmap.measure.onnx_export`);
+  (:mod:`evsmap.models.onnx_export`);
 * ``segmentation/`` - a sequence's per-frame top-3 observations, keyed by the segmenter, its
   weights' tensors, the sequence and its frames (timings are never shared: they stay in the
   run folder);

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from evsmap.errors import InvalidDataError
+from evsmap.geometry import backproject
 
 VOID = 255
 """Label value of pixels without a class."""
@@ -248,8 +249,6 @@ class Frame:
         row-major order, or the cloud's points."""
         if self.is_cloud:
             return self.points.astype(np.float64)
-        from evsmap.geometry import backproject
-
         return backproject(self.depth, self.intrinsics)
 
     def colors(self) -> np.ndarray | None:

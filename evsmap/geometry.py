@@ -3,9 +3,12 @@ back-projection. All functions are vectorised over leading dimensions."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from evsmap.data import Intrinsics
+if TYPE_CHECKING:  # the data model builds on this module, not the other way round
+    from evsmap.data import Intrinsics
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:

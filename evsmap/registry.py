@@ -25,10 +25,12 @@ from evsmap.errors import DuplicateNameError, EvsmapError, UnknownNameError
 
 T = TypeVar("T")
 
-# Modules that register the built-in plug-ins; imported on first use of any registry.
+# Modules that register the built-in plug-ins; imported on first use of any registry. The
+# comparison systems (`baselines`) come through the `evsmap.plugins` entry point like any
+# third-party plug-in.
 _BUILTIN_MODULES = (
     "evsmap.readers.tum",
-    "evsmap.readers.synthetic",
+    "evsmap.synth.reader",
     "evsmap.readers.rosbag",
     "evsmap.readers.sevenscenes",
     "evsmap.datasets.nyuv2",
@@ -39,7 +41,6 @@ _BUILTIN_MODULES = (
     "evsmap.updaters.orgb",
     "evsmap.updaters.multiclass_bayes",
     "evsmap.segmenters.oracle",
-    "baselines",
 )
 _loaded = False
 

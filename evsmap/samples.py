@@ -36,6 +36,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from evsmap.download import (
+    CHUNK,
+    MANIFEST,
+    CorruptArchiveError,
+    FetchError,
+    format_size,
+    sha256_file,
+)
+
 Log = Callable[[str], None]
 
 
@@ -100,7 +109,6 @@ class Sample:
 
     def size_text(self) -> str:
         """The download size as far as the catalogue knows it."""
-        from evsmap.fetch import format_size
 
         if self.sources and all(s.size is not None for s in self.sources):
             return format_size(sum(s.size for s in self.sources))  # type: ignore[misc]
@@ -241,7 +249,6 @@ def compute_check(kind: str, path: Path) -> Any:
     """The value of check ``kind`` for the file ``path`` (see the module docstring)."""
     import numpy as np
 
-    from evsmap.fetch import sha256_file
 
     if kind == "sha256":
         return sha256_file(path)
@@ -275,7 +282,6 @@ def check_matches(rule: Rule, expected: Any, actual: Any) -> bool:
 
 
 def _files(folder: Path) -> list[str]:
-    from evsmap.fetch import MANIFEST
 
     return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")
                   if p.is_file() and not p.name.endswith(MANIFEST))
@@ -284,8 +290,7 @@ def _files(folder: Path) -> list[str]:
 def verify_sample(sample: Sample, folder: Path, *, display: Path | None = None) -> list[dict]:
     """Check the files extracted into ``folder`` against ``sample.expected``; the manifest's file
     records (path, size, sha256, check). A missing, unexpected or differing file is a
-    :class:`~evsmap.fetch.FetchError` naming it (under ``display``, the final path)."""
-    from evsmap.fetch import FetchError, sha256_file
+    :class:`~evsmap.download.FetchError` naming it (under ``display``, the final path)."""
 
     shown = Path(display) if display is not None else Path(folder)
     if sample.single_file:
@@ -362,7 +367,6 @@ def extract_sample(sample: Sample, archives: Mapping[str, Path], out: Path, work
                    log: Log | None = None) -> None:
     """Run ``sample``'s extractor: read the downloaded ``archives`` (by source file name), write
     the sample's files into the empty folder ``out``; ``work`` is a scratch folder."""
-    from evsmap.fetch import FetchError
 
     if sample.extractor not in EXTRACTORS:
         raise FetchError(f"sample {sample.name!r}: unknown extractor {sample.extractor!r}")
@@ -383,7 +387,6 @@ def _cut_list(raw: bytes, count: int, where: str) -> tuple[bytes, list[str]]:
     """The first ``count`` entries of a TUM ``rgb.txt``/``depth.txt`` with the comment lines before
     them: the file's bytes up to the end of the ``count``-th entry (without its line end), and
     the files those entries name."""
-    from evsmap.fetch import FetchError
 
     kept: list[bytes] = []
     files: list[str] = []
@@ -409,7 +412,6 @@ def extract_tum(sample: Sample, archives: Mapping[str, Path], out: Path, work: P
     import tarfile
     import zlib
 
-    from evsmap.fetch import CorruptArchiveError, FetchError
 
     path = _archive(sample, archives)
     prefix = f"{sample.options['sequence']}/"
@@ -466,7 +468,6 @@ def extract_sevenscenes(sample: Sample, archives: Mapping[str, Path], out: Path,
     import numpy as np
     from PIL import Image, UnidentifiedImageError
 
-    from evsmap.fetch import CHUNK, CorruptArchiveError, FetchError
 
     path = _archive(sample, archives)
     scene, seq = sample.options["scene"], sample.options["sequence"]
@@ -529,7 +530,6 @@ def extract_nyuv2(sample: Sample, archives: Mapping[str, Path], out: Path, work:
 
     from evsmap.datasets import nyuv2
     from evsmap.errors import EvsmapError
-    from evsmap.fetch import FetchError
 
     labelled = _archive(sample, archives, 0)
     mapping = _archive(sample, archives, 1)
@@ -570,7 +570,6 @@ def _write_raw_depth(labelled: Path, frames: list[int], folder: Path) -> None:
     import numpy as np
 
     from evsmap.datasets import nyuv2
-    from evsmap.fetch import FetchError
     from evsmap.readers.images import write_png
 
     try:

@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     updater = UPDATERS.create(args.updater, **config)
     ply_color = None
     if args.ply is not None:
-        from evsmap.mapping.export import check_color_by
+        from evsmap.updaters.export import check_color_by
 
         ply_color = check_color_by(updater, args.ply_color)
     sequence = open_sequence(args.sequence, args.reader, args.reader_option)
@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
         quality.pop("semantics", None)
         result["quality"] = quality
     if args.ply is not None:
-        from evsmap.mapping.export import export_ply
+        from evsmap.updaters.export import export_ply
 
         result["ply_points"] = export_ply(updater, args.ply, color_by=ply_color)
     if args.json:

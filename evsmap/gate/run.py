@@ -200,7 +200,7 @@ def prepare_inputs(context: dict[str, Any], built: dict[str, Any],
     updaters integrate (``out/observations.npz``)."""
     import torch
 
-    from evsmap.measure.onnx_export import cached_onnx
+    from evsmap.models.onnx_export import cached_onnx
     from evsmap.registry import SEGMENTERS
 
     for w in workloads:

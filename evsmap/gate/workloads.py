@@ -254,7 +254,7 @@ class MapCommand(Job):
     """``evsmap map``'s pipeline (:func:`evsmap.measure.mapping.map_sequence`, what the command
     runs): the TUM reader, the seeded FEAGNet-V1 on torch, the update and the map file. The
     command's own argument parsing and printing are left out: the gate sits below the command
-    line (``tests/test_layers.py``)."""
+    line (the layers contract in ``pyproject.toml``)."""
 
     def __init__(self, context: dict[str, Any]) -> None:
         self.tum = str(context["tum"])

@@ -10,7 +10,7 @@ from typing import Any
 
 import torch
 
-from evsmap.measure._util import as_inputs, eval_mode, image_size
+from evsmap.models.module_utils import as_inputs, eval_mode, image_size
 
 # fvcore reports skipped operators through these loggers; we record them instead.
 _FVCORE_LOGGERS = ("fvcore", "fvcore.nn.jit_analysis")

@@ -16,7 +16,7 @@ import torch
 
 from evsmap.environment import cpu_model
 from evsmap.errors import UnknownNameError
-from evsmap.measure._util import as_inputs, eval_mode, image_size
+from evsmap.models.module_utils import as_inputs, eval_mode, image_size
 
 BACKENDS = ("onnxruntime", "torch")
 ROOFLINE_SIZE = 4096
@@ -180,7 +180,7 @@ def measure_speed(
 
     Args:
         backend: ``"torch"`` (eval mode, ``torch.inference_mode``) or ``"onnxruntime"`` (the
-            module exported with :func:`~evsmap.measure.onnx_export.cached_onnx`, run on the
+            module exported with :func:`~evsmap.models.onnx_export.cached_onnx`, run on the
             CPU execution provider with all graph optimisations, inputs as numpy arrays).
         threads: intra-op threads for torch and onnxruntime; ``None`` keeps torch's current
             count. torch's count is restored on return.
@@ -189,7 +189,7 @@ def measure_speed(
         input_names: ONNX input names (default ``input0``, ``input1``, ...).
         key: name of the ONNX cache entry (default: the module's class name).
         cache_dir: ONNX cache folder (default
-            :func:`~evsmap.measure.onnx_export.default_cache_dir`).
+            :func:`~evsmap.models.onnx_export.default_cache_dir`).
         roofline_size: matrix size of the fp32 matmul roofline, measured in this call with
             torch and the same thread count for either backend (one machine-level ceiling;
             ONNX Runtime's own MatMul reaches about the same or less here).
@@ -312,7 +312,7 @@ def _onnxruntime_forward(
 ) -> Callable[[], object]:
     import onnxruntime as ort
 
-    from evsmap.measure.onnx_export import cached_onnx
+    from evsmap.models.onnx_export import cached_onnx
 
     path = cached_onnx(module, inputs, input_names, key=key, cache_dir=cache_dir)
     options = ort.SessionOptions()

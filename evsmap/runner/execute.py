@@ -152,7 +152,7 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
     inputs = segmenter.example_inputs(h, w)
     macs = measure_complexity(segmenter.module, inputs).flops
     from evsmap.measure.contention import CalibrationLog, machine_log_path
-    from evsmap.measure.onnx_export import default_cache_dir
+    from evsmap.models.onnx_export import default_cache_dir
 
     # ONNX exports: the cache shared across runs (content-addressed by network and weights)
     cache = default_cache_dir() if ctx.speed_backend == "onnxruntime" else None
@@ -520,7 +520,7 @@ def _options(config: dict[str, Any]) -> str:
 
 
 def _save_map_artifact(updater, run: MappingRun, ctx: RunContext) -> None:
-    from evsmap.mapping.export import occupied_points
+    from evsmap.updaters.export import occupied_points
 
     centres, rgb, labels = occupied_points(updater)
     folder = Path(ctx.out) / "artifacts"

@@ -192,7 +192,7 @@ class NetworkSegmenter(Segmenter):
         if self._session is None:
             import onnxruntime as ort
 
-            from evsmap.measure.onnx_export import cached_onnx
+            from evsmap.models.onnx_export import cached_onnx
 
             key = f"{self.name}:{sorted(self.config.items())}"
             path = cached_onnx(self._module, inputs, self.input_names, key=key)

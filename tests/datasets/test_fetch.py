@@ -22,7 +22,7 @@ import pytest
 from datasets_fixtures import nyu_arrays, nyu_map_class, write_nyu_source
 from PIL import Image
 
-from evsmap import fetch, samples
+from evsmap import download, fetch, samples
 from evsmap.cli.main import main
 from evsmap.datasets import nyuv2
 from evsmap.samples import SAMPLES, Source, array_digest
@@ -138,8 +138,8 @@ def server(request, monkeypatch):
     srv = FileServer()
     request.addfinalizer(srv.close)
     monkeypatch.setenv(fetch.MIRROR_ENV, srv.url + "/mirror")
-    monkeypatch.setattr(fetch, "RETRY_DELAY", 0.0)
-    monkeypatch.setattr(fetch, "TIMEOUT", 10.0)
+    monkeypatch.setattr(download, "RETRY_DELAY", 0.0)
+    monkeypatch.setattr(download, "TIMEOUT", 10.0)
     return srv
 
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 from torch import nn
 
-import evsmap.measure.onnx_export as onnx_export
+import evsmap.models.onnx_export as onnx_export
 from evsmap.errors import EvsmapError
 from evsmap.measure import OnnxExportError, cached_onnx, export_onnx
 

@@ -24,6 +24,7 @@ import numpy as np
 from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.interfaces import OCCUPIED
 from evsmap.mapping.keys import key_to_coord, unpack
+from evsmap.updaters.base import OctreeUpdater
 
 __all__ = ["COLOR_BY", "check_color_by", "class_colors", "default_color_by", "export_ply",
            "occupied_points"]
@@ -42,8 +43,6 @@ UNLABELLED_RGB = (0, 0, 0)
 
 
 def _occupancy_map(updater):
-    from evsmap.updaters.base import OctreeUpdater
-
     if not isinstance(updater, OctreeUpdater):
         raise InvalidDataError(f"PLY export needs an octree map updater (evsmap's own, e.g. orgb "
                                f"or multiclass-bayes), got {type(updater).__name__}")

@@ -13,16 +13,16 @@ import pytest
 from evsmap.classes import palette
 from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.interfaces import OCCUPIED
-from evsmap.mapping.export import (
+from evsmap.open3d_loader import load_open3d
+from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+from evsmap.testing import require_module
+from evsmap.updaters.export import (
     check_color_by,
     class_colors,
     default_color_by,
     export_ply,
     occupied_points,
 )
-from evsmap.open3d_loader import load_open3d
-from evsmap.registry import READERS, SEGMENTERS, UPDATERS
-from evsmap.testing import require_module
 
 o3d = load_open3d()
 

@@ -1,4 +1,4 @@
-"""Helpers shared by the measurement modules."""
+"""Helpers for torch modules and their inputs (shared by the measurements and the ONNX export)."""
 
 from __future__ import annotations
 

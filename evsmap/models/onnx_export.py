@@ -15,7 +15,7 @@ from pathlib import Path
 import torch
 
 from evsmap.errors import EvsmapError
-from evsmap.measure._util import as_inputs, eval_mode
+from evsmap.models.module_utils import as_inputs, eval_mode
 
 OPSET = 17
 OUTPUT_NAMES = ("logits",)

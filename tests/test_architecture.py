@@ -1,0 +1,74 @@
+"""The import contracts of ``pyproject.toml`` (``[tool.importlinter]``, run by ``nox -s lint``):
+evsmap's layers point downward, evsmap never imports ``baselines``, the baselines stay out of the
+harness, and no sibling modules import each other in a cycle.
+
+The tree must keep them, and they must catch what they exist for: an upward import and a cycle
+planted in a copy of the sources each break a contract, named in the output."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("importlinter", reason="import-linter is in the test extra (nox -s tests)")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _lint_imports(cwd: Path) -> subprocess.CompletedProcess[str]:
+    script = Path(sys.executable).with_name("lint-imports")
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "importlinter.cli"]
+    return subprocess.run([*cmd, "--config", "pyproject.toml", "--no-cache"], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture
+def source_copy(tmp_path: Path) -> Path:
+    """The two packages' Python files and pyproject.toml, copied (nothing else is read)."""
+    for package in ("evsmap", "baselines"):
+        shutil.copytree(ROOT / package, tmp_path / package,
+                        ignore=lambda d, names: [n for n in names if n == "__pycache__"
+                                                 or (Path(d, n).is_file() and
+                                                     not n.endswith(".py"))])
+    shutil.copy2(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    return tmp_path
+
+
+def _append(path: Path, text: str) -> None:
+    path.write_text(path.read_text() + "\n" + text + "\n")
+
+
+def test_the_tree_keeps_every_contract():
+    result = _lint_imports(ROOT)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "0 broken" in result.stdout
+
+
+def test_an_upward_import_inside_a_function_breaks_the_layers(source_copy):
+    _append(source_copy / "evsmap" / "mapping" / "keys.py",
+            "def _planted():\n    from evsmap.runner import plan  # noqa\n")
+    result = _lint_imports(source_copy)
+    assert result.returncode != 0
+    assert "evsmap's layers point downward BROKEN" in result.stdout
+    assert "evsmap.mapping.keys" in result.stdout
+
+
+def test_evsmap_importing_the_baselines_breaks_a_contract(source_copy):
+    _append(source_copy / "evsmap" / "registry.py", "import baselines  # noqa")
+    result = _lint_imports(source_copy)
+    assert result.returncode != 0
+    assert "evsmap never imports the comparison systems" in result.stdout
+    assert "BROKEN" in result.stdout
+
+
+def test_a_cycle_between_siblings_breaks_the_acyclic_contract(source_copy):
+    # two modules of one layer that import each other: the layers allow it, the cycle rule not
+    _append(source_copy / "evsmap" / "mapping" / "keys.py",
+            "from evsmap.mapping import tree  # noqa")
+    result = _lint_imports(source_copy)
+    assert result.returncode != 0
+    assert "no import cycles between sibling modules, at any depth BROKEN" in result.stdout
