@@ -9,14 +9,13 @@ step is a Python loop over the frame's hit voxels - it belongs to the reference 
 
 from __future__ import annotations
 
-import os
-import tempfile
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
+from evsmap.fileio import atomic_write_bytes
 from evsmap.geometry import transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
 from evsmap.mapping.keys import key_to_coord, unpack
@@ -89,10 +88,7 @@ class OctoMapAdapter(MapUpdater):
         path = Path(path)
         # note: writeBinary turns the live tree to maximum likelihood, as in OctoMap itself
         data = self.tree.writeBinary() if path.suffix == ".bt" else self.tree.write()
-        fd, tmp = tempfile.mkstemp(dir=path.parent or ".", prefix=path.name, suffix=".tmp")
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
+        atomic_write_bytes(path, data)
         return path.stat().st_size
 
     def query(self, points: np.ndarray) -> PointQuery:

@@ -55,14 +55,6 @@ def source_digest(package: str) -> str:
     return h.hexdigest()[:12]
 
 
-def new_file_mode() -> int:
-    """0666 less the process umask: the mode ``open`` gives a new file (``tempfile.mkstemp``
-    makes 0600, which a file published by rename should not keep)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
 def folder_size(path: str | os.PathLike[str]) -> tuple[int, int]:
     """(files, bytes) under ``path`` (0, 0 when it does not exist)."""
     files = size = 0

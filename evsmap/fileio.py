@@ -1,14 +1,99 @@
-"""Writing output folders safely."""
+"""Writing files and output folders safely: a reader never sees a half-written file or folder.
+
+* :func:`atomic_path` / :func:`atomic_write` (and :func:`atomic_write_text`,
+  :func:`atomic_write_bytes`): one file written under a unique temporary name beside it and moved
+  into place with ``os.replace`` once complete; on an error the temporary file goes and the old
+  file, if any, stays. ``durable=True`` also flushes the file and its folder to disk (training
+  checkpoints, which a power cut must not lose).
+* :func:`staging_folder`: the same for a whole output folder.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
+from typing import IO, Any
 
 from evsmap.errors import EvsmapError
+
+
+def new_file_mode() -> int:
+    """0666 less the process umask: the mode ``open`` gives a new file (``tempfile.mkstemp``
+    makes 0600, which a file published by rename should not keep)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def fsync_folder(folder: str | os.PathLike[str]) -> None:
+    """Flush a folder's entries (a rename into it) to disk, where the platform allows it."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # pragma: no cover  (not every platform opens folders)
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str], *, durable: bool = False,
+                suffix: str = ".tmp") -> Iterator[Path]:
+    """Yield a fresh temporary path beside ``path`` for a writer that takes a file name (ending
+    in ``suffix``, for writers that choose the format by extension); when
+    the block ends without error the file written there replaces ``path`` (``os.replace``,
+    with the mode a new file gets under the umask); on error it is removed and ``path`` is left
+    as it was. ``durable``: flush the file and its folder to disk before returning.
+
+    OS errors propagate (as :class:`OSError`); callers turn them into their own one-line error.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{suffix}")
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise OSError(f"nothing was written to {tmp}")
+        if durable:
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())
+        os.chmod(tmp, new_file_mode())
+        os.replace(tmp, path)
+        if durable:
+            fsync_folder(path.parent)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike[str], mode: str = "wb", *, durable: bool = False,
+                 **open_kwargs: Any) -> Iterator[IO[Any]]:
+    """``with atomic_write(path, "w") as fh: ...``: :func:`atomic_path` with the file opened
+    (``mode`` is ``"w"`` or ``"wb"``; ``open_kwargs`` go to :func:`open`)."""
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_write writes a new file: mode 'w' or 'wb', not {mode!r}")
+    with atomic_path(path, durable=durable) as tmp, open(tmp, mode, **open_kwargs) as fh:
+        yield fh
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, *, durable: bool = False) -> None:
+    """``text`` (UTF-8) to ``path`` through :func:`atomic_write`."""
+    with atomic_write(path, "w", durable=durable, encoding="utf-8") as fh:
+        fh.write(text)
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, *,
+                       durable: bool = False) -> None:
+    """``data`` to ``path`` through :func:`atomic_write`."""
+    with atomic_write(path, "wb", durable=durable) as fh:
+        fh.write(data)
 
 
 @contextlib.contextmanager

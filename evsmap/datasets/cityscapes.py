@@ -47,10 +47,9 @@ from evsmap.datasets.common import (
     read_manifest,
     require_dir,
     write_manifest,
-    write_text_atomic,
 )
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.fileio import staging_folder
+from evsmap.fileio import atomic_write_text, staging_folder
 from evsmap.readers.images import read_rgb, read_uint8_labels, read_uint16, write_png
 from evsmap.registry import READERS
 
@@ -347,7 +346,7 @@ def prepare_cityscapes(source_dir: str | Path, out_dir: str | Path, *, limit: in
             write_png(stage / LABEL_DIR / rel / f"{stem}{TRAIN_IDS_SUFFIX}", train_ids)
         for s in splits:
             (stage / LABEL_DIR / s).mkdir(parents=True, exist_ok=True)
-            write_text_atomic(stage / f"{s}.txt",
+            atomic_write_text(stage / f"{s}.txt",
                               "".join(f"{city}/{stem}\n" for city, stem in chosen[s]))
         manifest = make_manifest(
             NAME, source=src, splits={s: len(chosen[s]) for s in splits},

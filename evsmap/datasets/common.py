@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import abc
 import json
-import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -25,6 +24,7 @@ import numpy as np
 
 from evsmap.data import VOID, Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError, InvalidDataError
+from evsmap.fileio import atomic_write_text
 from evsmap.readers.images import read_uint8_labels
 from evsmap.version import evsmap_version
 
@@ -107,10 +107,6 @@ def read_id_list(path: Path) -> list[str]:
     return ids
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 def read_manifest(folder: Path) -> dict | None:
@@ -146,7 +142,7 @@ def make_manifest(name: str, *, source: Path, splits: dict[str, int], **extra: A
 
 
 def write_manifest(folder: Path, record: dict) -> None:
-    write_text_atomic(Path(folder) / MANIFEST, json.dumps(record, indent=2) + "\n")
+    atomic_write_text(Path(folder) / MANIFEST, json.dumps(record, indent=2) + "\n")
 
 
 

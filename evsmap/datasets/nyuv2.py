@@ -44,10 +44,9 @@ from evsmap.datasets.common import (
     require_dir,
     require_file,
     write_manifest,
-    write_text_atomic,
 )
 from evsmap.errors import DataFormatError
-from evsmap.fileio import staging_folder
+from evsmap.fileio import atomic_write_text, staging_folder
 from evsmap.readers.images import read_rgb, read_uint16, write_png
 from evsmap.registry import READERS
 
@@ -253,7 +252,7 @@ def prepare_nyuv2(source_dir: str | Path, out_dir: str | Path, *, limit: int | N
             write_png(stage / DEPTH_DIR / f"{fid}.png", depth)
             write_png(stage / LABEL_DIR / f"{fid}.png", lut[source_labels.astype(np.int64)])
         for s in SPLITS:
-            write_text_atomic(stage / f"{s}.txt", "".join(f"{i:06d}\n" for i in chosen[s]))
+            atomic_write_text(stage / f"{s}.txt", "".join(f"{i:06d}\n" for i in chosen[s]))
         manifest = make_manifest(
             NAME, source=src, splits={s: len(chosen[s]) for s in SPLITS},
             official_counts=OFFICIAL_COUNTS, limit=limit, num_classes=NUM_CLASSES,

@@ -50,10 +50,9 @@ from evsmap.datasets.common import (
     require_dir,
     require_file,
     write_manifest,
-    write_text_atomic,
 )
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.fileio import staging_folder
+from evsmap.fileio import atomic_write_text, staging_folder
 from evsmap.readers.images import read_rgb, read_uint16, write_png
 from evsmap.registry import READERS
 
@@ -355,7 +354,7 @@ def prepare_sunrgbd(source_dir: str | Path, out_dir: str | Path, *, limit: int |
             rows[split].append(f"{fid} {intr.fx!r} {intr.fy!r} {intr.cx!r} {intr.cy!r} "
                                f"{width} {height} {entry.scene}\n")
         for s in SPLITS:
-            write_text_atomic(stage / s / FRAMES_FILE,
+            atomic_write_text(stage / s / FRAMES_FILE,
                               "# id fx fy cx cy width height scene (SUNRGBD/<scene>)\n"
                               + "".join(rows[s]))
         manifest = make_manifest(

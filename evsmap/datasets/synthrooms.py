@@ -61,10 +61,9 @@ from evsmap.datasets.common import (
     require_dir,
     require_file,
     write_manifest,
-    write_text_atomic,
 )
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.fileio import staging_folder
+from evsmap.fileio import atomic_write_text, staging_folder
 from evsmap.geometry import pose_matrix
 from evsmap.readers.images import (
     DEPTH_SCALE,
@@ -228,9 +227,9 @@ def prepare_synthrooms(out_dir: str | Path, *, rooms: int = DEFAULT_ROOMS,
             values = [*seq.translations[v], *seq.quaternions[v]]
             pose_lines.append(f"{fid} {r} {seq.timestamps[v]:.6f} "
                               + " ".join(repr(float(x)) for x in values) + "\n")
-        write_text_atomic(stage / POSES_FILE, "".join(pose_lines))
+        atomic_write_text(stage / POSES_FILE, "".join(pose_lines))
         for s in SPLITS:
-            write_text_atomic(stage / f"{s}.txt", "".join(
+            atomic_write_text(stage / f"{s}.txt", "".join(
                 f"{frame_id(r, v)}\n" for r in splits[s] for v in range(frames_per_room)))
         manifest = make_manifest(
             NAME, source=stage, splits={s: len(splits[s]) * frames_per_room for s in SPLITS},

@@ -62,7 +62,7 @@ def read_baseline(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 
 def write_baseline(path: str | os.PathLike[str], data: dict[str, Any]) -> None:
-    from evsmap.train.checkpoint import atomic_write_text
+    from evsmap.fileio import atomic_write_text
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

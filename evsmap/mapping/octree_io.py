@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import os
 import re
-import secrets
 from collections.abc import Mapping
 from pathlib import Path
 from typing import NamedTuple
@@ -51,6 +50,7 @@ import numpy as np
 from numpy.typing import DTypeLike
 
 from evsmap.errors import DataFormatError, InvalidDataError
+from evsmap.fileio import atomic_write
 from evsmap.mapping.keys import TREE_DEPTH
 from evsmap.mapping.tree import Tree, _codes_of_morton
 
@@ -132,27 +132,12 @@ def _check_write_args(tree: Tree, resolution: float, tree_type: str) -> None:
 
 
 def _atomic_write(path: str | os.PathLike, chunks: list[bytes]) -> int:
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     try:
-        with open(tmp, "xb") as f:
+        with atomic_write(path, "wb", durable=True) as f:
             for c in chunks:
                 f.write(c)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
     except OSError as e:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
         raise DataFormatError(f"cannot write {path}: {e.strerror or e}") from e
-    except BaseException:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        raise
     return sum(len(c) for c in chunks)
 
 

@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from evsmap.fileio import atomic_write_text
+
 CALIBRATION_SIZE = 384
 SLOWDOWN_LIMIT = 1.4
 """A cell whose calibration ran more than this much slower than the run's best is flagged. On
@@ -179,9 +181,7 @@ def _read(path: Path) -> dict:
 def _write(path: Path, data: dict) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(data))
-        os.replace(tmp, path)
+        atomic_write_text(path, json.dumps(data))
     except OSError:
         pass  # a read-only cache: the reference stays in memory
 

@@ -7,7 +7,6 @@ import hashlib
 import io
 import os
 import re
-import tempfile
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -15,6 +14,7 @@ from pathlib import Path
 import torch
 
 from evsmap.errors import EvsmapError
+from evsmap.fileio import atomic_path
 from evsmap.models.module_utils import as_inputs, eval_mode
 
 OPSET = 17
@@ -144,15 +144,6 @@ def cached_onnx(
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OnnxExportError(f"cannot create ONNX cache folder {cache}: {exc}") from exc
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".onnx.tmp", dir=cache)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
+    with atomic_path(path, suffix=".onnx") as tmp:
         export_onnx(module, inputs, input_names, tmp)
-        from evsmap.cache import new_file_mode
-
-        os.chmod(tmp, new_file_mode())  # mkstemp makes 0600; the shared cache is for everyone
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path

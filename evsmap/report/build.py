@@ -20,6 +20,7 @@ from typing import Any
 import pandas as pd
 
 from evsmap.errors import DataFormatError
+from evsmap.fileio import atomic_write_text
 from evsmap.report import plots
 from evsmap.report.claims import claims_markdown, relative_markdown
 from evsmap.report.tables import (
@@ -185,9 +186,7 @@ def build_report(run_dir: str | Path) -> list[Path]:
 
 
 def _write(path: Path, text: str) -> Path:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    atomic_write_text(path, text)
     return path
 
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from evsmap.fileio import atomic_write_text
 from evsmap.runner.context import RunContext
 from evsmap.runner.execute import (
     MappingRun,
@@ -279,6 +280,4 @@ def write_run_file(ctx: RunContext, the_plan: Plan, path: Path, **fields: Any) -
             "sequences": fields.pop("sequences", {}),
             "cells": the_plan.keys, "skipped": the_plan.skipped, "context": ctx.as_dict(),
             **fields}
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=1, default=str))
-    tmp.replace(path)
+    atomic_write_text(path, json.dumps(data, indent=1, default=str))

@@ -11,14 +11,13 @@ from __future__ import annotations
 import json
 import os
 import re
-import tempfile
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from evsmap.cache import new_file_mode
 from evsmap.errors import DataFormatError
+from evsmap.fileio import atomic_write
 
 STATUSES = ("ok", "na", "error")
 
@@ -125,15 +124,8 @@ class RecordStore:
     def write(self, record: CellRecord) -> Path:
         self.folder.mkdir(parents=True, exist_ok=True)
         target = self.path(record.key)
-        fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=".tmp-", suffix=".json")
-        try:
-            with os.fdopen(fd, "w") as fh:
-                json.dump(record.as_dict(), fh, indent=1, default=_json_default)
-            os.chmod(tmp, new_file_mode())  # mkstemp makes 0600; records are for everyone
-            os.replace(tmp, target)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_write(target, "w") as fh:
+            json.dump(record.as_dict(), fh, indent=1, default=_json_default)
         return target
 
     def get(self, key: str) -> CellRecord | None:

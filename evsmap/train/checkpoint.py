@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import os
 import random
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
 from evsmap.errors import DataFormatError
+from evsmap.fileio import atomic_write
 
 FORMAT = "evsmap-train-checkpoint"
 VERSION = 1
@@ -39,41 +39,11 @@ LOG = "log.csv"
 RUN = "run.json"
 
 
-def _fsync_dir(folder: Path) -> None:
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:  # pragma: no cover  (not every platform opens folders)
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover
-        pass
-    finally:
-        os.close(fd)
-
-
-def _atomic(path: Path, write) -> None:
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    _fsync_dir(path.parent)
-
-
 def atomic_save(obj: Any, path: str | os.PathLike[str]) -> None:
-    """``torch.save(obj)`` to ``path`` through a temporary file and ``os.replace``."""
-    _atomic(Path(path), lambda f: torch.save(obj, f))
-
-
-def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
-    _atomic(Path(path), lambda f: f.write(text.encode()))
+    """``torch.save(obj)`` to ``path`` through :func:`evsmap.fileio.atomic_write`, flushed to disk
+    with its folder: a crash leaves the previous complete file."""
+    with atomic_write(path, "wb", durable=True) as fh:
+        torch.save(obj, fh)
 
 
 def save_weights(path: str | os.PathLike[str], state_dict: dict[str, torch.Tensor],
@@ -151,5 +121,5 @@ def seed_everything(seed: int) -> None:
 
 
 __all__ = ["BEST", "CHECKPOINT", "FORMAT", "LAST", "LOG", "RUN", "VERSION", "atomic_save",
-           "atomic_write_text", "cpu_state", "derived_seed", "load_checkpoint", "rng_state",
+           "cpu_state", "derived_seed", "load_checkpoint", "rng_state",
            "save_weights", "seed_everything", "set_rng_state"]

@@ -55,6 +55,7 @@ from torch import nn
 from tqdm import tqdm
 
 from evsmap.errors import EvsmapError
+from evsmap.fileio import atomic_write_text
 from evsmap.losses import HybridLoss, MultiScaleLoss
 from evsmap.train.checkpoint import (
     BEST,
@@ -65,7 +66,6 @@ from evsmap.train.checkpoint import (
     RUN,
     VERSION,
     atomic_save,
-    atomic_write_text,
     cpu_state,
     derived_seed,
     load_checkpoint,
@@ -682,11 +682,11 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
         val_epoch = epoch + 1 if val is not None else None
         last_card = card(state, epoch + 1, val, val_epoch)
         save_weights(out / LAST, state, last_card)
-        atomic_write_text(out / LOG, _csv(history))
+        atomic_write_text(out / LOG, _csv(history), durable=True)
         run.update(epochs_done=epoch + 1, best=best, ranks=ranks,
                    evsmap_version=last_card["evsmap_version"],
                    git_commit=last_card["git_commit"])
-        atomic_write_text(out / RUN, json.dumps(run, indent=2) + "\n")
+        atomic_write_text(out / RUN, json.dumps(run, indent=2) + "\n", durable=True)
         atomic_save({
             "format": FORMAT, "version": VERSION, "state_dict": state, "card": last_card,
             "optimizer": optimizer.state_dict(), "scheduler": schedule.state_dict(),
@@ -707,7 +707,7 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
         test = final_test(opts, splits, segmenter, out, device=procs.device, bar=tty)
         if test is not None:
             run.update(test)
-            atomic_write_text(out / RUN, json.dumps(run, indent=2) + "\n")
+            atomic_write_text(out / RUN, json.dumps(run, indent=2) + "\n", durable=True)
     summary = {
         "out": str(out), "model": opts.model, "epochs": epochs_done,
         "epochs_planned": recipe.epochs, "finished": epochs_done >= recipe.epochs,

@@ -16,12 +16,12 @@ partial file.
 from __future__ import annotations
 
 import os
-import secrets
 from pathlib import Path
 
 import numpy as np
 
 from evsmap.errors import DataFormatError, InvalidDataError
+from evsmap.fileio import atomic_path
 from evsmap.interfaces import OCCUPIED
 from evsmap.mapping.keys import key_to_coord, unpack
 from evsmap.updaters.base import OctreeUpdater
@@ -163,18 +163,12 @@ def _write_point_cloud(path: Path, points: np.ndarray, colors: np.ndarray) -> No
     cloud = o3d.geometry.PointCloud()
     cloud.points = o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64))
     cloud.colors = o3d.utility.Vector3dVector(np.asarray(colors, dtype=np.float64) / 255.0)
-    tmp = folder / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.ply"
     try:
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-            ok = o3d.io.write_point_cloud(str(tmp), cloud, write_ascii=False)
-        if not ok:
-            raise DataFormatError(f"cannot write {path}: Open3D could not write the point cloud "
-                                  f"(is {folder} writable?)")
-        os.replace(tmp, path)
+        with atomic_path(path, suffix=".ply") as tmp:  # Open3D picks the format by extension
+            with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+                ok = o3d.io.write_point_cloud(str(tmp), cloud, write_ascii=False)
+            if not ok:
+                raise DataFormatError(f"cannot write {path}: Open3D could not write the point "
+                                      f"cloud (is {folder} writable?)")
     except OSError as e:
         raise DataFormatError(f"cannot write {path}: {e.strerror or e}") from e
-    finally:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
