@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from evsmap.measure.mapping import map_sizes, memory_nbytes, pruned_share
+from evsmap.measure.mapping import map_sizes, pruned_share
 from evsmap.metrics import evaluate_map
 from evsmap.registry import READERS, SEGMENTERS, UPDATERS
 
@@ -70,7 +70,7 @@ def main() -> None:
                "system": label, "published_bytes": sizes["published"],
                "full_bytes": sizes["full"], "nodes": stats.nodes, "leaves": stats.leaves,
                "pruned_share": pruned_share(m), "memory_cpp_bytes": stats.octomap_memory_bytes,
-               "memory_nbytes": memory_nbytes(m), "update_ms_median": float(np.median(times))}
+               "memory_nbytes": m.memory_nbytes(), "update_ms_median": float(np.median(times))}
         if truth is not None and semantic:
             q = evaluate_map(m, truth)
             row.update(semantic_accuracy=q.semantic_accuracy,

@@ -59,7 +59,7 @@ def _measure(frames, observations) -> dict:
                 mb.USE_KERNEL = variant != "numpy"
                 updater = UPDATERS.create(registered, resolution=res, max_range=MAX_RANGE,
                                           **VARIANTS.get(variant, {}))
-                semantic = getattr(updater, "uses_semantics", False)
+                semantic = updater.uses_semantics
                 for frame, obs in zip(frames, observations, strict=True):
                     t0 = time.perf_counter()
                     updater.integrate(frame, obs if semantic else None)

@@ -364,7 +364,16 @@ class Sequence(abc.ABC):
     from them. ``meta`` holds reader-specific facts (layout, source, dropped frames).
     ``intrinsics`` is the camera of the frames (the first frame's where a dataset mixes cameras,
     each frame then carrying its own), or None for a sequence of point clouds.
+
+    Attributes:
+        class_names: the label set of the frames' ``labels``, one name per class id; () where
+            the reader does not say (or the frames have no labels). A reader sets the attribute
+            or passes ``meta["class_names"]`` (and ``meta["num_classes"]``).
+        num_classes: the size of that label set where known, else None.
     """
+
+    class_names: tuple[str, ...] = ()
+    num_classes: int | None = None
 
     def __init__(self, name: str, intrinsics: Intrinsics | None, meta: dict | None = None
                  ) -> None:
@@ -375,6 +384,10 @@ class Sequence(abc.ABC):
         self.name = name
         self.intrinsics = intrinsics
         self.meta = dict(meta or {})
+        if self.meta.get("class_names"):  # a reader may state its label set in ``meta``
+            self.class_names = tuple(str(n) for n in self.meta["class_names"])
+        if self.meta.get("num_classes") or self.class_names:
+            self.num_classes = int(self.meta.get("num_classes") or len(self.class_names))
 
     @abc.abstractmethod
     def __len__(self) -> int:
@@ -383,6 +396,12 @@ class Sequence(abc.ABC):
     @abc.abstractmethod
     def frame(self, index: int) -> Frame:
         """Frame ``index`` (0 <= index < len)."""
+
+    @property
+    def has_poses(self) -> bool:
+        """Whether the frames carry camera poses: False for a segmentation dataset, whose frames
+        get the identity pose (its reader sets ``meta["poses"] = False``); mapping refuses it."""
+        return self.meta.get("poses") is not False
 
     def __getitem__(self, index: int) -> Frame:
         n = len(self)

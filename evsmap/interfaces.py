@@ -1,19 +1,23 @@
 """The two plug-in interfaces: segmenters (2D) and map updaters (3D).
 
-Later modules implement them; the runner and the CLI only talk to these methods. A reader is any
-factory registered in :data:`evsmap.registry.READERS` that returns a :class:`evsmap.data.Sequence`.
+Later modules implement them; the runner, the gate and the CLI only talk to what is declared
+here (no ``hasattr`` probing). A reader is any factory registered in
+:data:`evsmap.registry.READERS` that returns a :class:`evsmap.data.Sequence`.
 """
 
 from __future__ import annotations
 
 import abc
+from collections.abc import Mapping
 from dataclasses import dataclass
 from os import PathLike
+from types import MappingProxyType
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
+from evsmap.errors import InvalidDataError
 
 if TYPE_CHECKING:  # torch is heavy to import; only type checkers need it here
     import torch
@@ -26,11 +30,22 @@ class Segmenter(abc.ABC):
         num_classes: size of the label set the segmenter predicts.
         class_names: one name per class id.
         uses_depth: whether the depth image is an input (RGB-D networks) or ignored.
+        weights: the weight file loaded, or None (random weights, or not a network).
+        backend: what runs the network (``"torch"``, ``"onnxruntime"``); ``"torch"`` for a
+            segmenter that is not a network.
+        default_size: (H, W) a network is measured at when the caller names no size; None for
+            a segmenter that is not a network.
+        last_timings: milliseconds of the last :meth:`predict`'s stages (e.g. ``preprocess``,
+            ``network``, ``postprocess``); empty where a segmenter does not split them.
     """
 
     num_classes: int
     class_names: tuple[str, ...]
     uses_depth: ClassVar[bool] = True
+    weights: str | None = None
+    backend: str = "torch"
+    default_size: tuple[int, int] | None = None
+    last_timings: Mapping[str, float] = MappingProxyType({})
 
     @property
     @abc.abstractmethod
@@ -41,6 +56,22 @@ class Segmenter(abc.ABC):
     @abc.abstractmethod
     def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
         """Top-``k`` classes and probabilities for every pixel of ``frame``."""
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Names of the network's inputs, in order (the ONNX graph's); () for a segmenter that is
+        not a network."""
+        return ()
+
+    def example_inputs(self, height: int, width: int) -> tuple[torch.Tensor, ...]:
+        """Deterministic inputs of the network's shapes (batch 1) at ``height`` x ``width``, for
+        parameter/FLOP counts, speed and export.
+
+        Raises:
+            InvalidDataError: the segmenter is not a network (:attr:`module` is None).
+        """
+        raise InvalidDataError(f"{type(self).__name__} is not a network: it has no inputs to "
+                               f"measure")
 
     def __call__(self, frame: Frame) -> SemanticObservation:
         return self.predict(frame)
@@ -90,6 +121,9 @@ class MapUpdater(abc.ABC):
 
     resolution: float
     uses_semantics: ClassVar[bool] = False
+    has_leaf_map: ClassVar[bool] = False
+    """Whether :meth:`occupied_labels` can list the map's occupied leaves (evsmap's octree
+    updaters); the map-quality metrics need it."""
 
     @abc.abstractmethod
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
@@ -110,3 +144,18 @@ class MapUpdater(abc.ABC):
     @abc.abstractmethod
     def query(self, points: np.ndarray) -> PointQuery:
         """Occupancy and label at ``points`` (N x 3 world coordinates, metres)."""
+
+    def memory_nbytes(self) -> int | None:
+        """Bytes of the arrays that hold the map (measured from their ``nbytes``), or None where
+        the updater cannot say (a map held in C++)."""
+        return None
+
+    def occupied_labels(self) -> tuple[np.ndarray, np.ndarray]:
+        """The occupied finest-level leaves and their most likely class: (sorted ``int64``
+        voxel codes, ``int16`` labels, -1 where a leaf has no class).
+
+        Raises:
+            InvalidDataError: the updater has no leaf map (:attr:`has_leaf_map` is False).
+        """
+        raise InvalidDataError(f"{type(self).__name__} exposes no leaf map (the map-quality "
+                               f"metrics need an octree updater of evsmap's)")

@@ -86,3 +86,71 @@ def test_incomplete_plugins_cannot_be_built():
 
     with pytest.raises(TypeError, match="abstract"):
         Half()
+
+
+def test_a_segmenter_that_is_not_a_network_says_so_through_the_interface():
+    from evsmap.errors import InvalidDataError
+
+    seg = DepthBands()
+    assert (seg.weights, seg.backend, seg.default_size, seg.input_names) == \
+        (None, "torch", None, ())
+    assert dict(seg.last_timings) == {}
+    with pytest.raises(InvalidDataError, match="DepthBands is not a network"):
+        seg.example_inputs(48, 64)
+
+
+def test_a_network_segmenter_fills_the_interface():
+    from evsmap.registry import get_segmenter
+
+    seg = get_segmenter("feagnet-v1")
+    assert seg.default_size == (480, 640) and seg.input_names == ("rgb", "depth")
+    rgb, depth = seg.example_inputs(24, 32)
+    assert tuple(rgb.shape) == (1, 3, 24, 32) and tuple(depth.shape) == (1, 1, 24, 32)
+    outdoor = get_segmenter("feagnet-s")  # Cityscapes: RGB only, 512 x 1024
+    assert outdoor.default_size == (512, 1024) and outdoor.input_names == ("rgb",)
+
+
+def test_updaters_without_a_leaf_map_refuse_the_leaf_queries():
+    from evsmap.errors import InvalidDataError
+
+    updater = VoxelSet()
+    assert updater.has_leaf_map is False and updater.memory_nbytes() is None
+    with pytest.raises(InvalidDataError, match="VoxelSet exposes no leaf map"):
+        updater.occupied_labels()
+
+
+def test_an_octree_updater_measures_its_own_arrays(tmp_path):
+    from evsmap.registry import get_updater
+
+    seq = get_reader("synthetic", frames=2, width=64, height=48)
+    updater = get_updater("orgb", resolution=0.1)
+    for frame in seq:
+        updater.integrate(frame)
+    m = updater.map
+    expected = m.codes.nbytes + m.logodds.nbytes + sum(m.payload(n).nbytes
+                                                       for n in m.payload_names)
+    assert updater.has_leaf_map and updater.memory_nbytes() == expected > 0
+    codes, labels = updater.occupied_labels()
+    assert len(codes) == len(labels) > 0
+
+
+def test_sequence_metadata_is_typed():
+    from evsmap.data import FrameList, Intrinsics
+
+    seq = get_reader("synthetic", frames=1, width=64, height=48)
+    assert seq.has_poses and seq.num_classes == len(seq.class_names) == 40
+    bare = FrameList("x", Intrinsics(fx=50, fy=50, cx=32, cy=24, width=64, height=48), [])
+    assert bare.has_poses and bare.class_names == () and bare.num_classes is None
+    bare.meta["poses"] = False  # what a segmentation dataset's reader sets
+    assert not bare.has_poses
+
+
+def test_mapping_refuses_a_sequence_without_poses():
+    from evsmap.data import FrameList, Intrinsics
+    from evsmap.errors import EvsmapError
+    from evsmap.measure.mapping import map_sequence
+
+    seq = FrameList("stills", Intrinsics(fx=50, fy=50, cx=32, cy=24, width=64, height=48), [],
+                    meta={"poses": False, "layout": "nyuv2"})
+    with pytest.raises(EvsmapError, match="stills: nyuv2 has no camera poses"):
+        map_sequence(seq, VoxelSet(), updater_name="voxel-set")

@@ -49,7 +49,7 @@ def build_network(args: argparse.Namespace) -> tuple[Any, int, int]:
     # ONNX export cache (keyed by the weights) is reused between runs
     torch.manual_seed(0)
     segmenter = SEGMENTERS.create(args.model, **config)
-    if getattr(segmenter, "module", None) is None:
+    if segmenter.module is None:
         raise EvsmapError(f"segmenter {args.model!r} is not a network; nothing to measure")
     default_h, default_w = segmenter.default_size
     height, width = args.height or default_h, args.width or default_w

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if args.backend is not None:
         config["backend"] = args.backend
     segmenter = SEGMENTERS.create(args.model, **config)
-    weights = getattr(segmenter, "weights", None)
+    weights = segmenter.weights
     random_weights = refuse_random_weights(segmenter, args.model, allow=args.allow_random,
                           why="score the random initialisation, whose mIoU is meaningless")
 
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"evsmap eval: warning: {args.model} runs with RANDOM weights "
                          f"(no --weights): the scores below are meaningless\n")
     names = data_names if len(data_names) == n_seg else \
-        tuple(getattr(segmenter, "class_names", ()) or class_names_for(n_seg))
+        tuple(segmenter.class_names or class_names_for(n_seg))
 
     total = len(sequence) if args.limit is None else min(args.limit, len(sequence))
     if total == 0:
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     record = {
         "model": args.model, "options": {k: v for k, v in config.items() if k != "weights"},
         "weights": weights, "random_weights": random_weights,
-        "backend": getattr(segmenter, "backend", None),
+        "backend": segmenter.backend,
         "dataset": sequence.name, "reader": source["reader"], "split": source["split"],
         "frames": frames, "skipped": skipped.as_dict() if args.skip_bad else None,
         "seconds_per_frame": seconds / frames if frames else None,

@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
         ply_color = check_color_by(updater, args.ply_color)
     sequence = open_sequence(args.sequence, args.reader, args.reader_option)
-    if sequence.meta.get("poses") is False:
+    if not sequence.has_poses:
         hint = sequence.meta.get("no_poses_hint")  # e.g. synthrooms: pick one room
         raise EvsmapError(
             f"{args.sequence}: {hint}" if hint else
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
             f"(a segmentation dataset); map a sequence with poses (TUM, a ROS bag, synthetic)")
     segmenter = None
     seg_name = args.segmenter
-    if getattr(updater, "uses_semantics", False) or seg_name:
+    if updater.uses_semantics or seg_name:
         if seg_name is None:
             if len(sequence) and sequence.frame(0).labels is None:
                 raise EvsmapError(
@@ -115,9 +115,9 @@ def run(args: argparse.Namespace) -> int:
         if args.backend is not None:
             seg_config["backend"] = args.backend
         segmenter = SEGMENTERS.create(seg_name, **seg_config)
-        if getattr(segmenter, "module", None) is not None and \
-                getattr(segmenter, "weights", None) is None and \
-                getattr(updater, "uses_semantics", False):
+        if segmenter.module is not None and \
+                segmenter.weights is None and \
+                updater.uses_semantics:
             sys.stderr.write(f"evsmap map: warning: {seg_name} runs with RANDOM weights (no "
                              f"--weights): its labels are noise, only its timing means "
                              f"something\n")
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     result = record.as_dict()
     result["stage_ms_median"] = record.stage_medians()
     truth = _ground_truth(sequence, args.resolution)
-    if truth is not None and hasattr(updater, "occupied_labels"):
+    if truth is not None and updater.has_leaf_map:
         from evsmap.metrics import evaluate_map
 
         quality = evaluate_map(updater, truth).as_dict()

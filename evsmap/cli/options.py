@@ -30,8 +30,8 @@ def refuse_random_weights(segmenter: object, model: str, *, allow: bool, why: st
     """
     from evsmap.errors import EvsmapError
 
-    network = getattr(segmenter, "module", None) is not None
-    random_weights = network and getattr(segmenter, "weights", None) is None
+    network = segmenter.module is not None
+    random_weights = network and segmenter.weights is None
     if random_weights and not allow:
         raise EvsmapError(f"{model} has no trained weights: pass --weights FILE (or "
                           f"--allow-random to {why})")

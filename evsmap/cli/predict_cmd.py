@@ -213,8 +213,8 @@ def run(args: argparse.Namespace) -> int:
     if takes_size and args.size is None and sequence.intrinsics is not None:
         config["input_size"] = sequence.intrinsics.shape  # the frames' own resolution
     segmenter = SEGMENTERS.create(args.model, **config)
-    network = getattr(segmenter, "module", None) is not None
-    weights = getattr(segmenter, "weights", None)
+    network = segmenter.module is not None
+    weights = segmenter.weights
     random_weights = refuse_random_weights(segmenter, args.model, allow=args.allow_random,
                           why="run the random initialisation, whose labels are noise")
     num_classes = int(segmenter.num_classes)
@@ -232,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
         "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in config.items()
                     if k not in ("weights", "input_size")},
         "weights": weights, "random_weights": random_weights,
-        "backend": getattr(segmenter, "backend", None),
+        "backend": segmenter.backend,
         "input_size": list(args.size) if args.size is not None else
         ("frame" if network else None)}
     record = predict_sequence(
@@ -265,7 +265,7 @@ def predict_sequence(sequence, segmenter, out: Path, *, model: str, count: int,
     num_classes = int(segmenter.num_classes)
     _, data_names = dataset_classes(sequence)
     names_of_classes = data_names if len(data_names) == num_classes else \
-        tuple(getattr(segmenter, "class_names", ()) or class_names_for(num_classes))
+        tuple(segmenter.class_names or class_names_for(num_classes))
     colors = class_colors(sequence, num_classes) if overlay else None
     names, naming = frame_names(sequence, count)
     skipped = SkippedFrames()

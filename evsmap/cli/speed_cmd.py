@@ -39,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     segmenter, height, width = build_network(args)
-    if getattr(segmenter, "weights", None) is None:
+    if segmenter.weights is None:
         import sys
 
         sys.stderr.write(f"evsmap speed: warning: {args.model} has RANDOM weights (-o "

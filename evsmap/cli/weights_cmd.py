@@ -282,13 +282,13 @@ def convert(source: Path, out: Path, *, model: str | None = None,
         raise EvsmapError(f"option {reserved[0]} cannot be set here (the file is the weights; "
                           f"backend and input size are chosen when the weights are used)")
     segmenter = SEGMENTERS.create(name, **config)
-    module = getattr(segmenter, "module", None)
+    module = segmenter.module
     if module is None:
         raise EvsmapError(f"{name} is not a network segmenter: it takes no weights")
     load_state(module, converted, source)
     state = {k: converted.state[k] for k in module.state_dict()}
     card = make_card(model=name, options=config, num_classes=int(segmenter.num_classes),
-                     class_names=list(getattr(segmenter, "class_names", ())), state_dict=state,
+                     class_names=list(segmenter.class_names), state_dict=state,
                      source_file=source.name, source_sha256=file_sha256(source),
                      source_layout=converted.layout, conversion=list(converted.notes))
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -6,8 +6,12 @@ and the runner find datasets here)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from evsmap.errors import EvsmapError
+
+if TYPE_CHECKING:
+    from evsmap.data import Sequence
 
 DEFAULT_SPLIT = {"cityscapes": "val"}
 """Split evaluated when ``--split`` is not given, by reader (Table II uses Cityscapes' val, the
@@ -80,16 +84,11 @@ def open_dataset(text: str, *, reader: str | None = None, split: str | None = No
     return sequence, {"reader": name, "split": config.get("split")}
 
 
-def dataset_classes(sequence) -> tuple[int | None, tuple[str, ...]]:
-    """The dataset's class count and names, from the reader's metadata or attributes (an
-    ``evsmap synth`` folder keeps them in ``meta['synthetic']['classes']``); ``(None, ())``
-    when the reader does not say."""
-    meta = getattr(sequence, "meta", {}) or {}
-    names = meta.get("class_names") or getattr(sequence, "class_names", None) \
-        or (meta.get("synthetic") or {}).get("classes") or ()
-    names = tuple(str(n) for n in names)
-    count = meta.get("num_classes") or getattr(sequence, "num_classes", None) \
-        or (len(names) or None)
+def dataset_classes(sequence: Sequence) -> tuple[int | None, tuple[str, ...]]:
+    """The dataset's class count and names (:attr:`Sequence.num_classes`,
+    :attr:`Sequence.class_names`); ``(None, ())`` when the reader does not say."""
+    names = tuple(sequence.class_names)
+    count = sequence.num_classes or (len(names) or None)
     return (int(count) if count else None), names
 
 

@@ -185,7 +185,7 @@ def discover(*, threads: int) -> tuple[dict[str, Any], dict[str, Any]]:
         except EvsmapError as exc:  # a plug-in that cannot be built with its defaults
             context["missing"][f"net:{name}"] = str(exc)
             continue
-        if getattr(segmenter, "module", None) is None:
+        if segmenter.module is None:
             continue  # not a network (the oracle)
         context["networks"][name] = {"uses_depth": bool(segmenter.uses_depth)}
         built[name] = segmenter

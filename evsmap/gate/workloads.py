@@ -225,7 +225,7 @@ class Integrate(Job):
         from evsmap.registry import UPDATERS
 
         updater = UPDATERS.create(self.name, resolution=self.resolution, max_range=MAX_RANGE)
-        semantic = getattr(updater, "uses_semantics", False)
+        semantic = updater.uses_semantics
         updater.integrate(self.frames[0], self.observations[0] if semantic else None)
 
     def run(self) -> None:
@@ -233,7 +233,7 @@ class Integrate(Job):
 
         self.updater = None  # the last map goes before the next is made
         updater = UPDATERS.create(self.name, resolution=self.resolution, max_range=MAX_RANGE)
-        semantic = getattr(updater, "uses_semantics", False)
+        semantic = updater.uses_semantics
         for frame, obs in zip(self.frames, self.observations, strict=True):
             updater.integrate(frame, obs if semantic else None)
         self.updater = updater

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from evsmap.data import Sequence
-from evsmap.errors import InvalidDataError
+from evsmap.errors import EvsmapError, InvalidDataError
 from evsmap.interfaces import MapUpdater, Segmenter
 from evsmap.measure.memory import PeakMemory
 from evsmap.readers.skipping import SkippedFrames, read_frames
@@ -113,19 +113,6 @@ def pruned_share(updater: MapUpdater) -> float | None:
     return 1.0 - finest / int(leaves)
 
 
-def memory_nbytes(updater: MapUpdater) -> int | None:
-    """Bytes of the arrays that hold the map in evsmap (its own ``memory_nbytes()``, else the
-    leaf arrays of an octree updater: codes, log-odds and payloads), or None when unknown."""
-    own = getattr(updater, "memory_nbytes", None)
-    if callable(own):
-        return int(own())
-    leaves = getattr(updater, "map", None)
-    if leaves is None or not hasattr(leaves, "payload_names"):
-        return None
-    arrays = [leaves.codes, leaves.logodds] + [leaves.payload(n) for n in leaves.payload_names]
-    return int(sum(a.nbytes for a in arrays))
-
-
 def map_sizes(updater: MapUpdater) -> dict[str, int]:
     """The ``.ot`` size of the map in each file format, written to a temporary folder."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -147,6 +134,9 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
     """
     from evsmap.segmenters.oracle import OracleSegmenter
 
+    if not sequence.has_poses:
+        raise EvsmapError(f"{sequence.name}: {sequence.meta.get('layout', 'this dataset')} has no "
+                          f"camera poses (a segmentation dataset): nothing to map")
     n = len(sequence) if frames is None else min(frames, len(sequence))
     update_ms: list[float] = []
     segment_ms: list[float] = []
@@ -156,7 +146,7 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
     if progress is not None:
         indices = progress(indices)
     skipped = SkippedFrames()
-    if segmenter is not None and not getattr(updater, "uses_semantics", False):
+    if segmenter is not None and not updater.uses_semantics:
         extra["segmenter_not_run"] = (f"{segmenter_name or 'the segmenter'} was not run: "
                                       f"{updater_name} uses no semantics")
         segmenter = segmenter_name = None
@@ -179,7 +169,7 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
                     stages.setdefault("oracle", []).append(ms)
                 else:
                     segment_ms.append(ms)
-                    for stage, value in getattr(segmenter, "last_timings", {}).items():
+                    for stage, value in segmenter.last_timings.items():
                         stages.setdefault(stage, []).append(float(value))
             t0 = time.perf_counter()
             updater.integrate(frame, observation)
@@ -199,7 +189,7 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
     total = upd + (np.asarray(segment_ms) if segment_ms else 0.0)
     return MappingRecord(
         updater=updater_name, segmenter=segmenter_name, sequence=sequence.name, frames=n,
-        resolution=float(getattr(updater, "resolution", float("nan"))),
+        resolution=float(updater.resolution),
         update_ms=update_ms, segment_ms=segment_ms,
         hz_median=float(1000.0 / np.median(upd)) if n else float("nan"),
         hz_end_to_end=float(1000.0 / np.median(total)) if n else float("nan"),
@@ -207,7 +197,7 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,
         leaves=stats.leaves, file_format=file_format,
         map_bytes_full=sizes["full"], map_bytes_published=sizes["published"],
-        stages_ms=stages, map_nbytes=memory_nbytes(updater),
+        stages_ms=stages, map_nbytes=updater.memory_nbytes(),
         peak_rss_bytes=memory.peak_rss_bytes, start_rss_bytes=memory.start_rss_bytes,
         peak_scope="run" if memory.scope == "block" else "process",
         extra={**extra, **({"skipped": skipped.as_dict()} if skip_bad else {})})

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evsmap.errors import InvalidDataError
+from evsmap.interfaces import MapUpdater
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 from evsmap.metrics.segmentation import ConfusionMatrix, SegmentationResult
 
@@ -138,8 +139,7 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
     if isinstance(slack_voxels, bool) or not isinstance(slack_voxels, (int, np.integer)) \
             or slack_voxels < 0:
         raise InvalidDataError(f"slack_voxels must be an integer >= 0, got {slack_voxels!r}")
-    occupancy = getattr(updater, "map", None)
-    if occupancy is None or not hasattr(updater, "occupied_labels"):
+    if not (isinstance(updater, MapUpdater) and updater.has_leaf_map):
         raise InvalidDataError(
             f"{type(updater).__name__} exposes no leaf map (evaluate_map needs an OctreeUpdater)")
     resolution = float(updater.resolution)
@@ -166,7 +166,7 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
     matched = match >= 0
     # recall: ground-truth voxels with an occupied leaf within the slack
     covered = nearest_within(gt_keys, np.sort(occ_codes), slack) >= 0
-    _, known = occupancy.index(gt_codes)
+    _, known = updater.map.index(gt_codes)
     n_gt, n_occ = int(gt_codes.size), int(occ_codes.size)
     n_observed = int(np.count_nonzero(known))
 
@@ -176,7 +176,7 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
         recall=_ratio(np.count_nonzero(covered & known), n_observed),
         recall_total=_ratio(np.count_nonzero(covered), n_gt),
         matched=int(np.count_nonzero(matched)))
-    if not getattr(updater, "uses_semantics", False):
+    if not updater.uses_semantics:
         return MapQuality(**quality)
 
     pred = occ_labels[matched]

@@ -189,6 +189,9 @@ class TumSequence(Sequence):
                 raise DataFormatError(f"{meta_file}: not valid JSON ({exc})") from None
             if info.get("format") == "evsmap-synthetic":
                 meta.update(layout="synthetic", synthetic=info)
+                names = info.get("classes") or ()
+                self.class_names = tuple(str(n) for n in names)
+                self.num_classes = len(self.class_names) or None
         intr, source = self._intrinsics(root, camera, intrinsics)
         meta["intrinsics_source"] = source
         super().__init__(root.resolve().name, intr, meta)

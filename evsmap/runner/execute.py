@@ -445,7 +445,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
             return CellRecord(**base, status="na", needs=[need],
                               reason=needs_text([need]) + f" ({run.sequence} has no "
                               f"ground-truth labels for the oracle)", started=_now())
-    from evsmap.measure.mapping import map_sizes, memory_nbytes, pruned_share
+    from evsmap.measure.mapping import map_sizes, pruned_share
     from evsmap.measure.memory import PeakMemory
 
     with PeakMemory() as memory:  # the map's own: from before the updater to its files
@@ -475,7 +475,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         "rss_added_bytes": float(memory.added_bytes)}
     if stats.octomap_memory_bytes is not None:
         values["octomap_memory_bytes"] = float(stats.octomap_memory_bytes)
-    measured = memory_nbytes(updater)
+    measured = updater.memory_nbytes()
     if measured is not None:
         values["map_nbytes"] = float(measured)
     share = pruned_share(updater)
@@ -495,7 +495,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         flag = describe(machine) + " around this mapping run"
         details["timing_flag"] = flag
         notes.append(f"timing flagged - {flag}")
-    if run.sequence == "synthetic" and hasattr(updater, "occupied_labels"):
+    if run.sequence == "synthetic" and updater.has_leaf_map:
         from evsmap.metrics import evaluate_map
         from evsmap.synth.sequence import SyntheticSequence
 

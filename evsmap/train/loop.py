@@ -479,7 +479,7 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
     seed_everything(recipe.seed)
     build = {k: v for k, v in options.items() if not (saved and k == "weights")}
     segmenter = SEGMENTERS.create(opts.model, **build)
-    module = getattr(segmenter, "module", None)
+    module = segmenter.module
     if module is None:
         raise EvsmapError(f"{opts.model} is not a network segmenter: there is nothing to train")
     num_classes = int(segmenter.num_classes)

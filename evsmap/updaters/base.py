@@ -162,6 +162,7 @@ class OctreeUpdater(MapUpdater):
 
     name: ClassVar[str] = ""
     tree_type: ClassVar[str] = "OcTree"
+    has_leaf_map: ClassVar[bool] = True
 
     def __init__(self, *, resolution: float = 0.05, max_range: float = 5.0,
                  discretize: bool = True, prob_hit: float = 0.7, prob_miss: float = 0.4,
@@ -339,6 +340,12 @@ class OctreeUpdater(MapUpdater):
         stored = self.map.payload(payload)
         prev = stored[voxels]
         stored[voxels] = average_node_color(prev, color_is_set(prev), mean)
+
+    def memory_nbytes(self) -> int:
+        """Bytes of the leaf arrays: codes, log-odds and every payload."""
+        m = self.map
+        arrays = [m.codes, m.logodds] + [m.payload(n) for n in m.payload_names]
+        return int(sum(a.nbytes for a in arrays))
 
     def occupied_labels(self) -> tuple[np.ndarray, np.ndarray]:
         """The occupied leaves and their most likely class: (sorted ``int64`` codes, ``int16``

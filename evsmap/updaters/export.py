@@ -82,7 +82,7 @@ def occupied_points(updater) -> tuple[np.ndarray, np.ndarray | None, np.ndarray 
 
 def default_color_by(updater) -> str:
     """``"class"`` for an updater that fuses semantics, ``"rgb"`` otherwise."""
-    return "class" if getattr(updater, "uses_semantics", False) else "rgb"
+    return "class" if updater.uses_semantics else "rgb"
 
 
 def check_color_by(updater, color_by: str | None = None) -> str:

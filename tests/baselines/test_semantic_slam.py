@@ -8,8 +8,7 @@ import pytest
 
 from baselines import semantic_slam_kernels as k
 from baselines.semantic_slam import pack_rgb, unpack_rgb, voc_colormap
-from evsmap.data import Frame, SemanticObservation
-from evsmap.geometry import Intrinsics
+from evsmap.data import Frame, Intrinsics, SemanticObservation
 from evsmap.mapping.keys import KEY_OFFSET
 from evsmap.registry import UPDATERS
 

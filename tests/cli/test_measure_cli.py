@@ -6,6 +6,7 @@ from torch import nn
 
 import evsmap.measure.speed as speed_module
 from evsmap.cli.main import main
+from evsmap.interfaces import Segmenter
 from evsmap.registry import SEGMENTERS
 
 NAME = "tiny-measure-test-net"
@@ -22,8 +23,9 @@ class _Net(nn.Module):
         return self.head(torch.sigmoid(self.rgb(rgb) + self.depth(depth)))
 
 
-class TinySegmenter:
-    """The attributes of a NetworkSegmenter that the measuring commands use."""
+class TinySegmenter(Segmenter):
+    """A network segmenter with what the measuring commands use: the interface's network
+    attributes (no prediction)."""
 
     input_names = ("rgb", "depth")
     default_size = (6, 10)
@@ -31,7 +33,15 @@ class TinySegmenter:
     def __init__(self, num_classes: int) -> None:
         self.name = NAME
         self.num_classes = num_classes
-        self.module = _Net(num_classes).eval()
+        self.class_names = tuple(f"c{i}" for i in range(num_classes))
+        self._module = _Net(num_classes).eval()
+
+    @property
+    def module(self) -> torch.nn.Module:
+        return self._module
+
+    def predict(self, frame, *, k=3):
+        raise NotImplementedError("the measuring commands do not predict")
 
     def example_inputs(self, height: int, width: int) -> tuple[torch.Tensor, ...]:
         return torch.zeros(1, 3, height, width), torch.zeros(1, 1, height, width)
