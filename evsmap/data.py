@@ -372,8 +372,6 @@ class Sequence(abc.ABC):
         num_classes: the size of that label set where known, else None.
     """
 
-    class_names: tuple[str, ...] = ()
-    num_classes: int | None = None
 
     def __init__(self, name: str, intrinsics: Intrinsics | None, meta: dict | None = None
                  ) -> None:
@@ -384,10 +382,6 @@ class Sequence(abc.ABC):
         self.name = name
         self.intrinsics = intrinsics
         self.meta = dict(meta or {})
-        if self.meta.get("class_names"):  # a reader may state its label set in ``meta``
-            self.class_names = tuple(str(n) for n in self.meta["class_names"])
-        if self.meta.get("num_classes") or self.class_names:
-            self.num_classes = int(self.meta.get("num_classes") or len(self.class_names))
 
     @abc.abstractmethod
     def __len__(self) -> int:
@@ -396,6 +390,28 @@ class Sequence(abc.ABC):
     @abc.abstractmethod
     def frame(self, index: int) -> Frame:
         """Frame ``index`` (0 <= index < len)."""
+
+    @property
+    def class_names(self) -> tuple[str, ...]:
+        own = getattr(self, "_class_names", ())
+        if own:
+            return own
+        return tuple(str(n) for n in (self.meta.get("class_names") or ()))
+
+    @class_names.setter
+    def class_names(self, names) -> None:
+        self._class_names = tuple(str(n) for n in (names or ()))
+
+    @property
+    def num_classes(self) -> int | None:
+        own = getattr(self, "_num_classes", None) or self.meta.get("num_classes")
+        if own:
+            return int(own)
+        return len(self.class_names) or None
+
+    @num_classes.setter
+    def num_classes(self, count: int | None) -> None:
+        self._num_classes = int(count) if count else None
 
     @property
     def has_poses(self) -> bool:
