@@ -372,7 +372,6 @@ class Sequence(abc.ABC):
         num_classes: the size of that label set where known, else None.
     """
 
-
     def __init__(self, name: str, intrinsics: Intrinsics | None, meta: dict | None = None
                  ) -> None:
         if intrinsics is not None and not isinstance(intrinsics, Intrinsics):

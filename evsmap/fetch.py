@@ -17,8 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from evsmap import download as _download
-from evsmap.download import (  # noqa: F401  (re-exported: the command line reads them here)
-    CACHE_ENV,
+from evsmap.download import (
     MANIFEST,
     MANIFEST_FORMAT,
     MIRROR_ENV,

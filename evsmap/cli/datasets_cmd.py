@@ -88,7 +88,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lst.add_argument("--json", action="store_true", help="print the list as JSON")
     lst.set_defaults(run=run_list)
 
-    from evsmap.fetch import CACHE_ENV, CONFIRM_BYTES, MIRROR_ENV, RETRIES, format_size
+    from evsmap.download import CACHE_ENV, MIRROR_ENV, RETRIES, format_size
+    from evsmap.fetch import CONFIRM_BYTES
     from evsmap.samples import SAMPLES
 
     fetch = dsub.add_parser(

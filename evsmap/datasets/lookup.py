@@ -87,9 +87,7 @@ def open_dataset(text: str, *, reader: str | None = None, split: str | None = No
 def dataset_classes(sequence: Sequence) -> tuple[int | None, tuple[str, ...]]:
     """The dataset's class count and names (:attr:`Sequence.num_classes`,
     :attr:`Sequence.class_names`); ``(None, ())`` when the reader does not say."""
-    names = tuple(sequence.class_names)
-    count = sequence.num_classes or (len(names) or None)
-    return (int(count) if count else None), names
+    return sequence.num_classes, tuple(sequence.class_names)
 
 
 __all__ = ["DEFAULT_SPLIT", "dataset_classes", "find_dataset", "open_dataset", "reader_name"]

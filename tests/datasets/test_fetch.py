@@ -137,7 +137,7 @@ class FileServer:
 def server(request, monkeypatch):
     srv = FileServer()
     request.addfinalizer(srv.close)
-    monkeypatch.setenv(fetch.MIRROR_ENV, srv.url + "/mirror")
+    monkeypatch.setenv(download.MIRROR_ENV, srv.url + "/mirror")
     monkeypatch.setattr(download, "RETRY_DELAY", 0.0)
     monkeypatch.setattr(download, "TIMEOUT", 10.0)
     return srv
@@ -321,7 +321,7 @@ def test_404_writes_nothing(capsys, tmp_path, server, bag):
 def test_connection_refused_is_one_line(capsys, tmp_path, bag, monkeypatch):
     with ThreadingHTTPServer(("127.0.0.1", 0), BaseHTTPRequestHandler) as closed:
         port = closed.server_address[1]  # bound, then closed: nothing listens there
-    monkeypatch.setenv(fetch.MIRROR_ENV, f"http://127.0.0.1:{port}")
+    monkeypatch.setenv(download.MIRROR_ENV, f"http://127.0.0.1:{port}")
     code, out, err = fetch_cli(capsys, tmp_path, "lidar-odometry-bag")
     assert code == 2 and err.count("\n") == 1
     assert err.startswith(f"evsmap datasets: error: http://127.0.0.1:{port}/test.bag: cannot "
@@ -409,7 +409,7 @@ def test_fetch_tum(capsys, tmp_path, server, tum):
 
 def test_size_prompt_needs_yes(capsys, tmp_path, server, tum, monkeypatch):
     monkeypatch.setattr(fetch, "CONFIRM_BYTES", 1000)
-    size = fetch.format_size(len(tum[0]))
+    size = download.format_size(len(tum[0]))
     code, out, err = fetch_cli(capsys, tmp_path, "tum-fr1-xyz")
     assert code == 2 and out == ""
     assert err == (f"evsmap datasets: error: {server.url}/mirror/rgbd_dataset_freiburg1_xyz.tgz: "
@@ -425,7 +425,7 @@ def test_size_prompt_needs_yes(capsys, tmp_path, server, tum, monkeypatch):
     assert code == 2 and err.endswith("a large download of unknown size; pass --yes to go on\n")
     # an interactive "n" stops too, a "y" goes on
     answers = iter([False, True])
-    with pytest.raises(fetch.FetchError, match="not downloaded"):
+    with pytest.raises(download.FetchError, match="not downloaded"):
         fetch.fetch_sample("tum-fr1-xyz", tmp_path / "root", cache_dir=tmp_path / "cache",
                            confirm=lambda message: next(answers))
     fetch.fetch_sample("tum-fr1-xyz", tmp_path / "root", cache_dir=tmp_path / "cache",
