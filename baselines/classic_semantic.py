@@ -5,9 +5,9 @@ Table IV).
 Each leaf holds OctoMap occupancy, the averaged RGB colour of its points and semantics:
 
 * Bayesian variant: the top-3 (class, confidence) fused with semantic_slam's Bayesian rule
-  (:func:`evsmap.mapping.fusion.fuse_bayes`: ALPHA 0.8, EPSILON 0.001).
+  (:func:`baselines.semantic_slam_fusion.fuse_bayes`: ALPHA 0.8, EPSILON 0.001).
 * Max variant: one (class, confidence) fused with its max rule
-  (:func:`evsmap.mapping.fusion.fuse_max`).
+  (:func:`baselines.semantic_slam_fusion.fuse_max`).
 
 semantic_slam first filters a frame with a voxel grid at the map resolution, so each voxel gets
 one observation per frame; here that observation is the mean of the top-k distributions of the
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from baselines import semantic_slam_fusion
 from evsmap.data import Frame, SemanticObservation
 from evsmap.mapping import fusion
 from evsmap.mapping.occupancy import ScanUpdate
@@ -83,9 +84,9 @@ class ClassicSemanticMap(OctreeUpdater):
         old_c = m.payload("sem_classes")[voxels]
         old_p = m.payload("sem_conf")[voxels]
         if self.fusion_rule == "bayes":
-            new_c, new_p = fusion.fuse_bayes(old_c, old_p, obs_c, obs_p)
+            new_c, new_p = semantic_slam_fusion.fuse_bayes(old_c, old_p, obs_c, obs_p)
         else:
-            c, p = fusion.fuse_max(old_c[:, 0], old_p[:, 0], obs_c[:, 0], obs_p[:, 0])
+            c, p = semantic_slam_fusion.fuse_max(old_c[:, 0], old_p[:, 0], obs_c[:, 0], obs_p[:, 0])
             new_c, new_p = np.asarray(c)[:, None], np.asarray(p)[:, None]
         m.payload("sem_classes")[voxels] = new_c
         m.payload("sem_conf")[voxels] = new_p

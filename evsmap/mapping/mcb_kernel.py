@@ -1,13 +1,13 @@
 """Compiled (numba) frame update of the ``multiclass-bayes`` payloads.
 
 One pass per voxel instead of numpy's whole-array passes, doing exactly what the numpy path in
-:mod:`evsmap.updaters.multiclass_bayes` does with :func:`evsmap.mapping.fusion.mcb_miss`,
+:mod:`evsmap.updaters.multiclass_bayes` does with :func:`evsmap.mapping.fusion.mcb.mcb_miss`,
 :func:`~evsmap.mapping.fusion.build_local`, :func:`~evsmap.mapping.fusion.mcb_observe` (the
 default eq. 7 leaf update) or :func:`~evsmap.mapping.fusion.merge_algorithm1` (the ``average``
 variant) and :func:`~evsmap.mapping.fusion.mcb_occupancy`, operation for operation in the same
 float32/float64 types and order (sums in the same order, stable top-3 selection, numpy's
 ``logaddexp``), so both store the same float32 values; the tests compare them frame by frame.
-Only the dense local-map case is compiled (voxels x classes up to ``fusion._DENSE_LIMIT``);
+Only the dense local-map case is compiled (voxels x classes up to ``fusion.DENSE_LIMIT``);
 the caller falls back to numpy beyond it.
 """
 

@@ -115,7 +115,7 @@ class MultiClassBayesMap(OctreeUpdater):
         if USE_KERNEL and frame_update is not None:
             pixels, voxels, local_index = self.endpoint_voxels(points)
             span = int(observation.classes.max()) + 1 if observation.classes.size else 0
-            if 0 < span and len(voxels) * span <= fusion._DENSE_LIMIT:
+            if 0 < span and len(voxels) * span <= fusion.DENSE_LIMIT:
                 k = observation.k
                 m = self.map
                 frame_update(

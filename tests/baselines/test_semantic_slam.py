@@ -52,8 +52,8 @@ def test_bayes_fusion_ties_go_to_the_later_candidate():
     c, f = _fuse("bayes", [1, 2, 3], [0.2, 0.2, 0.2], [4, 5, 6], [0.2, 0.2, 0.2])
     assert c == [4, 1, 5]
     assert f[0] == f[1] > f[2]
-    # the classwise variant (fusion.fuse_bayes) keeps the earlier instead
-    from evsmap.mapping.fusion import fuse_bayes
+    # the classwise variant (semantic_slam_fusion.fuse_bayes) keeps the earlier instead
+    from baselines.semantic_slam_fusion import fuse_bayes
 
     cls, _ = fuse_bayes(np.array([[1, 2, 3]]), np.array([[.2, .2, .2]]),
                         np.array([[4, 5, 6]]), np.array([[.2, .2, .2]]))
