@@ -70,7 +70,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "torch, speed cells above 1024x512 skipped")
     p.add_argument("--workers", type=positive_int, default=2, metavar="N",
                    help="processes for the cells that are not timed (default 2); timed cells "
-                        "always run alone, each in a fresh process")
+                        "always run alone, each in a fresh process (with --executor ray: not "
+                        "used, each cell reserves the CPUs it uses)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where the cells run: local (default: process pools on this machine) "
+                        "or ray (a Ray cluster, pip install \"evsmap[ray]\"): cells that are "
+                        "not timed run as tasks on any node, each timed cell alone on a whole "
+                        "node (docs/runner.md)")
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="with --executor ray: the cluster to join (HOST:6379, or auto); "
+                        "default: start a local Ray cluster with this machine's CPUs")
     p.add_argument("--strict-timing", action="store_true",
                    help="refuse to time on a busy machine: stop at once when the load average "
                         "exceeds the cores, and record a speed cell whose calibration shows "
@@ -101,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from evsmap.report.build import build_report
     from evsmap.runner.context import RunContext
     from evsmap.runner.execute import environment
-    from evsmap.runner.matrix import plan, run_matrix, write_run_file
+    from evsmap.runner.matrix import make_executor, plan, run_matrix, write_run_file
 
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("reports") / stamp
@@ -141,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
         args.weights_dir.mkdir(parents=True, exist_ok=True)
     if args.weights_dir is not None and not args.weights_dir.is_dir():
         raise EvsmapError(f"--weights-dir {args.weights_dir}: no such folder")
+    # checked before anything is written: an unknown or missing executor is a usage error
+    executor = make_executor(args.executor, address=args.address)
     if args.data_root is not None and not args.data_root.is_dir():
         raise EvsmapError(f"--data-root {args.data_root}: no such folder")
     if args.strict_timing:
@@ -178,8 +189,13 @@ def run(args: argparse.Namespace) -> int:
         counts[record.status] += 1
         next(bar, None)
 
-    records = run_matrix(ctx, the_plan, workers=args.workers, resume=args.resume,
-                         force=args.force, on_record=tick)
+    with executor:
+        if args.executor != "local":
+            executor.prepare(ctx)
+            print(executor.summary())
+        records = run_matrix(ctx, the_plan, workers=args.workers, resume=args.resume,
+                             force=args.force, on_record=tick, executor=executor)
+        fields["executor"] = executor.describe()
     if args.train:
         from evsmap.runner.proxy import PROXY_MODELS, PROXY_RECIPE, run_proxy
 

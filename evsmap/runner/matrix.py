@@ -7,10 +7,15 @@ Order and isolation:
 2. Complexity and accuracy cells run in a process pool (``workers``); cells with the same
    configuration (``CellSpec.config_key``: e.g. FEAGNet-V2's parameters in Tables I and III) are
    measured once and recorded under each key.
-3. Timing cells (speed, and the mapping runs behind Table IV) then run one at a time, each in a
-   fresh interpreter (``spawn``, one task per process), so no cell inherits another's warm
-   caches, threads or memory, and nothing else of the run competes for the cores.
+3. Timing cells (speed, and the mapping runs behind Table IV) then run one at a time per timing
+   slot, each in a fresh interpreter (``spawn``, one task per process), so no cell inherits
+   another's warm caches, threads or memory, and nothing else of the run competes for the cores.
 4. Table IV's cells are read from the mapping runs.
+
+Where the cells run is the executor's (:mod:`evsmap.runner.executors`): this machine by default
+(one timing slot), or a Ray cluster (:mod:`evsmap.runner.ray_executor`: one timing slot per
+timing node, each timed cell holding its whole node). The records are written here, by the
+driver, as the cells finish.
 
 With ``resume`` the records already ``ok`` are kept and everything else is run again; ``force``
 reruns everything.
@@ -19,13 +24,21 @@ reruns everything.
 from __future__ import annotations
 
 import multiprocessing
+import queue
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from concurrent.futures import (
+    Executor,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    as_completed,
+)
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from evsmap.errors import EvsmapError
 from evsmap.fileio import atomic_write_text
 from evsmap.runner.context import RunContext
 from evsmap.runner.execute import (
@@ -36,6 +49,13 @@ from evsmap.runner.execute import (
     mapping_runs,
     na_record,
     table4_record,
+)
+from evsmap.runner.executors import (
+    EXECUTORS,
+    CellExecutor,
+    LocalExecutor,
+    TimingSlot,
+    fresh_process,
 )
 from evsmap.runner.records import CellRecord, RecordStore, needs_text
 from evsmap.tables.schema import CellSpec, expand, load_tables
@@ -98,10 +118,28 @@ def _mapping_worker(run: MappingRun, ctx_data: dict[str, Any]) -> dict[str, Any]
     return execute_mapping(run, RunContext(**ctx_data)).as_dict()
 
 
-def _fresh_executor() -> Executor:
-    """One task per fresh interpreter, one at a time."""
-    return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                               max_tasks_per_child=1)
+_fresh_executor = fresh_process
+"""One task per fresh interpreter, one at a time (a module name, so tests can replace it)."""
+
+
+def _spawn_pool(workers: int) -> Executor:
+    """The local pool (this module's ``ProcessPoolExecutor``, so tests can replace it)."""
+    return ProcessPoolExecutor(max_workers=max(1, workers),
+                               mp_context=multiprocessing.get_context("spawn"))
+
+
+def make_executor(name: str, *, address: str | None = None) -> CellExecutor:
+    """The executor called ``name`` (:data:`evsmap.runner.executors.EXECUTORS`); ``address``
+    is the Ray cluster to join (Ray only). Ray is imported only here, when it is chosen."""
+    if name not in EXECUTORS:
+        raise EvsmapError(f"unknown executor {name!r} (choose from {', '.join(EXECUTORS)})")
+    if name == "local":
+        if address is not None:
+            raise EvsmapError("--address only applies with --executor ray")
+        return LocalExecutor(pool=lambda n: _spawn_pool(n), fresh=lambda: _fresh_executor())
+    from evsmap.runner.ray_executor import RayExecutor
+
+    return RayExecutor(address=address)
 
 
 def _severity(record: CellRecord) -> float | None:
@@ -155,18 +193,61 @@ def _unlabelled(ctx: RunContext, sequence: str, cache: dict[str, bool]) -> bool:
     return cache[sequence]
 
 
+def _run_timed(items: list, run_one: Callable[[Any, TimingSlot], CellRecord],
+               slots: list[TimingSlot], keep: Callable[[CellRecord], None]) -> None:
+    """``run_one(item, slot)`` for every item, one at a time per slot; each record kept (by
+    this thread) as it finishes. One slot: in order, in this thread."""
+    if not items:
+        return
+    if len(slots) == 1:
+        for item in items:
+            keep(run_one(item, slots[0]))
+        return
+    free: queue.Queue[TimingSlot] = queue.Queue()
+    for slot in slots:
+        free.put(slot)
+
+    def task(item: Any) -> CellRecord:
+        slot = free.get()
+        try:
+            return run_one(item, slot)
+        finally:
+            free.put(slot)
+
+    with ThreadPoolExecutor(max_workers=len(slots)) as threads:
+        for fut in as_completed([threads.submit(task, item) for item in items]):
+            keep(fut.result())
+
+
+def _slot_context(ctx: RunContext, slot: TimingSlot) -> RunContext:
+    """The context of a timed cell in ``slot``: it uses all the slot's CPUs as threads."""
+    if slot.cpus is None or slot.cpus == ctx.threads:
+        return ctx
+    return replace(ctx, threads=slot.cpus)
+
+
+def _placed(record: CellRecord, executor: CellExecutor) -> CellRecord:
+    record.environment.setdefault("executor", executor.placement())
+    return record
+
+
 def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: bool = False,
                force: bool = False,
                on_record: Callable[[CellRecord], None] | None = None,
                pool: Callable[[int], Executor] | None = None,
-               fresh: Callable[[], Executor] | None = None) -> list[CellRecord]:
+               fresh: Callable[[], Executor] | None = None,
+               executor: CellExecutor | None = None) -> list[CellRecord]:
     """Run every cell of ``the_plan`` not already done; returns all records of the plan.
 
-    ``pool(workers)`` and ``fresh()`` make the executors of the pooled and the timing cells
-    (default: spawned process pools; tests pass in-process ones)."""
-    pool = pool or (lambda n: ProcessPoolExecutor(
-        max_workers=max(1, n), mp_context=multiprocessing.get_context("spawn")))
-    fresh = fresh or _fresh_executor
+    ``executor`` runs the cells (an entered :class:`~evsmap.runner.executors.CellExecutor`;
+    default: :class:`~evsmap.runner.executors.LocalExecutor` on this machine, whose pools
+    ``pool(workers)`` and ``fresh()`` make: spawned process pools unless given; tests pass
+    in-process ones). ``resume`` and ``force`` are decided here, before anything is scheduled,
+    whichever the executor."""
+    if executor is None:
+        executor = LocalExecutor(pool=pool or _spawn_pool, fresh=fresh or _fresh_executor)
+    elif pool is not None or fresh is not None:
+        raise ValueError("give pool/fresh or an executor, not both")
     store = RecordStore(ctx.out)
     done: dict[str, CellRecord] = {}
     if resume and not force:
@@ -200,23 +281,35 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
     by_config: dict[str, list[CellSpec]] = {}
     for spec in pooled:
         by_config.setdefault(spec.config_key, []).append(spec)
+    runs_left = any(r.key not in done for r in the_plan.runs)
+    if by_config or timed or runs_left:
+        executor.prepare(ctx)
     if by_config:
-        with pool(workers) as ex:
+        with executor.pool(workers, ctx.threads) as ex:
             futures: dict[Future, list[CellSpec]] = {
                 ex.submit(_spec_worker, group[0].table, group[0].key, ctx.as_dict()): group
                 for group in by_config.values()}
             for fut in as_completed(futures):
                 group = futures[fut]
-                first = CellRecord.from_dict(fut.result())
+                first = _placed(CellRecord.from_dict(fut.result()), executor)
                 for spec in group:
                     keep(_copy_for(first, spec))
 
-    # 3. timing cells, each in a fresh process, one at a time
-    for spec in timed:
-        with fresh() as ex:
-            keep(CellRecord.from_dict(
-                ex.submit(_spec_worker, spec.table, spec.key, ctx.as_dict()).result()))
+    # 3. timing cells, each in a fresh process, one at a time per timing slot
+    def time_spec(spec: CellSpec, slot: TimingSlot) -> CellRecord:
+        with executor.fresh(slot) as ex:
+            data = _slot_context(ctx, slot).as_dict()
+            return _placed(CellRecord.from_dict(
+                ex.submit(_spec_worker, spec.table, spec.key, data).result()), executor)
+
+    def time_run(run: MappingRun, slot: TimingSlot) -> CellRecord:
+        return _placed(_timed_mapping(run, _slot_context(ctx, slot),
+                                      lambda: executor.fresh(slot)), executor)
+
+    slots = executor.timing_slots() if timed or runs_left else []
+    _run_timed(timed, time_spec, slots, keep)
     labels_cache: dict[str, bool] = {}
+    to_map: list[MappingRun] = []
     for run in the_plan.runs:
         if run.key in done:
             continue
@@ -234,7 +327,8 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
             rec.environment = env = env or environment(ctx.threads)
             keep(rec)
             continue
-        keep(_timed_mapping(run, ctx, fresh))
+        to_map.append(run)
+    _run_timed(to_map, time_run, slots, keep)
 
     # 4. Table IV from the mapping runs
     runs = {r.key: done[r.key] for r in the_plan.runs if r.key in done}

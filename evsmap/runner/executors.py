@@ -1,0 +1,131 @@
+"""Where the matrix's cells run: the interface the scheduler (:mod:`evsmap.runner.matrix`) uses,
+and :class:`LocalExecutor`, the default, which runs them in process pools on this machine.
+
+An executor gives the scheduler two kinds of workers:
+
+* a *pool* for the cells that are not timed (complexity, accuracy), run side by side;
+* *timing slots*: places where one timed cell (speed, the mapping runs) runs at a time, alone,
+  each in a fresh interpreter. This machine is one slot; a Ray cluster
+  (:mod:`evsmap.runner.ray_executor`) has one per node that times.
+
+Both are handed out as :class:`concurrent.futures.Executor` objects, so the scheduler submits a
+cell and reads its record (a plain dict) from a future, whichever executor runs it.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Callable
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from evsmap.runner.context import RunContext
+
+EXECUTORS = ("local", "ray")
+"""The executors ``evsmap reproduce --executor`` takes."""
+
+
+@dataclass(frozen=True)
+class TimingSlot:
+    """A place where timed cells run, one at a time.
+
+    Attributes:
+        name: what the run's messages call it (``this machine``, a node's host name).
+        cpus: the threads a timed cell uses there (all the node's CPUs); None keeps the run's
+            own ``threads``.
+        node_id: the Ray node, None on this machine.
+    """
+
+    name: str
+    cpus: int | None = None
+    node_id: str | None = None
+
+
+def spawn_pool(workers: int) -> Executor:
+    """``workers`` spawned processes, each running any number of cells."""
+    return ProcessPoolExecutor(max_workers=max(1, workers),
+                               mp_context=multiprocessing.get_context("spawn"))
+
+
+def fresh_process() -> Executor:
+    """One task per fresh (spawned) interpreter, one at a time."""
+    return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                               max_tasks_per_child=1)
+
+
+class CellExecutor:
+    """What runs the cells of one ``reproduce`` run; entered once around the run
+    (``with executor: ...``), which starts and stops whatever it needs."""
+
+    name = "executor"
+
+    def __enter__(self) -> CellExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release what :meth:`__enter__` or :meth:`prepare` started."""
+
+    def prepare(self, ctx: RunContext) -> None:
+        """Check that the cells of ``ctx``'s run can run here (before any is scheduled)."""
+
+    def pool(self, workers: int, threads: int) -> Executor:
+        """An executor for the cells that are not timed; ``workers`` is the ``--workers``
+        setting, ``threads`` the threads a cell uses."""
+        raise NotImplementedError
+
+    def timing_slots(self) -> list[TimingSlot]:
+        """Where timed cells run; as many run at once as there are slots, one per slot."""
+        raise NotImplementedError
+
+    def fresh(self, slot: TimingSlot) -> Executor:
+        """An executor that runs each task submitted to it alone in ``slot``, in a fresh
+        interpreter."""
+        raise NotImplementedError
+
+    def placement(self) -> dict[str, Any]:
+        """Said in a record's ``environment["executor"]`` when the cell's own worker did not
+        say more."""
+        return {"name": self.name}
+
+    def describe(self) -> dict[str, Any]:
+        """The executor and its workers, for ``run.json``."""
+        return {"name": self.name}
+
+    def summary(self) -> str:
+        """One line for the run's output: where the cells run."""
+        return f"{self.name} executor"
+
+
+class LocalExecutor(CellExecutor):
+    """This machine: the pooled cells in ``workers`` spawned processes, the timed cells one at
+    a time, each in a fresh spawned interpreter, after the pool has finished (so nothing of the
+    run shares the cores with them).
+
+    Args:
+        pool: makes the pool from ``workers`` (default: :func:`spawn_pool`).
+        fresh: makes the executor of one timed cell (default: :func:`fresh_process`).
+    """
+
+    name = "local"
+
+    def __init__(self, *, pool: Callable[[int], Executor] | None = None,
+                 fresh: Callable[[], Executor] | None = None) -> None:
+        self._pool = pool or spawn_pool
+        self._fresh = fresh or fresh_process
+
+    def pool(self, workers: int, threads: int) -> Executor:
+        return self._pool(workers)
+
+    def timing_slots(self) -> list[TimingSlot]:
+        return [TimingSlot(name="this machine")]
+
+    def fresh(self, slot: TimingSlot) -> Executor:
+        return self._fresh()
+
+    def summary(self) -> str:
+        return "local: the cells that are not timed in a process pool, timed cells one at a time"
