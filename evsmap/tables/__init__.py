@@ -9,6 +9,7 @@ from evsmap.tables.schema import (
     Component,
     PaperTable,
     PaperTables,
+    SegmenterRef,
     System,
     TableSchemaError,
     expand,
@@ -19,5 +20,5 @@ from evsmap.tables.schema import (
 )
 
 __all__ = ["QUANTITIES", "Cell", "CellSpec", "Column", "Component", "PaperTable", "PaperTables",
-           "System", "TableSchemaError", "expand", "expand_all", "load_file", "load_tables",
-           "parse_tables"]
+           "SegmenterRef", "System", "TableSchemaError", "expand", "expand_all", "load_file",
+           "load_tables", "parse_tables"]

@@ -195,8 +195,12 @@ def test_systems_match_the_registry(tables):
                     continue
                 params = registry.get(comp.name).parameters()
                 assert set(comp.config) <= set(params), (t.id, s.id)
-                for _, extra in s.dataset_options:
-                    assert set(dict(extra)) <= set(params), (t.id, s.id)
+            if s.segmenter is not None:
+                params = SEGMENTERS.get(s.segmenter.name).parameters()
+                for dataset in ("nyuv2", "sunrgbd", "cityscapes"):
+                    resolved = s.segmenter_for(dataset)
+                    assert resolved.name == s.segmenter.name, (t.id, s.id, dataset)
+                    assert set(resolved.config) <= set(params), (t.id, s.id, dataset)
 
 
 def test_table3_flags_match_the_ablation_switches(tables):

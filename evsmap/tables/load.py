@@ -1,0 +1,102 @@
+"""Reading ``paper_tables.toml``: TOML -> validated models -> the tables' records.
+
+:func:`load_tables` / :func:`load_file` read the file (by default the package's own,
+:func:`default_path`); :func:`parse_tables` takes already-parsed data. Everything is checked by
+:mod:`evsmap.tables.models` (a failure is a :class:`TableSchemaError` of one line naming the
+file, the table, row and column); this module builds the records of
+:mod:`evsmap.tables.records` from the checked models. Model cards are only named here;
+:mod:`evsmap.tables.plan` resolves them (loading stays cheap: it runs in every worker).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Mapping
+from importlib import resources
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+from evsmap.tables.cells import make_cell
+from evsmap.tables.models import RowModel, TableModel, validate
+from evsmap.tables.records import (
+    TABLES_FILE,
+    Cell,
+    Column,
+    Component,
+    PaperTable,
+    PaperTables,
+    SegmenterRef,
+    System,
+    TableSchemaError,
+)
+
+
+def default_path() -> Path:
+    """The package's ``paper_tables.toml``."""
+    return Path(str(resources.files("evsmap.tables").joinpath(TABLES_FILE)))
+
+
+def load_tables(path: str | PathLike[str] | None = None) -> dict[str, PaperTable]:
+    """The tables of ``paper_tables.toml`` (or ``path``) by id (``table1`` .. ``table4``).
+
+    Raises:
+        TableSchemaError: the file breaks the schema; the message names table, row and column.
+    """
+    return dict(load_file(path).tables)
+
+
+def load_file(path: str | PathLike[str] | None = None) -> PaperTables:
+    """:func:`load_tables` with the ``[hardware]`` and ``[datasets]`` sections."""
+    where = Path(path) if path is not None else default_path()
+    try:
+        with open(where, "rb") as f:
+            data = tomllib.load(f)
+    except OSError as exc:
+        raise TableSchemaError(f"{where}: cannot read ({exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise TableSchemaError(f"{where}: not valid TOML ({exc})") from None
+    return parse_tables(data, source=str(where))
+
+
+def parse_tables(data: Mapping[str, Any], *, source: str = "paper tables") -> PaperTables:
+    """Validate already-parsed TOML data (see :func:`load_tables`).
+
+    Raises:
+        TableSchemaError: ``source: place: what is wrong`` (one line).
+    """
+    model = validate(data, source=source)
+    return PaperTables(
+        tables={tid: _table(tid, t) for tid, t in model.tables.items()},
+        hardware={k: v.model_dump(exclude_unset=True) for k, v in model.hardware.items()},
+        datasets={k: v.model_dump(exclude_unset=True) for k, v in model.datasets.items()},
+        source=model.source)
+
+
+def _table(tid: str, raw: TableModel) -> PaperTable:
+    columns = [c.record() for c in raw.columns]
+    rows, cells = [], {}
+    for r in raw.rows:
+        system, row_cells = _row(tid, r, columns)
+        rows.append(system)
+        cells.update(row_cells)
+    return PaperTable(id=tid, number=raw.number, title=raw.title, caption=raw.caption,
+                      columns=tuple(columns), rows=tuple(rows), cells=cells,
+                      footnotes=dict(raw.footnotes), note=raw.note)
+
+
+def _row(tid: str, raw: RowModel,
+         columns: list[Column]) -> tuple[System, dict[tuple[str, str], Cell]]:
+    seg, upd = raw.segmenter, raw.updater
+    network = None if seg is None else SegmenterRef(card=seg.card, name=seg.name,
+                                                     options=tuple(sorted(seg.options.items())))
+    updater = None if upd is None else Component(upd.name, tuple(sorted(upd.options.items())))
+    system = System(id=raw.id, label=raw.label, implemented=raw.implemented, network=network,
+                    updater=updater, inputs=raw.inputs, year=raw.year, ablation=raw.ablation,
+                    note=raw.note)
+    cells = {}
+    for col in columns:
+        cell = raw.cells[col.id]
+        cells[(raw.id, col.id)] = make_cell(tid, raw.id, col, cell.printed, bold=cell.bold,
+                                            hardware=cell.hardware, note=cell.note)
+    return system, cells
