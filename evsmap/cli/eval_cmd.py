@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -57,9 +56,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from evsmap.classes import class_names_for
-    from evsmap.metrics import ConfusionMatrix
+    from evsmap.measure.engine import run_segmentation
+    from evsmap.measure.evaluators import ConfusionEvaluator
     from evsmap.progress import progress
-    from evsmap.readers.skipping import SkippedFrames, read_frames
     from evsmap.registry import SEGMENTERS
 
     config: dict[str, Any] = dict(args.option)
@@ -91,27 +90,20 @@ def run(args: argparse.Namespace) -> int:
     if total == 0:
         raise EvsmapError(f"{sequence.name!r} ({source['reader']}, split "
                           f"{source['split']}) has no frames")
-    matrix = ConfusionMatrix(n_seg)
-    skipped = SkippedFrames()
-    seconds = 0.0
-    frames = 0
-    frames_iter = read_frames(sequence, range(total), skip_bad=args.skip_bad, skipped=skipped)
-    for _, frame in progress(frames_iter, total=total, desc=f"evaluating {args.model}"):
-        if frame.labels is None:
-            raise EvsmapError(f"frame {frame.name!r} of {sequence.name!r} has no ground-truth "
-                              f"labels: eval needs a labelled dataset")
-        t0 = time.perf_counter()
-        prediction = segmenter.predict(frame).argmax
-        seconds += time.perf_counter() - t0
-        matrix.update(prediction, frame.labels)
-        frames += 1
-    result = matrix.result(class_names=names)
+    scored = run_segmentation(
+        sequence, segmenter, frames=total, skip_bad=args.skip_bad,
+        progress=lambda it: progress(it, total=total, desc=f"evaluating {args.model}"),
+        evaluators=[ConfusionEvaluator(num_classes=n_seg, class_names=names,
+                                       source=sequence.name)])
+    result = scored.results["confusion"]
+    frames = scored.frames
+    seconds = sum(scored.predict_ms) / 1000.0
     record = {
         "model": args.model, "options": {k: v for k, v in config.items() if k != "weights"},
         "weights": weights, "random_weights": random_weights,
         "backend": segmenter.backend,
         "dataset": sequence.name, "reader": source["reader"], "split": source["split"],
-        "frames": frames, "skipped": skipped.as_dict() if args.skip_bad else None,
+        "frames": frames, "skipped": scored.skipped.as_dict() if args.skip_bad else None,
         "seconds_per_frame": seconds / frames if frames else None,
         **result.as_dict(),
     }

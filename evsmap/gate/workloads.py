@@ -217,6 +217,9 @@ class Integrate(Job):
         seq = tum_sequence(context["tum"])
         self.frames = [seq[i] for i in UPDATE_FRAMES]
         self.observations = load_observations(context["observations"])
+        from evsmap.measure.engine import in_memory
+
+        self.sequence = in_memory(self.frames, "tum-fr1-xyz (gate frames)")
         self.name = name
         self.resolution = resolution
         self.updater = None
@@ -229,14 +232,16 @@ class Integrate(Job):
         updater.integrate(self.frames[0], self.observations[0] if semantic else None)
 
     def run(self) -> None:
+        from evsmap.measure.engine import run_mapping
         from evsmap.registry import UPDATERS
 
         self.updater = None  # the last map goes before the next is made
-        updater = UPDATERS.create(self.name, resolution=self.resolution, max_range=MAX_RANGE)
-        semantic = updater.uses_semantics
-        for frame, obs in zip(self.frames, self.observations, strict=True):
-            updater.integrate(frame, obs if semantic else None)
-        self.updater = updater
+        # the measurement engine's loop, without its memory scope (the gate measures the
+        # process's peak itself)
+        self.updater = run_mapping(
+            self.sequence,
+            lambda: UPDATERS.create(self.name, resolution=self.resolution, max_range=MAX_RANGE),
+            observations=self.observations, measure_memory=False).updater
 
     def counts(self) -> dict[str, Any]:
         from evsmap.measure.mapping import write_map

@@ -3,21 +3,26 @@ rate, the end-to-end rate with segmentation, and the map's size."""
 
 from __future__ import annotations
 
-import tempfile
-import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from os import PathLike
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from evsmap.data import Sequence
-from evsmap.errors import EvsmapError, InvalidDataError
+from evsmap.errors import InvalidDataError
 from evsmap.interfaces import MapUpdater, Segmenter
-from evsmap.measure.memory import PeakMemory
-from evsmap.readers.skipping import SkippedFrames, read_frames
+from evsmap.measure.engine import rates, run_mapping
+from evsmap.measure.evaluators import (
+    FILE_FORMATS,
+    MapFiles,
+    MapStatistics,
+    pruned_share,
+    write_map,
+)
+
+__all__ = ["MappingRecord", "map_sequence", "map_sizes", "pruned_share", "write_map"]
 
 
 @dataclass(frozen=True)
@@ -88,36 +93,9 @@ class MappingRecord:
         return asdict(self)
 
 
-def write_map(updater: MapUpdater, path: str | PathLike[str], file_format: str = "full") -> int:
-    """``updater.write(path, file_format)``; a plug-in whose ``write`` takes no file format
-    writes one file, which is both its full and its published one."""
-    import inspect
-
-    if file_format not in ("full", "published"):
-        raise InvalidDataError(f"file format must be full or published, got {file_format!r}")
-    if file_format != "full" and "file_format" in inspect.signature(updater.write).parameters:
-        return int(updater.write(path, file_format=file_format))
-    return int(updater.write(path))
-
-
-def pruned_share(updater: MapUpdater) -> float | None:
-    """The share of the finest leaves merged into pruned nodes (octree updaters), else None."""
-    tree_of = getattr(updater, "tree", None)
-    leaves = getattr(getattr(updater, "map", None), "num_leaves", None)
-    if not callable(tree_of) or not leaves:
-        return None
-    from evsmap.mapping.keys import TREE_DEPTH
-
-    tree = tree_of()
-    finest = int(np.count_nonzero(tree.is_leaf & (tree.depth == TREE_DEPTH)))
-    return 1.0 - finest / int(leaves)
-
-
 def map_sizes(updater: MapUpdater) -> dict[str, int]:
     """The ``.ot`` size of the map in each file format, written to a temporary folder."""
-    with tempfile.TemporaryDirectory() as tmp:
-        return {fmt: write_map(updater, Path(tmp) / f"{fmt}.ot", fmt)
-                for fmt in ("full", "published")}
+    return dict(MapFiles().evaluate(updater).sizes)
 
 
 def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
@@ -125,79 +103,43 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
                  frames: int | None = None, out: str | PathLike[str] | None = None,
                  progress: Callable[[Any], Any] | None = None,
                  skip_bad: bool = False, file_format: str = "full") -> MappingRecord:
-    """Integrate the first ``frames`` frames of ``sequence`` (all by default) into ``updater``.
+    """Integrate the first ``frames`` frames of ``sequence`` (all by default) into ``updater``
+    (``evsmap map``; :func:`evsmap.measure.engine.run_mapping` times it).
 
-    Each frame is read (not timed), segmented when a segmenter is given (timed), then integrated
-    (timed). The map is written to ``out`` (or a temporary file) and its byte size recorded.
+    Each frame is read, segmented when a segmenter is given, then integrated; every stage is
+    timed. The map is written to ``out`` (or a temporary file) and its byte size recorded.
     With ``skip_bad`` a frame that cannot be read is left out and listed in
     ``extra["skipped"]``; otherwise its error stops the run.
     """
-    from evsmap.segmenters.oracle import OracleSegmenter
-
-    if not sequence.has_poses:
-        raise EvsmapError(f"{sequence.name}: {sequence.meta.get('layout', 'this dataset')} has no "
-                          f"camera poses (a segmentation dataset): nothing to map")
-    n = len(sequence) if frames is None else min(frames, len(sequence))
-    update_ms: list[float] = []
-    segment_ms: list[float] = []
-    stages: dict[str, list[float]] = {}
+    if file_format not in FILE_FORMATS:
+        raise InvalidDataError(f"file format must be full or published, got {file_format!r}")
+    run = run_mapping(sequence, updater, segmenter=segmenter, frames=frames, skip_bad=skip_bad,
+                      progress=progress,
+                      evaluators=[MapStatistics(), MapFiles(out=out, file_format=file_format)])
     extra: dict[str, Any] = {}
-    indices = range(n)
-    if progress is not None:
-        indices = progress(indices)
-    skipped = SkippedFrames()
-    if segmenter is not None and not updater.uses_semantics:
+    if run.segmenter_not_run is not None:
         extra["segmenter_not_run"] = (f"{segmenter_name or 'the segmenter'} was not run: "
                                       f"{updater_name} uses no semantics")
-        segmenter = segmenter_name = None
-    oracle = isinstance(segmenter, OracleSegmenter)
-    frames_read = iter(read_frames(sequence, indices, skip_bad=skip_bad, skipped=skipped))
-    with PeakMemory() as memory:
-        while True:
-            t0 = time.perf_counter()
-            try:
-                _, frame = next(frames_read)
-            except StopIteration:
-                break
-            stages.setdefault("read", []).append((time.perf_counter() - t0) * 1000.0)
-            observation = None
-            if segmenter is not None:
-                t0 = time.perf_counter()
-                observation = segmenter.predict(frame)
-                ms = (time.perf_counter() - t0) * 1000.0
-                if oracle:
-                    stages.setdefault("oracle", []).append(ms)
-                else:
-                    segment_ms.append(ms)
-                    for stage, value in segmenter.last_timings.items():
-                        stages.setdefault(stage, []).append(float(value))
-            t0 = time.perf_counter()
-            updater.integrate(frame, observation)
-            update_ms.append((time.perf_counter() - t0) * 1000.0)
-            stages.setdefault("update", []).append(update_ms[-1])
-        stats = updater.stats()  # the tree and the files are part of the run's memory
-        sizes = map_sizes(updater)
-        if out is not None:
-            path = Path(out)
-            map_bytes = write_map(updater, path, file_format)
-            map_file: str | None = str(path)
-        else:
-            map_bytes = sizes[file_format]
-            map_file = None
-    n = len(update_ms)
-    upd = np.asarray(update_ms)
-    total = upd + (np.asarray(segment_ms) if segment_ms else 0.0)
+        segmenter_name = None
+    if skip_bad:
+        extra["skipped"] = run.skipped.as_dict()
+    stats, files, memory = run.results["stats"], run.results["files"], run.memory
+    hz, hz_end_to_end = rates(run.update_ms, run.segment_ms)
     return MappingRecord(
-        updater=updater_name, segmenter=segmenter_name, sequence=sequence.name, frames=n,
-        resolution=float(updater.resolution),
-        update_ms=update_ms, segment_ms=segment_ms,
-        hz_median=float(1000.0 / np.median(upd)) if n else float("nan"),
-        hz_end_to_end=float(1000.0 / np.median(total)) if n else float("nan"),
-        map_bytes=int(map_bytes), map_file=map_file,
+        updater=updater_name, segmenter=segmenter_name, sequence=sequence.name,
+        frames=run.frames, resolution=float(updater.resolution),
+        update_ms=list(run.update_ms), segment_ms=list(run.segment_ms),
+        hz_median=hz, hz_end_to_end=hz_end_to_end,
+        map_bytes=int(files.written_bytes), map_file=files.file,
         octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,
         leaves=stats.leaves, file_format=file_format,
-        map_bytes_full=sizes["full"], map_bytes_published=sizes["published"],
-        stages_ms=stages, map_nbytes=updater.memory_nbytes(),
+        map_bytes_full=files.sizes["full"], map_bytes_published=files.sizes["published"],
+        stages_ms=_record_stages(run.times.stages), map_nbytes=stats.map_nbytes,
         peak_rss_bytes=memory.peak_rss_bytes, start_rss_bytes=memory.start_rss_bytes,
-        peak_scope="run" if memory.scope == "block" else "process",
-        extra={**extra, **({"skipped": skipped.as_dict()} if skip_bad else {})})
+        peak_scope="run" if memory.scope == "block" else "process", extra=extra)
+
+
+def _record_stages(stages: dict[str, list[float]]) -> dict[str, list[float]]:
+    """The engine's stages under the record's names (a network's ``predict`` is split into
+    its own ``preprocess`` / ``network`` / ``postprocess`` stages, so it is not repeated)."""
+    return {k: list(v) for k, v in stages.items() if k != "predict"}

@@ -224,7 +224,8 @@ def dataset_miou(component: Component, dataset: str, path: str | os.PathLike[str
     ``weights`` over ``dataset``'s ``split`` (:class:`~evsmap.metrics.ConfusionMatrix`'s
     result; its ``miou`` over the classes present in ground truth or prediction)."""
     from evsmap.datasets.lookup import dataset_classes
-    from evsmap.metrics import ConfusionMatrix
+    from evsmap.measure.engine import run_segmentation
+    from evsmap.measure.evaluators import ConfusionEvaluator
     from evsmap.registry import READERS
 
     segmenter = build_segmenter(component, input_size=input_size, backend=backend,
@@ -239,11 +240,10 @@ def dataset_miou(component: Component, dataset: str, path: str | os.PathLike[str
     if n_data is not None and n_data != segmenter.num_classes:
         raise EvsmapError(f"{component.spec} predicts {segmenter.num_classes} classes, "
                           f"{dataset} has {n_data}")
-    matrix = ConfusionMatrix(segmenter.num_classes)
-    for i in range(len(sequence)):
-        frame = sequence.frame(i)
-        matrix.update(segmenter.predict(frame).argmax, frame.labels)
-    return matrix.result(class_names=names), len(sequence)
+    scored = run_segmentation(sequence, segmenter, evaluators=[
+        ConfusionEvaluator(num_classes=segmenter.num_classes, class_names=names,
+                           source=sequence.name)])
+    return scored.results["confusion"], scored.frames
 
 
 def _quantities(spec: CellSpec) -> dict[str, str]:
@@ -445,39 +445,35 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
             return CellRecord(**base, status="na", needs=[need],
                               reason=needs_text([need]) + f" ({run.sequence} has no "
                               f"ground-truth labels for the oracle)", started=_now())
-    from evsmap.measure.mapping import map_sizes, pruned_share
-    from evsmap.measure.memory import PeakMemory
+    from evsmap.measure.engine import rates, run_mapping
+    from evsmap.measure.evaluators import MapFiles, MapStatistics, pruned_share
 
-    with PeakMemory() as memory:  # the map's own: from before the updater to its files
-        updater = UPDATERS.create(run.updater.name, resolution=run.voxel_size,
-                                  **run.updater.config)
-        update_ms = []
-        for k, i in enumerate(indices):
-            frame = sequence.frame(i)
-            obs = observations[k] if observations is not None else None
-            t0 = time.perf_counter()
-            updater.integrate(frame, obs)
-            update_ms.append((time.perf_counter() - t0) * 1000.0)
-        stats = updater.stats()
-        sizes = map_sizes(updater)  # Table IV's "Map Size": the file each system itself writes
+    # the map's own memory: from before the updater is made to its files (the observations
+    # were computed beforehand)
+    mapped = run_mapping(
+        sequence, lambda: UPDATERS.create(run.updater.name, resolution=run.voxel_size,
+                                          **run.updater.config),
+        observations=observations, indices=indices,
+        evaluators=[MapStatistics(), MapFiles()])
+    updater, memory = mapped.updater, mapped.memory
+    stats, sizes = mapped.results["stats"], mapped.results["files"].sizes
+    update_ms = list(mapped.update_ms)
     machine = contention(before, Probe.take(),
                          CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
                                         machine_path=machine_log_path()))
-    map_bytes = sizes["published"]
-    upd = np.asarray(update_ms)
-    total = upd + (np.asarray(segment_ms) if segment_ms else 0.0)
+    map_bytes = sizes["published"]  # Table IV's "Map Size": the file each system itself writes
+    update_hz, end_to_end_hz = rates(update_ms, segment_ms)
     values: dict[str, float] = {
-        "frames": float(n), "update_hz": float(1000.0 / np.median(upd)),
-        "end_to_end_hz": float(1000.0 / np.median(total)), "map_bytes": float(map_bytes),
+        "frames": float(n), "update_hz": update_hz,
+        "end_to_end_hz": end_to_end_hz, "map_bytes": float(map_bytes),
         "map_bytes_full": float(sizes["full"]), "nodes": float(stats.nodes),
         "leaves": float(stats.leaves),
         "peak_rss_bytes": float(memory.peak_rss_bytes),
         "rss_added_bytes": float(memory.added_bytes)}
     if stats.octomap_memory_bytes is not None:
         values["octomap_memory_bytes"] = float(stats.octomap_memory_bytes)
-    measured = updater.memory_nbytes()
-    if measured is not None:
-        values["map_nbytes"] = float(measured)
+    if stats.map_nbytes is not None:
+        values["map_nbytes"] = float(stats.map_nbytes)
     share = pruned_share(updater)
     if share is not None:
         values["pruned_share"] = float(share)
@@ -496,11 +492,11 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         details["timing_flag"] = flag
         notes.append(f"timing flagged - {flag}")
     if run.sequence == "synthetic" and updater.has_leaf_map:
-        from evsmap.metrics import evaluate_map
+        from evsmap.measure.evaluators import MapQualityEvaluator
         from evsmap.synth.sequence import SyntheticSequence
 
         truth = SyntheticSequence(**ctx.synthetic).ground_truth(run.voxel_size)
-        quality = evaluate_map(updater, truth)
+        quality = MapQualityEvaluator(truth).evaluate(updater)  # outside the memory scope
         q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
         details["quality"] = q
         for name in ("precision", "recall", "semantic_accuracy", "semantic_accuracy_all",

@@ -18,7 +18,6 @@ import json
 import os
 import shutil
 import tempfile
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,8 @@ from typing import Any
 import numpy as np
 
 from evsmap.data import SemanticObservation, Sequence
+from evsmap.measure.engine import run_segmentation
+from evsmap.measure.evaluators import KeepObservations
 
 
 def cache_key(**parts: Any) -> str:
@@ -65,17 +66,14 @@ class SegmentationCache:
             return obs, meta["predict_ms"], True
         self.root.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(dir=self.root, prefix=".tmp-obs-"))
-        obs, times = [], []
         try:
-            items = indices if progress is None else progress(indices)
-            for n, i in enumerate(items):
-                frame = sequence.frame(i)
-                t0 = time.perf_counter()
-                o = segmenter.predict(frame)
-                times.append((time.perf_counter() - t0) * 1000.0)
+            def store(n: int, o: SemanticObservation) -> None:
                 np.savez(tmp / f"{n:05d}.npz", classes=o.classes, probs=o.probs,
                          num_classes=o.num_classes)
-                obs.append(o)
+
+            seg = run_segmentation(sequence, segmenter, indices=indices, progress=progress,
+                                   evaluators=[KeepObservations(sink=store)])
+            obs, times = seg.results["observations"], seg.predict_ms
             (tmp / "meta.json").write_text(json.dumps(
                 {"key": key, "indices": indices, "predict_ms": times}, default=str))
         except BaseException:
@@ -94,14 +92,8 @@ class SegmentationCache:
         self.root.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(dir=self.root, prefix=".tmp-time-"))
         try:
-            frames = [sequence.frame(i) for i in indices]
-            for frame in frames[:warmup]:
-                segmenter.predict(frame)
-            times = []
-            for frame in frames:
-                t0 = time.perf_counter()
-                segmenter.predict(frame)
-                times.append((time.perf_counter() - t0) * 1000.0)
+            times = run_segmentation(sequence, segmenter, indices=indices,
+                                     warmup=warmup).predict_ms
             (tmp / "meta.json").write_text(json.dumps(
                 {"key": key, "indices": indices, "warmup": warmup, "predict_ms": times},
                 default=str))

@@ -1,0 +1,341 @@
+"""The measurement engine: the two timed loops every figure of evsmap comes from.
+
+:func:`run_segmentation` reads frames and runs a segmenter over them; :func:`run_mapping` reads
+frames, segments them (or takes observations computed beforehand) and integrates them into a
+map updater. Both time each stage of each frame with ``time.perf_counter`` and hand every frame
+to evaluator objects (:mod:`evsmap.measure.evaluators`, in the spirit of detectron2's
+``DatasetEvaluator`` and ``inference_on_dataset``): a confusion matrix, the observations kept for
+a cache, the map's files and statistics, its 3D quality. The command line (``evsmap eval``,
+``evsmap map``), the matrix runner (Tables I-IV), the segmentation cache, the regression gates
+and the benchmarks all call these two functions, so a rate in a report, a gate and a benchmark
+is timed the same way.
+
+What is timed, per frame, in milliseconds (``stages_ms``):
+
+``read``          the reader's ``Sequence.frame`` (decoding, undistortion, pose lookup)
+``predict``       the segmenter's ``predict`` (a network: also its ``last_timings`` stages
+                  ``preprocess`` / ``network`` / ``postprocess``; the oracle's time is its own
+                  stage, ``oracle``, and is not a segmentation time)
+``update``        the updater's ``integrate``
+
+Warm-up frames (``warmup``) run before the loop and are not recorded. Evaluators run outside
+the timed spans.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from evsmap.data import Frame, SemanticObservation, Sequence
+from evsmap.errors import EvsmapError, InvalidDataError
+from evsmap.interfaces import MapUpdater, Segmenter
+from evsmap.measure.evaluators import MapEvaluator, SegmentationEvaluator
+from evsmap.measure.memory import PeakMemory
+from evsmap.readers.skipping import SkippedFrames, read_frames
+
+ORACLE_STAGE = "oracle"
+"""The stage of a segmenter that reads ground truth (no network): kept apart from ``predict``
+so that an end-to-end rate never counts it as a network's time."""
+
+
+# ------------------------------------------------------------------------------------- timing
+@dataclass
+class StageTimes:
+    """Milliseconds per frame of each stage, in the order the stages first ran."""
+
+    stages: dict[str, list[float]] = field(default_factory=dict)
+
+    def add(self, stage: str, ms: float) -> None:
+        self.stages.setdefault(stage, []).append(float(ms))
+
+    def get(self, stage: str) -> list[float]:
+        return self.stages.get(stage, [])
+
+    def medians(self) -> dict[str, float]:
+        """Median ms per frame of every stage that ran."""
+        return {k: float(np.median(v)) for k, v in self.stages.items() if v}
+
+
+def _ms_since(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1000.0
+
+
+def timed_predict(segmenter: Segmenter, frame: Frame, times: StageTimes
+                  ) -> SemanticObservation:
+    """``segmenter.predict(frame)``, its time added to ``times`` (stage ``predict``, or
+    :data:`ORACLE_STAGE` for a segmenter that only reads ground truth) with the network's own
+    stages (``last_timings``)."""
+    t0 = time.perf_counter()
+    observation = segmenter.predict(frame)
+    ms = _ms_since(t0)
+    if is_oracle(segmenter):
+        times.add(ORACLE_STAGE, ms)
+    else:
+        times.add("predict", ms)
+        for stage, value in (segmenter.last_timings or {}).items():
+            times.add(stage, float(value))
+    return observation
+
+
+def timed_update(updater: MapUpdater, frame: Frame, observation: SemanticObservation | None,
+                 times: StageTimes) -> None:
+    """``updater.integrate(frame, observation)``, its time added to ``times`` (``update``)."""
+    t0 = time.perf_counter()
+    updater.integrate(frame, observation)
+    times.add("update", _ms_since(t0))
+
+
+def is_oracle(segmenter: Segmenter) -> bool:
+    """Whether ``segmenter`` reads the ground truth instead of running a network."""
+    from evsmap.segmenters.oracle import OracleSegmenter
+
+    return isinstance(segmenter, OracleSegmenter)
+
+
+def _indices(sequence: Sequence, indices: Iterable[int] | None, frames: int | None) -> list[int]:
+    if indices is not None:
+        return [int(i) for i in indices]
+    n = len(sequence) if frames is None else max(0, min(int(frames), len(sequence)))
+    return list(range(n))
+
+
+def _timed_frames(sequence: Sequence, indices: list[int], times: StageTimes, *,
+                  skip_bad: bool, skipped: SkippedFrames,
+                  progress: Callable[[Any], Any] | None):
+    """``(position, index, frame)`` for each frame read, the read timed (``read``)."""
+    order = indices if progress is None else progress(indices)
+    frames = iter(read_frames(sequence, order, skip_bad=skip_bad, skipped=skipped))
+    position = 0
+    while True:
+        t0 = time.perf_counter()
+        try:
+            index, frame = next(frames)
+        except StopIteration:
+            return
+        times.add("read", _ms_since(t0))
+        yield position, index, frame
+        position += 1
+
+
+# ------------------------------------------------------------------------------- segmentation
+@dataclass
+class SegmentationPass:
+    """What :func:`run_segmentation` measured.
+
+    Attributes:
+        sequence: the sequence's name.
+        indices: the frames segmented (those left out by ``skip_bad`` excluded).
+        times: ms per frame of each stage (``read``, ``predict`` and the network's stages, or
+            ``oracle``).
+        skipped: the frames ``skip_bad`` left out, with the reason.
+        results: each evaluator's ``evaluate()``, by the evaluator's ``name``.
+    """
+
+    sequence: str
+    indices: list[int]
+    times: StageTimes
+    skipped: SkippedFrames
+    results: dict[str, Any]
+
+    @property
+    def frames(self) -> int:
+        return len(self.indices)
+
+    @property
+    def predict_ms(self) -> list[float]:
+        """ms of each prediction (a network's; the oracle's under ``times`` ``oracle``)."""
+        return self.times.get("predict") or self.times.get(ORACLE_STAGE)
+
+
+def run_segmentation(sequence: Sequence, segmenter: Segmenter, *,
+                     evaluators: Iterable[SegmentationEvaluator] = (),
+                     indices: Iterable[int] | None = None, frames: int | None = None,
+                     warmup: int = 0, skip_bad: bool = False,
+                     progress: Callable[[Any], Any] | None = None) -> SegmentationPass:
+    """Segment frames of ``sequence`` and hand each to ``evaluators``.
+
+    Args:
+        sequence: any reader's sequence.
+        segmenter: any segmenter.
+        evaluators: each gets ``reset()``, then per frame ``check(index, frame)`` before the
+            prediction and ``process(index, frame, observation)`` after it, then
+            ``evaluate()`` (its result under its ``name``).
+        indices: the frames, in order (default: the first ``frames``, or all).
+        frames: how many frames from the start when ``indices`` is not given.
+        warmup: predictions on the first frame before the loop, not timed (a network's first
+            calls allocate and tune).
+        skip_bad: leave out frames the reader cannot read (listed in ``skipped``) instead of
+            stopping at the first.
+        progress: wraps the list of indices (a progress bar).
+    """
+    order = _indices(sequence, indices, frames)
+    evaluators = list(evaluators)
+    _check_names(evaluators)
+    for ev in evaluators:
+        ev.reset()
+    if warmup and order:
+        first = sequence.frame(order[0])
+        for _ in range(int(warmup)):
+            segmenter.predict(first)
+    times, skipped, done = StageTimes(), SkippedFrames(), []
+    for _, index, frame in _timed_frames(sequence, order, times, skip_bad=skip_bad,
+                                         skipped=skipped, progress=progress):
+        for ev in evaluators:
+            ev.check(index, frame)
+        observation = timed_predict(segmenter, frame, times)
+        for ev in evaluators:
+            ev.process(index, frame, observation)
+        done.append(index)
+    return SegmentationPass(sequence=sequence.name, indices=done, times=times, skipped=skipped,
+                            results={ev.name: ev.evaluate() for ev in evaluators})
+
+
+# ------------------------------------------------------------------------------------ mapping
+@dataclass
+class MappingPass:
+    """What :func:`run_mapping` measured.
+
+    Attributes:
+        sequence: the sequence's name.
+        updater: the map, after the last frame.
+        indices: the frames integrated (those left out by ``skip_bad`` excluded).
+        times: ms per frame of each stage (``read``, ``predict`` and the network's stages or
+            ``oracle``, ``update``).
+        skipped: the frames ``skip_bad`` left out, with the reason.
+        memory: the peak resident memory of the mapping (from before the updater was made,
+            when a factory was given, or before the first frame, to the last evaluator);
+            ``None`` with ``measure_memory=False``.
+        results: each map evaluator's ``evaluate(updater)``, by the evaluator's ``name``.
+        segmenter_not_run: why the segmenter given was not run (the updater uses no
+            semantics), else ``None``.
+    """
+
+    sequence: str
+    updater: MapUpdater
+    indices: list[int]
+    times: StageTimes
+    skipped: SkippedFrames
+    memory: PeakMemory | None
+    results: dict[str, Any]
+    segmenter_not_run: str | None = None
+
+    @property
+    def frames(self) -> int:
+        return len(self.indices)
+
+    @property
+    def update_ms(self) -> list[float]:
+        return self.times.get("update")
+
+    @property
+    def segment_ms(self) -> list[float]:
+        """ms of each network prediction (empty with the oracle, with observations given, or
+        with no segmenter run)."""
+        return self.times.get("predict")
+
+
+def rates(update_ms: list[float], segment_ms: list[float] | None = None) -> tuple[float, float]:
+    """``(update Hz, end-to-end Hz)``: ``1000 / median(update ms)`` and ``1000 / median(update
+    + segmentation ms)`` per frame (Table IV's "Runtime (Hz)": segmentation and update);
+    ``nan`` without frames."""
+    if not update_ms:
+        return float("nan"), float("nan")
+    upd = np.asarray(update_ms, dtype=np.float64)
+    if segment_ms:
+        if len(segment_ms) != len(update_ms):
+            raise InvalidDataError(f"{len(segment_ms)} segmentation times for "
+                                   f"{len(update_ms)} updates")
+        total = upd + np.asarray(segment_ms, dtype=np.float64)
+    else:
+        total = upd
+    return float(1000.0 / np.median(upd)), float(1000.0 / np.median(total))
+
+
+def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdater], *,
+                segmenter: Segmenter | None = None,
+                observations: list[SemanticObservation] | None = None,
+                evaluators: Iterable[MapEvaluator] = (),
+                indices: Iterable[int] | None = None, frames: int | None = None,
+                skip_bad: bool = False, measure_memory: bool = True,
+                progress: Callable[[Any], Any] | None = None) -> MappingPass:
+    """Integrate frames of ``sequence`` into a map, timing each stage.
+
+    Args:
+        sequence: a sequence with camera poses.
+        updater: the map, or a function making it (then it is made inside the memory scope).
+        segmenter: run on each frame, timed, when the updater uses semantics (an updater that
+            uses none is mapped without it: ``segmenter_not_run`` says so).
+        observations: the frames' observations computed beforehand, one per index in order
+            (a cache); exclusive with ``segmenter``.
+        evaluators: each gets ``evaluate(updater)`` after the last frame, inside the memory
+            scope (writing the map's files is part of the mapping's memory).
+        indices, frames, skip_bad, progress: as for :func:`run_segmentation`.
+        measure_memory: measure the peak resident memory (resets the kernel's peak counter).
+    """
+    if not sequence.has_poses:
+        raise EvsmapError(f"{sequence.name}: {sequence.meta.get('layout', 'this dataset')} has no "
+                          f"camera poses (a segmentation dataset): nothing to map")
+    if segmenter is not None and observations is not None:
+        raise InvalidDataError("run_mapping: give a segmenter or observations, not both")
+    order = _indices(sequence, indices, frames)
+    if observations is not None and len(observations) != len(order):
+        raise InvalidDataError(f"run_mapping: {len(observations)} observations for "
+                               f"{len(order)} frames")
+    evaluators = list(evaluators)
+    _check_names(evaluators)
+    times, skipped, done = StageTimes(), SkippedFrames(), []
+    memory = PeakMemory() if measure_memory else None
+    not_run = None
+    if memory is not None:
+        memory.__enter__()
+    try:
+        the_map = updater() if callable(updater) and not isinstance(updater, MapUpdater) \
+            else updater
+        if segmenter is not None and not the_map.uses_semantics:
+            not_run = f"the segmenter was not run: {type(the_map).__name__} uses no semantics"
+            segmenter = None
+        semantic = the_map.uses_semantics
+        for position, index, frame in _timed_frames(sequence, order, times, skip_bad=skip_bad,
+                                                    skipped=skipped, progress=progress):
+            observation = None
+            if segmenter is not None:
+                observation = timed_predict(segmenter, frame, times)
+            elif observations is not None and semantic:
+                observation = observations[order.index(index) if skipped.frames else position]
+            timed_update(the_map, frame, observation, times)
+            done.append(index)
+        results = {ev.name: ev.evaluate(the_map) for ev in evaluators}
+    finally:
+        if memory is not None:
+            memory.__exit__(None, None, None)
+    return MappingPass(sequence=sequence.name, updater=the_map, indices=done, times=times,
+                       skipped=skipped, memory=memory, results=results,
+                       segmenter_not_run=not_run)
+
+
+def in_memory(frames: list[Frame], name: str = "frames") -> Sequence:
+    """Frames already read, as a sequence the engine can run (the benchmarks' and the gates'
+    fixed frames)."""
+    from evsmap.data import FrameList
+
+    if not frames:
+        raise InvalidDataError(f"{name}: no frames")
+    return FrameList(name, frames[0].intrinsics, list(frames))
+
+
+def _check_names(evaluators: list[Any]) -> None:
+    names = [ev.name for ev in evaluators]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InvalidDataError(f"two evaluators named {', '.join(twice)}: give each its own "
+                               f"name")
+
+
+def stage_medians(stages: Mapping[str, list[float]]) -> dict[str, float]:
+    """Median ms per frame of each stage of a ``stages_ms`` mapping."""
+    return StageTimes(dict(stages)).medians()
