@@ -1,93 +1,97 @@
 """Rigid-body helpers: quaternions (TUM order qx qy qz qw), slerp, pose interpolation,
-back-projection. All functions are vectorised over leading dimensions."""
+back-projection. All functions are vectorised over leading dimensions.
+
+Quaternion and rotation-matrix conversions and slerp go through
+:class:`scipy.spatial.transform.Rotation` (imported on first use, so importing this module stays
+light); this module fixes the conventions around it: TUM's scalar-last order, ``w >= 0`` for
+quaternions made from matrices, slerp along the shortest arc on the first quaternion's side, and
+invalid input (zero or non-finite quaternions, matrices that are not rotations) as
+:class:`~evsmap.errors.InvalidDataError`.
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from evsmap.errors import InvalidDataError
 
 if TYPE_CHECKING:  # the data model builds on this module, not the other way round
     from evsmap.data import Intrinsics
 
 
+def _rotations(quats: np.ndarray) -> Any:
+    """A :class:`~scipy.spatial.transform.Rotation` stack from (N, 4) quaternions (x, y, z, w),
+    normalised; zero or non-finite quaternions raise :class:`InvalidDataError`."""
+    from scipy.spatial.transform import Rotation
+
+    if not np.all(np.isfinite(quats)):
+        raise InvalidDataError("quaternion with a non-finite component")
+    try:
+        return Rotation.from_quat(quats)
+    except ValueError as exc:  # zero norm
+        raise InvalidDataError(f"invalid quaternion: {exc}") from None
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) from quaternions (..., 4) in (x, y, z, w) order.
 
-    The quaternions are normalised first.
+    The quaternions are normalised first; a zero or non-finite one raises
+    :class:`InvalidDataError`.
     """
     q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    m = np.stack(
-        [
-            1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
-            2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
-            2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
-        ],
-        axis=-1,
-    )
-    return m.reshape(q.shape[:-1] + (3, 3))
+    flat = q.reshape(-1, 4)
+    if not len(flat):
+        return np.zeros(q.shape[:-1] + (3, 3))
+    return _rotations(flat).as_matrix().reshape(q.shape[:-1] + (3, 3))
 
 
 def matrix_to_quat(r: np.ndarray) -> np.ndarray:
     """Quaternions (..., 4) in (x, y, z, w) order with w >= 0 from rotation matrices (..., 3, 3).
 
-    Uses the largest-diagonal branch per matrix for numerical stability (Shepperd's method).
+    Each matrix is taken to its nearest rotation first (rounded input is fine). Of the two
+    quaternions of a rotation the one with ``w > 0`` is returned; for a half turn (``w = 0``) the
+    one whose first non-zero component is positive. A matrix with a non-finite entry or a
+    non-positive determinant (a reflection) raises :class:`InvalidDataError`.
     """
+    from scipy.spatial.transform import Rotation
+
     r = np.asarray(r, dtype=np.float64)
     flat = r.reshape(-1, 3, 3)
-    m00, m11, m22 = flat[:, 0, 0], flat[:, 1, 1], flat[:, 2, 2]
-    trace = m00 + m11 + m22
-    cand = np.stack([trace, m00, m11, m22], axis=1)
-    branch = np.argmax(cand, axis=1)
-    q = np.empty((flat.shape[0], 4))
-    # branch 0: w largest
-    s = np.sqrt(np.maximum(1.0 + trace, 1e-300)) * 2
-    q0 = np.stack([(flat[:, 2, 1] - flat[:, 1, 2]) / s, (flat[:, 0, 2] - flat[:, 2, 0]) / s,
-                   (flat[:, 1, 0] - flat[:, 0, 1]) / s, 0.25 * s], axis=1)
-    s = np.sqrt(np.maximum(1.0 + m00 - m11 - m22, 1e-300)) * 2
-    q1 = np.stack([0.25 * s, (flat[:, 0, 1] + flat[:, 1, 0]) / s,
-                   (flat[:, 0, 2] + flat[:, 2, 0]) / s,
-                   (flat[:, 2, 1] - flat[:, 1, 2]) / s], axis=1)
-    s = np.sqrt(np.maximum(1.0 + m11 - m00 - m22, 1e-300)) * 2
-    q2 = np.stack([(flat[:, 0, 1] + flat[:, 1, 0]) / s, 0.25 * s,
-                   (flat[:, 1, 2] + flat[:, 2, 1]) / s,
-                   (flat[:, 0, 2] - flat[:, 2, 0]) / s], axis=1)
-    s = np.sqrt(np.maximum(1.0 + m22 - m00 - m11, 1e-300)) * 2
-    q3 = np.stack([(flat[:, 0, 2] + flat[:, 2, 0]) / s, (flat[:, 1, 2] + flat[:, 2, 1]) / s,
-                   0.25 * s, (flat[:, 1, 0] - flat[:, 0, 1]) / s], axis=1)
-    allq = np.stack([q0, q1, q2, q3], axis=1)
-    q = allq[np.arange(flat.shape[0]), branch]
-    q *= np.where(q[:, 3:4] < 0, -1.0, 1.0)
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return q.reshape(r.shape[:-2] + (4,))
+    if not len(flat):
+        return np.zeros(r.shape[:-2] + (4,))
+    if not np.all(np.isfinite(flat)):
+        raise InvalidDataError("rotation matrix with a non-finite entry")
+    try:
+        rot = Rotation.from_matrix(flat)
+    except ValueError as exc:  # a reflection or a degenerate matrix
+        raise InvalidDataError(f"not a rotation matrix: {exc}".splitlines()[0]) from None
+    return rot.as_quat(canonical=True).reshape(r.shape[:-2] + (4,))
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation between unit quaternions (x, y, z, w), shortest arc.
+    """Spherical linear interpolation between quaternions (x, y, z, w), shortest arc.
 
-    ``q0``, ``q1`` are (..., 4), ``t`` broadcasts against their leading dimensions; t=0 gives q0.
+    ``q0``, ``q1`` are (..., 4) (normalised here), ``t`` broadcasts against their leading
+    dimensions. The result is unit length and on ``q0``'s side: t=0 gives ``q0`` (normalised),
+    t=1 the one of ``q1`` and ``-q1`` nearer to ``q0``.
     """
+    from scipy.spatial.transform import Rotation
+
     q0 = np.asarray(q0, dtype=np.float64)
     q1 = np.asarray(q1, dtype=np.float64)
-    q0 = q0 / np.linalg.norm(q0, axis=-1, keepdims=True)
-    q1 = q1 / np.linalg.norm(q1, axis=-1, keepdims=True)
-    t = np.asarray(t, dtype=np.float64)[..., None]
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot)
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin = np.sin(theta)
-    near = sin < 1e-9
-    safe = np.where(near, 1.0, sin)
-    w0 = np.where(near, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
-    w1 = np.where(near, t, np.sin(t * theta) / safe)
-    out = w0 * q0 + w1 * q1
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    t = np.asarray(t, dtype=np.float64)
+    lead = np.broadcast_shapes(q0.shape[:-1], q1.shape[:-1], t.shape)
+    a = np.broadcast_to(q0, lead + (4,)).reshape(-1, 4)
+    b = np.broadcast_to(q1, lead + (4,)).reshape(-1, 4)
+    if not len(a):
+        return np.zeros(lead + (4,))
+    start = _rotations(a)
+    # the relative rotation's vector has angle <= pi: the shortest arc whatever b's sign
+    step = (start.inv() * _rotations(b)).as_rotvec()
+    frac = np.broadcast_to(t, lead).reshape(-1, 1)
+    return (start * Rotation.from_rotvec(frac * step)).as_quat().reshape(lead + (4,))
 
 
 def pose_matrix(translation: np.ndarray, quat: np.ndarray) -> np.ndarray:
