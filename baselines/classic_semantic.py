@@ -18,12 +18,17 @@ ignored); an inner node carries the semantics of its most confident child.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from baselines import semantic_slam_fusion
+from baselines.semantic_slam_node import voc_colormap
 from evsmap.data import Frame, SemanticObservation
 from evsmap.mapping import fusion
+from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.occupancy import ScanUpdate
+from evsmap.mapping.tree import Tree
 from evsmap.registry import UPDATERS
 from evsmap.updaters.base import (
     FramePoints,
@@ -42,15 +47,88 @@ def voxel_distributions(voxel: np.ndarray, classes: np.ndarray, probs: np.ndarra
     return state.classes[:, :slots], conf[:, :slots].astype(np.float32)
 
 
+def _update(updater: ClassicSemanticMap, frame: Frame, points: FramePoints, update: ScanUpdate,
+            observation: SemanticObservation) -> None:
+    """The frame's colours and semantics on its hit voxels: ``averageNodeColor`` and one
+    fusion per voxel of the mean distribution of its points."""
+    pixels, voxels, local = updater.endpoint_voxels(points)
+    if not voxels.size:
+        return
+    m = updater.map
+    fusion.average_frame_colours(m.payload("rgb"), frame.colors(), pixels, voxels, local)
+    cls = observation.classes.reshape(-1, observation.k)[pixels]
+    prb = observation.probs.reshape(-1, observation.k)[pixels]
+    slots = m.payload("sem_classes").shape[1]
+    obs_c, obs_p = voxel_distributions(local, cls, prb, len(voxels), slots)
+    old_c = m.payload("sem_classes")[voxels]
+    old_p = m.payload("sem_conf")[voxels]
+    if slots == 3:
+        new_c, new_p = semantic_slam_fusion.fuse_bayes(old_c, old_p, obs_c, obs_p)
+    else:
+        c, p = semantic_slam_fusion.fuse_max(old_c[:, 0], old_p[:, 0], obs_c[:, 0], obs_p[:, 0])
+        new_c, new_p = np.asarray(c)[:, None], np.asarray(p)[:, None]
+    m.payload("sem_classes")[voxels] = new_c
+    m.payload("sem_conf")[voxels] = new_p
+
+
+_strongest = strongest_child("conf")
+
+
+def _publish(updater: ClassicSemanticMap, tree: Tree):
+    """semantic_slam's own file: its node type reports ``ColorOcTree`` and ``writeData``
+    writes the float log-odds and the top class's colour (semantic_slam's VOC colour map;
+    ``getSemanticColor``: white, 255/255/255, for a node without semantics), 8 bytes a node
+    with the child mask; any OctoMap tool opens it. Inner nodes show the top class of their
+    semantics here (the strongest child's; semantic_slam fuses the children)."""
+    top = np.asarray(tree.payload["classes"])[:, 0].astype(np.int64)
+    colours = np.full((len(top), 3), 255, dtype=np.uint8)
+    known = top >= 0
+    if known.any():
+        colours[known] = voc_colormap(int(top.max()) + 1)[top[known]]
+    return "ColorOcTree", replace(tree, payload=colours), None
+
+
+def _node_type(rule: str) -> NodeType:
+    slots = 3 if rule == "bayes" else 1
+    record = np.dtype([("rgb", "u1", (3,)), ("classes", "<i2", (slots,)),
+                       ("conf", "<f4", (slots,))])
+
+    def encode(columns, n: int) -> np.ndarray:
+        rec = np.empty(n, dtype=record.newbyteorder("="))
+        rec["rgb"] = columns["rgb"]
+        rec["classes"] = columns["sem_classes"]
+        rec["conf"] = columns["sem_conf"]
+        return rec
+
+    def decode(rec: np.ndarray) -> dict[str, np.ndarray]:
+        return {"rgb": rec["rgb"], "sem_classes": rec["classes"], "sem_conf": rec["conf"]}
+
+    return NODE_TYPES.add(NodeType(
+        "SemanticOcTreeBayes" if rule == "bayes" else "SemanticOcTreeMax", record=record,
+        columns=(Column("rgb", np.uint8, (3,), fill=255),
+                 Column("sem_classes", np.int16, (slots,), fill=fusion.EMPTY),
+                 Column("sem_conf", np.float32, (slots,), fill=0.0)),
+        update=_update, inner=lambda updater, kids, group, n: _strongest(kids, group, n),
+        prune_on=("sem_classes", "sem_conf"),
+        # semantic_slam: a max node is 32 B and a Bayesian node 48 B in RAM
+        node_bytes=48 if rule == "bayes" else 32,
+        label="sem_classes", colour="rgb", encode=encode, decode=decode, publish=_publish,
+        uses_semantics=True,
+        description=f"[14] classwise variant, {rule} fusion: RGB + {slots} x (class, conf)"))
+
+
+NODE_TYPES_BY_RULE = {"bayes": _node_type("bayes"), "max": _node_type("max")}
+"""The classwise variant's node types: colour, semantics (top 3 or top 1), strongest child for
+inner nodes, pruning on equal occupancy and semantics (colour ignored)."""
+
+
 class ClassicSemanticMap(OctreeUpdater):
-    """semantic_slam's semantic octree (Bayesian or max fusion).
+    """semantic_slam's semantic octree (Bayesian or max fusion), the classwise variant.
 
     Args:
         fusion_rule: ``"bayes"`` (top-3) or ``"max"`` (top-1).
         (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`)
     """
-
-    uses_semantics = True
 
     def __init__(self, *, fusion_rule: str = "bayes", **kwargs) -> None:
         if fusion_rule not in ("bayes", "max"):
@@ -59,84 +137,9 @@ class ClassicSemanticMap(OctreeUpdater):
             raise UnknownNameError(f"unknown fusion rule {fusion_rule!r} (known: bayes, max)")
         self.fusion_rule = fusion_rule
         self.slots = 3 if fusion_rule == "bayes" else 1
-        self.name = "classic-semantic" if fusion_rule == "bayes" else "classic-semantic-max"
-        self.tree_type = "SemanticOcTreeBayes" if fusion_rule == "bayes" else "SemanticOcTreeMax"
-        self.payload_format = np.dtype([("rgb", "u1", (3,)), ("classes", "<i2", (self.slots,)),
-                                        ("conf", "<f4", (self.slots,))])
-        super().__init__(**kwargs)
-
-    def _init_payloads(self) -> None:
-        self.map.add_payload("rgb", np.uint8, (3,), fill=255)
-        self.map.add_payload("sem_classes", np.int16, (self.slots,), fill=fusion.EMPTY)
-        self.map.add_payload("sem_conf", np.float32, (self.slots,), fill=0.0)
-
-    def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
-                         observation: SemanticObservation | None) -> None:
-        pixels, voxels, local = self.endpoint_voxels(points)
-        if not voxels.size:
-            return
-        m = self.map
-        self._average_colours(frame, pixels, voxels, local)
-
-        cls = observation.classes.reshape(-1, observation.k)[pixels]
-        prb = observation.probs.reshape(-1, observation.k)[pixels]
-        obs_c, obs_p = voxel_distributions(local, cls, prb, len(voxels), self.slots)
-        old_c = m.payload("sem_classes")[voxels]
-        old_p = m.payload("sem_conf")[voxels]
-        if self.fusion_rule == "bayes":
-            new_c, new_p = semantic_slam_fusion.fuse_bayes(old_c, old_p, obs_c, obs_p)
-        else:
-            c, p = semantic_slam_fusion.fuse_max(old_c[:, 0], old_p[:, 0], obs_c[:, 0], obs_p[:, 0])
-            new_c, new_p = np.asarray(c)[:, None], np.asarray(p)[:, None]
-        m.payload("sem_classes")[voxels] = new_c
-        m.payload("sem_conf")[voxels] = new_p
-
-    def _payload_record(self) -> np.ndarray:
-        rec = np.empty(self.map.num_leaves, dtype=self.payload_format.newbyteorder("="))
-        rec["rgb"] = self.map.payload("rgb")
-        rec["classes"] = self.map.payload("sem_classes")
-        rec["conf"] = self.map.payload("sem_conf")
-        return rec
-
-    def _set_payload_record(self, record: np.ndarray | None) -> None:
-        self.map.payload("rgb")[:] = record["rgb"]
-        self.map.payload("sem_classes")[:] = record["classes"]
-        self.map.payload("sem_conf")[:] = record["conf"]
-
-    def _equal_columns(self) -> list[np.ndarray]:
-        m = self.map
-        return [m.logodds, m.payload("sem_classes"), m.payload("sem_conf")]
-
-    def _inner_payload(self):
-        return strongest_child("conf")
-
-    def _payload_format(self):
-        return self.payload_format
-
-    def _published_tree(self, tree):
-        """semantic_slam's own file: its node type reports ``ColorOcTree`` and ``writeData``
-        writes the float log-odds and the top class's colour (semantic_slam's VOC colour map;
-        ``getSemanticColor``: white, 255/255/255, for a node without semantics), 8 bytes a node
-        with the child mask; any
-        OctoMap tool opens it. Inner nodes show the top class of their semantics here (the
-        strongest child's; semantic_slam fuses the children)."""
-        from dataclasses import replace
-
-        from baselines.semantic_slam import voc_colormap
-
-        top = np.asarray(tree.payload["classes"])[:, 0].astype(np.int64)
-        colours = np.full((len(top), 3), 255, dtype=np.uint8)
-        known = top >= 0
-        if known.any():
-            colours[known] = voc_colormap(int(top.max()) + 1)[top[known]]
-        return "ColorOcTree", replace(tree, payload=colours), None
-
-    def _node_bytes(self) -> int:
-        # semantic_slam: a max node is 32 B and a Bayesian node 48 B in RAM
-        return 48 if self.fusion_rule == "bayes" else 32
-
-    def query(self, points: np.ndarray):
-        return self._labelled_query(points, "sem_classes")
+        super().__init__(node_type=NODE_TYPES_BY_RULE[fusion_rule],
+                         name="classic-semantic" if fusion_rule == "bayes"
+                         else "classic-semantic-max", **kwargs)
 
 
 FRONT_ENDS = ("voxel-grid", "classwise")

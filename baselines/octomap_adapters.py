@@ -18,10 +18,11 @@ from evsmap.data import Frame, SemanticObservation
 from evsmap.fileio import atomic_write_bytes
 from evsmap.geometry import transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
+from evsmap.mapping.fusion.colour import mean_per_voxel
 from evsmap.mapping.keys import key_to_coord, unpack
 from evsmap.mapping.raycast import frame_points
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, compact, mean_per_voxel
+from evsmap.updaters.base import FramePoints, compact
 
 
 class OctoMapAdapter(MapUpdater):

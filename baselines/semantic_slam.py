@@ -29,6 +29,11 @@ its node count, pruning and file are semantic_slam's. ``published`` files are se
 ``ColorOcTree`` (log-odds and the top semantic colour a node); ``full`` files keep the whole node
 state and reload. The defaults are semantic_slam's ``octomap_generator.yaml``: ``max_range`` 5,
 ``raycast_range`` 2, clamping 0.12 / 0.97, hit 0.7, miss 0.4.
+
+The node types (:mod:`baselines.semantic_slam_node`, ``.ot`` ids ``SemanticSlamOcTreeBayes`` /
+``SemanticSlamOcTreeMax``) declare the file record, the memory model, the label and colour
+columns of the leaf view and the published file; the update, the tree and the restore are the
+node pool's, so this updater does them itself.
 """
 
 from __future__ import annotations
@@ -38,6 +43,12 @@ from os import PathLike
 import numpy as np
 
 from baselines import semantic_slam_kernels as k
+from baselines.semantic_slam_node import (
+    FUSION_RULES,
+    NODE_TYPES_BY_RULE,
+    pack_rgb,
+    voc_colormap,
+)
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.mapping.keys import pack, unpack
@@ -47,32 +58,6 @@ from evsmap.mapping.tree import Tree
 from evsmap.updaters.base import OctreeUpdater, check_observation
 
 WHITE = k.WHITE
-FUSION_RULES = ("bayes", "max")
-
-
-def voc_colormap(n: int) -> np.ndarray:
-    """semantic_slam's ``color_map``: the PASCAL VOC colours of classes ``0..n-1`` (bits of the
-    class id spread over the high bits of r, g, b), ``uint8`` (n, 3)."""
-    ids = np.arange(int(n), dtype=np.int64)
-    out = np.zeros((len(ids), 3), dtype=np.int64)
-    c = ids.copy()
-    for j in range(8):
-        for ch in range(3):
-            out[:, ch] |= ((c >> ch) & 1) << (7 - j)
-        c >>= 3
-    return out.astype(np.uint8)
-
-
-def pack_rgb(rgb: np.ndarray) -> np.ndarray:
-    """``uint32`` ``0x00RRGGBB`` of (..., 3) ``uint8`` colours (the cloud's bgr0 bytes)."""
-    rgb = np.asarray(rgb).astype(np.uint32)
-    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
-
-
-def unpack_rgb(packed: np.ndarray) -> np.ndarray:
-    """(..., 3) ``uint8`` r, g, b of ``0x00RRGGBB`` values (``getSemanticColor``)."""
-    p = np.asarray(packed).astype(np.uint32)
-    return np.stack([(p >> 16) & 0xFF, (p >> 8) & 0xFF, p & 0xFF], axis=-1).astype(np.uint8)
 
 
 class SemanticSlamMap(OctreeUpdater):
@@ -87,8 +72,6 @@ class SemanticSlamMap(OctreeUpdater):
         always on, as semantic_slam calls ``insertPointCloud``)
     """
 
-    uses_semantics = True
-
     def __init__(self, *, fusion_rule: str = "bayes", raycast_range: float = 2.0,
                  **kwargs) -> None:
         if fusion_rule not in FUSION_RULES:
@@ -100,19 +83,16 @@ class SemanticSlamMap(OctreeUpdater):
         self.fusion_rule = fusion_rule
         self.bayes = fusion_rule == "bayes"
         self.slots = 3 if self.bayes else 1
-        self.name = "classic-semantic" if self.bayes else "classic-semantic-max"
-        self.tree_type = ("SemanticSlamOcTreeBayes" if self.bayes
-                          else "SemanticSlamOcTreeMax")
         self.raycast_range = float(raycast_range)
         self.default_conf = np.float32(1.0 if self.bayes else 0.0)
-        self.payload_format = np.dtype([("rgb", "u1", (3,)), ("colors", "<u4", (self.slots,)),
-                                        ("conf", "<f4", (self.slots,))])
         self._leaves: OccupancyMap | None = None
         self._tree: Tree | None = None
         self.num_classes = 256
         self.fusions = 0
         self.centroids = 0
-        super().__init__(**kwargs)
+        super().__init__(node_type=NODE_TYPES_BY_RULE[fusion_rule],
+                         name="classic-semantic" if self.bayes else "classic-semantic-max",
+                         **kwargs)
         p = self.params
         self._lo = np.float32(p.clamp_min_logodds)
         self._hi = np.float32(p.clamp_max_logodds)
@@ -190,7 +170,7 @@ class SemanticSlamMap(OctreeUpdater):
             order = np.argsort(codes, kind="stable")
             payload = payload[order]
         else:
-            payload = np.zeros(0, dtype=self.payload_format)
+            payload = np.zeros(0, dtype=self.node_type.record)
         out.add_payload("rgb", np.uint8, (3,), fill=255)[:] = payload["rgb"]
         out.add_payload("sem_colors", np.uint32, (self.slots,), fill=WHITE)[:] = \
             payload["colors"].reshape(-1, self.slots)
@@ -214,9 +194,6 @@ class SemanticSlamMap(OctreeUpdater):
         self._tree = None
 
     # ---- MapUpdater
-    def _init_payloads(self) -> None:
-        pass
-
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
         observation = check_observation(frame, observation, self.name)
         self.num_classes = max(self.num_classes if self.frames else 0,
@@ -295,7 +272,7 @@ class SemanticSlamMap(OctreeUpdater):
         if self._tree is None:
             depth, keys, mask, value, rgb, colors, conf = k.export(
                 *self._pool(), self.bayes, self.default_conf)
-            payload = np.empty(len(depth), dtype=self.payload_format)
+            payload = np.empty(len(depth), dtype=self.node_type.record)
             payload["rgb"] = rgb
             payload["colors"] = colors.reshape(len(depth), self.slots)
             payload["conf"] = conf.reshape(len(depth), self.slots)
@@ -303,26 +280,11 @@ class SemanticSlamMap(OctreeUpdater):
                               value.astype(np.float32), payload)
         return self._tree
 
-    def _payload_format(self):
-        return self.payload_format
-
-    def _published_tree(self, tree: Tree):
-        """semantic_slam's file: ``writeData`` writes the log-odds and ``getSemanticColor`` (the
-        first semantic colour; white when unset) of every node under the type ``ColorOcTree``."""
-        from dataclasses import replace
-
-        top = np.asarray(tree.payload["colors"]).reshape(tree.num_nodes, self.slots)[:, 0]
-        return "ColorOcTree", replace(tree, payload=unpack_rgb(top)), None
-
-    def _node_bytes(self) -> int:
-        # semantic_slam's node in RAM: a max node 32 B, a Bayesian node 48 B
-        return 48 if self.bayes else 32
-
     def restore(self, path: str | PathLike[str]) -> SemanticSlamMap:
         from evsmap.mapping.octree_io import read_ot
 
         kind, resolution, tree = read_ot(path, payload_format={self.tree_type:
-                                                               self.payload_format})
+                                                               self.node_type.record})
         if kind != self.tree_type:
             raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
         if not np.isclose(resolution, self.resolution, rtol=1e-9, atol=0):
@@ -342,9 +304,6 @@ class SemanticSlamMap(OctreeUpdater):
             self._state[:] = (0, n, 0)
         self._stale()
         return self
-
-    def query(self, points: np.ndarray):
-        return self._labelled_query(points, "sem_classes")
 
 
 def make(rule: str, *, resolution: float, max_range: float, raycast_range: float,

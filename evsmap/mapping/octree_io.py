@@ -15,7 +15,9 @@
 Node data (``writeData``, native = little-endian): ``OcTree``: float32 log-odds (5 B per node);
 ``ColorOcTree``: float32 log-odds + uint8 r, g, b (8 B per node). Any other tree type written
 here is a custom layout: float32 log-odds + one fixed-size little-endian payload record (a numpy
-dtype, e.g. the semantics of a voxel), + the mask byte.
+dtype, e.g. the semantics of a voxel), + the mask byte. The record of a tree type is its
+registered node type's (:data:`evsmap.mapping.node_type.NODE_TYPES`, keyed by the file's id) or
+one the caller passes (``payload_format``).
 
 ``.bt`` (``AbstractOccupancyOcTree::writeBinary`` / ``OccupancyOcTreeBase::writeBinaryNode``):
 the same header with first line ``# Octomap OcTree binary file``, then per node that has
@@ -52,6 +54,7 @@ from numpy.typing import DTypeLike
 from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.fileio import atomic_write
 from evsmap.mapping.keys import TREE_DEPTH
+from evsmap.mapping.node_type import COLOR_FORMAT, NODE_TYPES
 from evsmap.mapping.tree import Tree, _codes_of_morton
 
 __all__ = [
@@ -73,8 +76,6 @@ OT_HEADER = b"# Octomap OcTree file"
 BT_HEADER = b"# Octomap OcTree binary file"
 _COMMENT = b"\n# (feel free to add / change comments, but leave the first line as it is!)\n#\n"
 
-#: Payload layout of a ``ColorOcTreeNode`` after its float: ``uint8`` r, g, b.
-COLOR_FORMAT = np.dtype((np.uint8, (3,)))
 _BUILTIN = {"OcTree": None, "ColorOcTree": COLOR_FORMAT}
 
 # OctoMap's AbstractOccupancyOcTree defaults (probabilities).
@@ -293,10 +294,15 @@ def _payload_format(tree_type: str, payload_format, name: str | None) -> np.dtyp
     fmt = payload_format
     if isinstance(payload_format, Mapping):
         fmt = payload_format.get(tree_type)
+    if fmt is None and tree_type in NODE_TYPES:
+        fmt = NODE_TYPES.get(tree_type).record
+        if fmt is None:
+            return None
     if fmt is None:
         where = f"{name}: " if name else ""
-        raise DataFormatError(f"{where}unknown tree type {tree_type!r} (known: OcTree, "
-                              "ColorOcTree; pass payload_format for a custom type)")
+        raise DataFormatError(f"{where}unknown tree type {tree_type!r} (known: "
+                              f"{', '.join(NODE_TYPES.names())}; a plug-in's node type is known "
+                              "once its module is imported, or pass payload_format)")
     return np.dtype(fmt)
 
 
@@ -326,6 +332,8 @@ def ot_bytes(tree: Tree, resolution: float, *, tree_type: str = "OcTree",
         fmt = COLOR_FORMAT
     elif payload_format is not None:
         fmt = np.dtype(payload_format)
+    elif tree_type in NODE_TYPES:
+        fmt = NODE_TYPES.get(tree_type).record
     elif tree.payload is not None:
         fmt = _default_format(tree.payload)
     else:
@@ -418,9 +426,10 @@ def read_ot(path: str | os.PathLike, *,
             payload_format: DTypeLike | Mapping[str, DTypeLike] | None = None) -> OctreeFile:
     """Read an ``.ot`` file: ``(tree_type, resolution, tree)``.
 
-    "OcTree" files give no payload, "ColorOcTree" files an (M, 3) ``uint8`` r, g, b payload; a
-    custom tree type needs ``payload_format`` (its payload dtype, or a mapping from tree type to
-    dtype).
+    "OcTree" files give no payload, "ColorOcTree" files an (M, 3) ``uint8`` r, g, b payload; any
+    other tree type has the record of its registered node type
+    (:data:`~evsmap.mapping.node_type.NODE_TYPES`), or ``payload_format`` (its payload dtype, or
+    a mapping from tree type to dtype), which takes precedence.
 
     Raises:
         DataFormatError: missing, truncated or corrupt file, or an unknown tree type.

@@ -6,10 +6,15 @@ An updater keeps its map as OctoMap's tree expanded to the finest level
 arrays). The pruned tree, which OctoMap keeps in memory and writes to its files, is built from the
 leaves when it is needed (:meth:`OctreeUpdater.tree`): the two hold the same information because
 OctoMap only prunes 8 identical children and expands them again before changing one.
-"""
+
+What differs between kinds of map - the payload, its update, inner aggregation, prune equality,
+bytes per node, label and colour, the ``.ot`` record - is the updater's
+:class:`~evsmap.mapping.node_type.NodeType`; a new updater is a node type and a factory
+(``docs/plugins.md``)."""
 
 from __future__ import annotations
 
+import functools
 import math
 from os import PathLike
 from pathlib import Path
@@ -23,7 +28,8 @@ from evsmap.geometry import backproject, transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
 from evsmap.mapping.kernels import depth_points, group_points
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
-from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams, ScanUpdate
+from evsmap.mapping.node_type import OCTREE, NodeType
+from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams
 from evsmap.mapping.raycast import scan_keys
 from evsmap.mapping.tree import Tree
 
@@ -149,9 +155,20 @@ def check_observation(frame: Frame, observation: SemanticObservation | None,
 
 
 class OctreeUpdater(MapUpdater):
-    """Base of the octree updaters: OctoMap occupancy plus per-leaf payloads.
+    """An octree map updater: OctoMap occupancy plus the payload of its node type.
+
+    Everything a kind of tree keeps per node - its payload columns and ``.ot`` record, how a scan
+    updates them, inner aggregation, prune equality, bytes per node, label and colour columns -
+    is its :class:`~evsmap.mapping.node_type.NodeType`; this class does the rest (rays,
+    occupancy, the pruned tree, files, queries) the same way for every node type. A subclass
+    sets :attr:`node_type` (and adds its options); a plug-in can also pass ``node_type`` to a
+    plain ``OctreeUpdater``.
 
     Args:
+        node_type: the kind of tree (default: the class's :attr:`node_type`, OctoMap's
+            ``OcTree``).
+        name: the updater's name in messages (default: the class's :attr:`name`, else the
+            node type's id).
         resolution: leaf edge length, metres.
         max_range: sensor max range, metres (negative: unlimited); points beyond it only clear
             free space up to it, as OctoMap's ``insertPointCloud``.
@@ -161,13 +178,23 @@ class OctreeUpdater(MapUpdater):
     """
 
     name: ClassVar[str] = ""
-    tree_type: ClassVar[str] = "OcTree"
+    node_type: ClassVar[NodeType] = OCTREE
     has_leaf_map: ClassVar[bool] = True
 
-    def __init__(self, *, resolution: float = 0.05, max_range: float = 5.0,
+    def __init__(self, *, node_type: NodeType | None = None, name: str | None = None,
+                 resolution: float = 0.05, max_range: float = 5.0,
                  discretize: bool = True, prob_hit: float = 0.7, prob_miss: float = 0.4,
                  clamp_min: float = 0.1192, clamp_max: float = 0.971,
                  occupancy_threshold: float = 0.5) -> None:
+        if node_type is not None:
+            if not isinstance(node_type, NodeType):
+                raise InvalidDataError(f"node_type must be a NodeType, got "
+                                       f"{type(node_type).__name__}")
+            self.node_type = node_type
+        if name is not None:
+            self.name = name
+        elif not self.name:
+            self.name = self.node_type.tree_id
         if not (isinstance(max_range, (int, float)) and math.isfinite(max_range)):
             raise InvalidDataError(f"max_range must be a finite number, got {max_range!r}")
         try:
@@ -184,28 +211,41 @@ class OctreeUpdater(MapUpdater):
         self.frames = 0
         self._init_payloads()
 
-    # -- hooks -----------------------------------------------------------------------------
+    @property
+    def tree_type(self) -> str:
+        """The ``.ot`` id of the map's files (its node type's)."""
+        return self.node_type.tree_id
+
+    @property
+    def uses_semantics(self) -> bool:  # type: ignore[override]
+        return self.node_type.uses_semantics
+
+    # -- the node type's parts, on this map ------------------------------------------------
     def _init_payloads(self) -> None:
-        """Register the per-leaf payload arrays."""
+        """Add the node type's payload columns to the (empty) leaf map."""
+        for c in self.node_type.columns:
+            self.map.add_payload(c.name, c.dtype, c.shape, fill=c.fill)
 
-    def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
-                         observation: SemanticObservation | None) -> None:
-        """Fuse the frame's attributes into the payloads after the occupancy update."""
-
-    def _equal_columns(self) -> list[np.ndarray]:
-        """Arrays that must be identical for 8 children to be pruned (occupancy by default)."""
-        return [self.map.logodds]
+    def _columns(self) -> dict[str, np.ndarray]:
+        return {n: self.map.payload(n) for n in self.node_type.column_names}
 
     def _payload_record(self) -> np.ndarray | None:
-        """Per-leaf payload as one structured array (for trees and files), or None."""
-        return None
+        """The leaves' payload as ``.ot`` records (None for a type without a record)."""
+        return self.node_type.to_record(self._columns(), self.map.num_leaves)
 
-    def _inner_payload(self):
-        return None
+    def _set_payload_record(self, record: np.ndarray | None) -> None:
+        """Inverse of :meth:`_payload_record`: fill the payload columns from file records."""
+        if record is None:
+            return
+        for name, values in self.node_type.from_record(record).items():
+            self.map.payload(name)[:] = values
 
-    def _node_bytes(self) -> int:
-        """In-memory bytes of one node (OctoMap: 16 for OcTree/ColorOcTree nodes)."""
-        return 16
+    def _equal_columns(self) -> list[np.ndarray]:
+        """Arrays that must be identical for 8 children to be pruned."""
+        return [self.map.logodds] + [self.map.payload(n) for n in self.node_type.prune_on]
+
+    def _bound(self, rule):
+        return None if rule is None else functools.partial(rule, self)
 
     # -- MapUpdater ------------------------------------------------------------------------
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
@@ -216,7 +256,8 @@ class OctreeUpdater(MapUpdater):
         keys = scan_keys(points.rays, points.origin, self.resolution, max_range=self.max_range,
                          discretize=False)
         update = self.map.apply(keys.free, keys.occupied)
-        self._update_payloads(frame, points, update, observation)
+        if self.node_type.update is not None:
+            self.node_type.update(self, frame, points, update, observation)
         self.frames += 1
 
     def endpoint_voxels(self, points: FramePoints
@@ -235,15 +276,18 @@ class OctreeUpdater(MapUpdater):
         """The pruned octree of the current map."""
         from evsmap.mapping.tree import build_tree
 
+        nt = self.node_type
+        pruned = nt.pruned if nt.pruned == "first" else self._bound(nt.pruned)
         return build_tree(self.map.codes, np.asarray(self.map.logodds),
                           payload=self._payload_record(), equal_columns=self._equal_columns(),
-                          inner_payload=self._inner_payload())
+                          inner_payload=self._bound(nt.inner), prune_payload=pruned)
 
     def stats(self) -> MapStats:
         tree = self.tree()
+        memory = tree.memory_bytes(node_bytes=self.node_type.node_bytes,
+                                   base_bytes=OCTOMAP_BASE_BYTES)
         return MapStats(nodes=int(tree.num_nodes), leaves=int(tree.num_leaves),
-                        octomap_memory_bytes=int(tree.memory_bytes(node_bytes=self._node_bytes(),
-                                                           base_bytes=OCTOMAP_BASE_BYTES)))
+                        octomap_memory_bytes=int(memory))
 
     def write(self, path: str | PathLike[str], file_format: str = "full") -> int:
         """Write the map (``.ot``: with payload; ``.bt``: occupancy only); returns the bytes.
@@ -251,8 +295,8 @@ class OctreeUpdater(MapUpdater):
         Args:
             file_format: ``"full"`` - the whole state, which :meth:`restore` reads back so
                 mapping can continue; ``"published"`` - what the compared system itself writes
-                (:meth:`_published_tree`; the same as ``full`` where that is what it writes).
-                ``.bt`` files are the same in both.
+                (the node type's ``publish``; the same as ``full`` where that is what it
+                writes). ``.bt`` files are the same in both.
         """
         from evsmap.mapping.octree_io import write_bt, write_ot
 
@@ -267,24 +311,11 @@ class OctreeUpdater(MapUpdater):
             return write_bt(path, tree, self.resolution, tree_type=kind,
                             occupancy_thres=p.occupancy_threshold, clamp_min=p.clamp_min,
                             clamp_max=p.clamp_max)
-        if file_format == "published":
-            published = self._published_tree(tree)
-            if published is not None:
-                kind, tree, fmt = published
-                return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
+        if file_format == "published" and self.node_type.publish is not None:
+            kind, tree, fmt = self.node_type.publish(self, tree)
+            return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
         return write_ot(path, tree, self.resolution, tree_type=self.tree_type,
-                        payload_format=self._payload_format())
-
-    def _published_tree(self, tree: Tree):
-        """``(tree type, tree, payload format)`` of the file the compared system writes, or
-        None when that is the full file."""
-        return None
-
-    def _payload_format(self):
-        return None
-
-    def _set_payload_record(self, record: np.ndarray | None) -> None:
-        """Inverse of :meth:`_payload_record`: fill the payload arrays from file records."""
+                        payload_format=self.node_type.record)
 
     def restore(self, path: str | PathLike[str]) -> OctreeUpdater:
         """Replace this map by the one saved in ``path`` (an ``.ot`` this updater wrote), so
@@ -293,17 +324,7 @@ class OctreeUpdater(MapUpdater):
         Raises:
             DataFormatError: unreadable file, another tree type or another resolution.
         """
-        from evsmap.errors import DataFormatError
-        from evsmap.mapping.octree_io import read_ot
-
-        fmt = self._payload_format()
-        kind, resolution, tree = read_ot(path, payload_format=None if fmt is None
-                                         else {self.tree_type: fmt})
-        if kind != self.tree_type:
-            raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
-        if not math.isclose(resolution, self.resolution, rel_tol=1e-9):
-            raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "
-                                  f"{self.resolution} m")
+        kind, tree = self._read_own(path)
         codes, values, payload = tree.expand()
         order = np.argsort(codes, kind="stable")
         self.map = OccupancyMap.from_leaves(self.resolution, codes[order], values[order],
@@ -312,8 +333,28 @@ class OctreeUpdater(MapUpdater):
         self._set_payload_record(None if payload is None else payload[order])
         return self
 
+    def _read_own(self, path: str | PathLike[str]) -> tuple[str, Tree]:
+        """Read an ``.ot`` of this map's node type and resolution: ``(id, tree)``."""
+        from evsmap.errors import DataFormatError
+        from evsmap.mapping.octree_io import read_ot
+
+        fmt = self.node_type.record
+        kind, resolution, tree = read_ot(path, payload_format=None if fmt is None
+                                         else {self.tree_type: fmt})
+        if kind != self.tree_type:
+            raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
+        if not math.isclose(resolution, self.resolution, rel_tol=1e-9):
+            raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "
+                                  f"{self.resolution} m")
+        return kind, tree
+
     def query(self, points: np.ndarray) -> PointQuery:
-        return self.map.query(points)
+        """What the map knows at ``points``; occupied voxels carry the first slot of the node
+        type's label column (-1 without one)."""
+        label = self.node_type.label
+        if label is None:
+            return self.map.query(points)
+        return self._labelled_query(points, label)
 
     def _labelled_query(self, points: np.ndarray, classes: str) -> PointQuery:
         """:meth:`query` with the label of occupied voxels read from payload ``classes``
@@ -322,24 +363,9 @@ class OctreeUpdater(MapUpdater):
         pos, found = self.map.index(point_codes(points, self.resolution))
         occupied = found & (q.state == 1)
         label = q.label.copy()
-        label[occupied] = self.map.payload(classes)[pos[occupied], 0]
+        stored = self.map.payload(classes)
+        label[occupied] = stored.reshape(len(stored), -1)[pos[occupied], 0]
         return PointQuery(state=q.state, probability=q.probability, label=label)
-
-    def _average_colours(self, frame: Frame, pixels: np.ndarray, voxels: np.ndarray,
-                         local: np.ndarray, payload: str = "rgb") -> None:
-        """``averageNodeColor`` of each voxel's stored colour and the mean colour of the frame's
-        points in it (``pixels``: the points' flat pixel indices, ``local``: their voxel among
-        ``voxels``)."""
-        from evsmap.mapping.fusion import average_node_color, color_is_set
-
-        colors = frame.colors()
-        if colors is None:  # a point cloud without colours: OctoMap leaves the colour unset
-            return
-        rgb = colors[pixels].astype(np.float64)
-        mean = np.floor(mean_per_voxel(local, rgb, len(voxels))).astype(np.uint8)
-        stored = self.map.payload(payload)
-        prev = stored[voxels]
-        stored[voxels] = average_node_color(prev, color_is_set(prev), mean)
 
     def memory_nbytes(self) -> int:
         """Bytes of the leaf arrays: codes, log-odds and every payload."""
@@ -385,14 +411,6 @@ def strongest_child(field: str):
         return child_payload[order[first]]
 
     return aggregate
-
-
-def mean_per_voxel(voxel: np.ndarray, values: np.ndarray, n_voxels: int) -> np.ndarray:
-    """Mean of ``values`` (P, c) over the points of each voxel (``voxel``: (P,) in [0, n))."""
-    counts = np.bincount(voxel, minlength=n_voxels).astype(np.float64)
-    out = np.stack([np.bincount(voxel, weights=values[:, j], minlength=n_voxels)
-                    for j in range(values.shape[1])], axis=1)
-    return out / np.maximum(counts, 1)[:, None]
 
 
 def compact(index: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:

@@ -2,9 +2,11 @@
 
 :func:`occupied_points` reads any :class:`~evsmap.updaters.base.OctreeUpdater`'s finest-level
 leaves (the map is stored expanded, so a pruned block is its 8**k voxels here too) and keeps those
-OctoMap calls occupied (log-odds ``>=`` the threshold's). Colour comes from the ``rgb`` payload
-(``orgb``, ``classic-semantic``), the label from the first slot (the most likely class) of the
-``classes`` (``multiclass-bayes``) or ``sem_classes`` (``classic-semantic``) payload.
+OctoMap calls occupied (log-odds ``>=`` the threshold's). Colour comes from the node type's
+colour column (:attr:`~evsmap.mapping.node_type.NodeType.colour`: ``rgb`` for ``orgb`` and
+``classic-semantic``), the label from the first slot (the most likely class) of its label column
+(:attr:`~evsmap.mapping.node_type.NodeType.label`: ``classes`` for ``multiclass-bayes``,
+``sem_classes`` for ``classic-semantic``).
 
 :func:`export_ply` writes them through Open3D (``o3d.io.write_point_cloud``, binary): ``double``
 x, y, z and ``uchar`` red, green, blue per vertex, coloured by the stored colour or by the label's
@@ -32,9 +34,6 @@ __all__ = ["COLOR_BY", "check_color_by", "class_colors", "default_color_by", "ex
 COLOR_BY = ("rgb", "class")
 """Ways to colour the exported points."""
 
-LABEL_PAYLOADS = ("classes", "sem_classes")
-"""Per-leaf class payloads, looked up in this order (first slot = most likely class)."""
-
 DEFAULT_PALETTE_CLASSES = 40
 """Palette size when the map holds fewer classes (NYUv2-40, the synthetic scenes' label set)."""
 
@@ -47,6 +46,13 @@ def _occupancy_map(updater):
         raise InvalidDataError(f"PLY export needs an octree map updater (evsmap's own, e.g. orgb "
                                f"or multiclass-bayes), got {type(updater).__name__}")
     return updater.map
+
+
+def _colour_and_label(updater) -> tuple[str | None, str | None]:
+    """The node type's colour and label columns (None where it has none)."""
+    _occupancy_map(updater)
+    node_type = updater.node_type
+    return node_type.colour, node_type.label
 
 
 def occupied_points(updater) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -65,18 +71,16 @@ def occupied_points(updater) -> tuple[np.ndarray, np.ndarray | None, np.ndarray 
         InvalidDataError: ``updater`` is not an octree updater.
     """
     m = _occupancy_map(updater)
+    colour, label = _colour_and_label(updater)
     occupied = m.classify_logodds(m.logodds) == OCCUPIED
     centres = key_to_coord(unpack(m.codes[occupied]), m.resolution)
-    names = m.payload_names
     rgb = None
-    if "rgb" in names:
-        rgb = np.ascontiguousarray(m.payload("rgb")[occupied], dtype=np.uint8).reshape(-1, 3)
+    if colour is not None:
+        rgb = np.ascontiguousarray(m.payload(colour)[occupied], dtype=np.uint8).reshape(-1, 3)
     labels = None
-    for name in LABEL_PAYLOADS:
-        if name in names:
-            classes = m.payload(name)[occupied]
-            labels = np.asarray(classes.reshape(len(classes), -1)[:, 0], dtype=np.int16)
-            break
+    if label is not None:
+        classes = m.payload(label)[occupied]
+        labels = np.asarray(classes.reshape(len(classes), -1)[:, 0], dtype=np.int16)
     return centres, rgb, labels
 
 
@@ -93,17 +97,17 @@ def check_color_by(updater, color_by: str | None = None) -> str:
         InvalidDataError: not an octree updater, an unknown ``color_by``, or a map that does not
             store what it asks for (colours for ``"rgb"``, classes for ``"class"``).
     """
-    names = _occupancy_map(updater).payload_names
+    colour, label = _colour_and_label(updater)
     if color_by is None:
         color_by = default_color_by(updater)
     if color_by not in COLOR_BY:
         raise InvalidDataError(f"unknown PLY colouring {color_by!r} (known: "
                                f"{', '.join(COLOR_BY)})")
     name = getattr(updater, "name", "") or type(updater).__name__
-    if color_by == "rgb" and "rgb" not in names:
+    if color_by == "rgb" and colour is None:
         raise InvalidDataError(f"map updater {name!r} stores no colours: export it coloured by "
                                "class (color_by='class', --ply-color class)")
-    if color_by == "class" and not any(n in names for n in LABEL_PAYLOADS):
+    if color_by == "class" and label is None:
         raise InvalidDataError(f"map updater {name!r} stores no classes: export it with its "
                                "colours (color_by='rgb', --ply-color rgb)")
     return color_by

@@ -24,6 +24,9 @@ class held by one node with the other node's punished others, ``occupancy="octom
 OctoMap's separate hit/miss log-odds. The ``.ot`` node payload is the full state (layout in
 ``docs/mapping.md``), so a saved map reloads into the same state
 (:func:`load_multiclass_bayes`).
+
+The node type (:data:`NODE_TYPE`, ``.ot`` id ``MultiClassBayesOcTree``) holds all of this; the
+updater class only adds the options and checks them.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from evsmap.data import Frame, SemanticObservation
 from evsmap.mapping import fusion
 from evsmap.mapping.fusion import MCBState
 from evsmap.mapping.mcb_kernel import frame_update
+from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.registry import UPDATERS
 from evsmap.updaters.base import FramePoints, OctreeUpdater
@@ -54,8 +58,114 @@ USE_KERNEL = True
 is installed; False selects the numpy reference (the tests compare the two)."""
 
 
+def _to_ids(classes: np.ndarray) -> np.ndarray:
+    """Class slots as the file stores them: ``uint8``, 255 for an empty slot."""
+    return np.where(classes < 0, EMPTY_ID, classes)
+
+
+def _from_ids(ids: np.ndarray) -> np.ndarray:
+    ids = ids.astype(np.int16)
+    return np.where(ids == EMPTY_ID, fusion.EMPTY, ids)
+
+
+def _encode(columns, n: int) -> np.ndarray:
+    rec = np.empty(n, dtype=PAYLOAD_FORMAT)
+    rec["classes"] = _to_ids(columns["classes"])
+    rec["logodds"] = columns["class_logodds"]
+    rec["others"] = columns["others"]
+    return rec
+
+
+def _decode(record: np.ndarray) -> dict[str, np.ndarray]:
+    return {"classes": _from_ids(record["classes"]), "class_logodds": record["logodds"],
+            "others": record["others"]}
+
+
+def _update(updater: MultiClassBayesMap, frame: Frame, points: FramePoints, update: ScanUpdate,
+            observation: SemanticObservation) -> None:
+    """A frame's semantics on the leaves it observed (compiled kernel, or numpy)."""
+    updater.check_classes(observation)
+    if USE_KERNEL and frame_update is not None:
+        pixels, voxels, local_index = updater.endpoint_voxels(points)
+        span = int(observation.classes.max()) + 1 if observation.classes.size else 0
+        if 0 < span and len(voxels) * span <= fusion.DENSE_LIMIT:
+            k = observation.k
+            m = updater.map
+            frame_update(
+                m.payload("classes"), m.payload("class_logodds"), m.payload("others"),
+                m.logodds_for_writing(), update.free_index, voxels, local_index, pixels,
+                observation.classes.reshape(-1, k), observation.probs.reshape(-1, k),
+                span, updater.psi, updater.phi, updater.theta, fusion.MIN_LOGODDS,
+                fusion.MAX_LOGODDS, fusion.PROB_MIN, updater.empty_floor,
+                updater.leaf_update == "bayes", updater.pairing == "printed",
+                updater.occupancy == "semantic")
+            return
+    _update_numpy(updater, points, update, observation)
+
+
+def _update_numpy(updater: MultiClassBayesMap, points: FramePoints, update: ScanUpdate,
+                  observation: SemanticObservation) -> None:
+    """The reference implementation (numpy, whole arrays)."""
+    semantic = updater.occupancy == "semantic"
+    # rays: eq. 9's free case on the traversed voxels (with OctoMap occupancy, only those
+    # holding classes have a semantic state to lower)
+    free = update.free_index
+    if not semantic and free.size:
+        free = free[updater.map.payload("classes")[free, 0] >= 0]
+    if free.size:
+        updater._store(free, fusion.mcb_miss(updater.state(free), phi=updater.phi,
+                                             empty_min_logodds=updater.empty_floor))
+    # end points: the frame's node per voxel, from its points' top-k
+    pixels, voxels, local_index = updater.endpoint_voxels(points)
+    if voxels.size:
+        classes = observation.classes.reshape(-1, observation.k)[pixels]
+        probs = observation.probs.reshape(-1, observation.k)[pixels]
+        local = fusion.build_local(local_index, classes, probs, len(voxels), hit=updater.psi)
+        current = updater.state(voxels)
+        if updater.leaf_update == "bayes":  # eq. 7: one observation, the majority class
+            updater._store(voxels, fusion.mcb_observe(current, local.classes[:, 0],
+                                                      psi=updater.psi, phi=updater.phi))
+        else:  # the local node merged with Algorithm 1; a first observation takes it
+            known = current.has_semantics
+            merged = fusion.merge_algorithm1(current.take(known), local.take(known),
+                                             updater.theta, pairing=updater.pairing)
+            updater._store(voxels[known], merged)
+            updater._store(voxels[~known], local.take(~known))
+    if semantic:
+        touched = np.concatenate([free, voxels])
+        updater.map.logodds_for_writing()[touched] = fusion.mcb_occupancy(
+            updater.state(touched))
+
+
+def _inner(updater: MultiClassBayesMap, child_payload: np.ndarray, group: np.ndarray,
+           n_groups: int) -> np.ndarray:
+    """Algorithm 1 where nodes merge: an inner node's state is its children's, merged pairwise
+    in child order (:func:`~evsmap.mapping.fusion.fold_algorithm1`)."""
+    children = MCBState(_from_ids(child_payload["classes"]), child_payload["logodds"],
+                        child_payload["others"])
+    merged = fusion.fold_algorithm1(children, group, n_groups, updater.theta,
+                                    pairing=updater.pairing)
+    return _encode({"classes": merged.classes, "class_logodds": merged.logodds,
+                    "others": merged.others}, n_groups)
+
+
+NODE_TYPE = NODE_TYPES.add(NodeType(
+    TREE_TYPE, record=PAYLOAD_FORMAT,
+    columns=(Column("classes", np.int16, (3,), fill=fusion.EMPTY),
+             Column("class_logodds", np.float32, (3,), fill=0),
+             Column("others", np.float32, (), fill=0)),
+    update=_update, inner=_inner, prune_on=("classes", "class_logodds", "others"),
+    # OctoMap node: 4 B log-odds + children pointer (8 B) + this payload, 8-byte aligned
+    node_bytes=-(-(4 + 8 + PAYLOAD_FORMAT.itemsize) // 8) * 8,
+    label="classes", encode=_encode, decode=_decode, uses_semantics=True,
+    description="EVSMaP multi-class Bayesian node: 3 classes + log-odds + others"))
+"""EVSMaP's node. Published file = the full one: the node "maintain[s] only the probabilities of
+the three most likely semantic classes ... all other classes are consolidated into an others
+class": 3 class ids, their 3 log-odds and others, which is exactly the full payload."""
+
+
 class MultiClassBayesMap(OctreeUpdater):
-    """EVSMaP's multi-class Bayesian semantic octree.
+    """EVSMaP's multi-class Bayesian semantic octree (node type :data:`NODE_TYPE`).
 
     Args:
         psi: log-odds added to the observed class (eq. 9, phi+ of the occupied case).
@@ -72,8 +182,7 @@ class MultiClassBayesMap(OctreeUpdater):
     """
 
     name = "multiclass-bayes"
-    tree_type = TREE_TYPE
-    uses_semantics = True
+    node_type = NODE_TYPE
 
     def __init__(self, *, psi: float = fusion.PSI, phi: float = fusion.PHI,
                  theta: float = fusion.THETA, leaf_update: str = "bayes",
@@ -91,12 +200,7 @@ class MultiClassBayesMap(OctreeUpdater):
         super().__init__(**kwargs)
         # a voxel without classes keeps its occupancy in ``others``: floored where OctoMap
         # clamps (SSMI's fuseObsFree on such voxels)
-        self._empty_floor = float(self.params.clamp_min_logodds)
-
-    def _init_payloads(self) -> None:
-        self.map.add_payload("classes", np.int16, (3,), fill=fusion.EMPTY)
-        self.map.add_payload("class_logodds", np.float32, (3,), fill=0)
-        self.map.add_payload("others", np.float32, (), fill=0)
+        self.empty_floor = float(self.params.clamp_min_logodds)
 
     def state(self, index: np.ndarray | slice = slice(None)) -> MCBState:
         m = self.map
@@ -109,112 +213,17 @@ class MultiClassBayesMap(OctreeUpdater):
         m.payload("class_logodds")[index] = state.logodds
         m.payload("others")[index] = state.others
 
-    def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
-                         observation: SemanticObservation | None) -> None:
-        self._check_classes(observation)
-        if USE_KERNEL and frame_update is not None:
-            pixels, voxels, local_index = self.endpoint_voxels(points)
-            span = int(observation.classes.max()) + 1 if observation.classes.size else 0
-            if 0 < span and len(voxels) * span <= fusion.DENSE_LIMIT:
-                k = observation.k
-                m = self.map
-                frame_update(
-                    m.payload("classes"), m.payload("class_logodds"), m.payload("others"),
-                    m.logodds_for_writing(), update.free_index, voxels, local_index, pixels,
-                    observation.classes.reshape(-1, k), observation.probs.reshape(-1, k),
-                    span, self.psi, self.phi, self.theta, fusion.MIN_LOGODDS,
-                    fusion.MAX_LOGODDS, fusion.PROB_MIN, self._empty_floor,
-                    self.leaf_update == "bayes", self.pairing == "printed",
-                    self.occupancy == "semantic")
-                return
-        self._update_payloads_numpy(points, update, observation)
+    def check_classes(self, observation: SemanticObservation) -> None:
+        """Class ids are stored in one byte (255 = empty slot).
 
-    def _update_payloads_numpy(self, points: FramePoints, update: ScanUpdate,
-                               observation: SemanticObservation) -> None:
-        """The reference implementation (numpy, whole arrays)."""
-        semantic = self.occupancy == "semantic"
-        # rays: eq. 9's free case on the traversed voxels (with OctoMap occupancy, only those
-        # holding classes have a semantic state to lower)
-        free = update.free_index
-        if not semantic and free.size:
-            free = free[self.map.payload("classes")[free, 0] >= 0]
-        if free.size:
-            self._store(free, fusion.mcb_miss(self.state(free), phi=self.phi,
-                                              empty_min_logodds=self._empty_floor))
-        # end points: the frame's node per voxel, from its points' top-k
-        pixels, voxels, local_index = self.endpoint_voxels(points)
-        if voxels.size:
-            classes = observation.classes.reshape(-1, observation.k)[pixels]
-            probs = observation.probs.reshape(-1, observation.k)[pixels]
-            local = fusion.build_local(local_index, classes, probs, len(voxels), hit=self.psi)
-            current = self.state(voxels)
-            if self.leaf_update == "bayes":  # eq. 7: one observation, the majority class
-                self._store(voxels, fusion.mcb_observe(current, local.classes[:, 0],
-                                                       psi=self.psi, phi=self.phi))
-            else:  # the local node merged with Algorithm 1; a first observation takes it
-                known = current.has_semantics
-                merged = fusion.merge_algorithm1(current.take(known), local.take(known),
-                                                 self.theta, pairing=self.pairing)
-                self._store(voxels[known], merged)
-                self._store(voxels[~known], local.take(~known))
-        if semantic:
-            touched = np.concatenate([free, voxels])
-            self.map.logodds_for_writing()[touched] = fusion.mcb_occupancy(
-                self.state(touched))
-
-    def _payload_record(self) -> np.ndarray:
-        rec = np.empty(self.map.num_leaves, dtype=PAYLOAD_FORMAT)
-        classes = self.map.payload("classes")
-        rec["classes"] = np.where(classes < 0, EMPTY_ID, classes)
-        rec["logodds"] = self.map.payload("class_logodds")
-        rec["others"] = self.map.payload("others")
-        return rec
-
-    def _set_payload_record(self, record: np.ndarray | None) -> None:
-        ids = record["classes"].astype(np.int16)
-        self.map.payload("classes")[:] = np.where(ids == EMPTY_ID, fusion.EMPTY, ids)
-        self.map.payload("class_logodds")[:] = record["logodds"]
-        self.map.payload("others")[:] = record["others"]
-
-    def _equal_columns(self) -> list[np.ndarray]:
-        m = self.map
-        return [m.logodds, m.payload("classes"), m.payload("class_logodds"), m.payload("others")]
-
-    def _inner_payload(self):
-        def aggregate(child_payload: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
-            ids = child_payload["classes"].astype(np.int16)
-            children = MCBState(np.where(ids == EMPTY_ID, fusion.EMPTY, ids),
-                                child_payload["logodds"], child_payload["others"])
-            merged = fusion.fold_algorithm1(children, group, n_groups, self.theta,
-                                            pairing=self.pairing)
-            rec = np.empty(n_groups, dtype=PAYLOAD_FORMAT)
-            rec["classes"] = np.where(merged.classes < 0, EMPTY_ID, merged.classes)
-            rec["logodds"] = merged.logodds
-            rec["others"] = merged.others
-            return rec
-
-        return aggregate
-
-    def _payload_format(self):
-        return PAYLOAD_FORMAT
-
-    # published file: the full one. EVSMaP's node "maintain[s] only the probabilities of the
-    # three most likely semantic classes ... all other classes are consolidated into an others
-    # class": 3 class ids, their 3 log-odds and others, which is exactly the full payload.
-
-    def _node_bytes(self) -> int:
-        # OctoMap node: 4 B log-odds + children pointer (8 B) + this payload, 8-byte aligned
-        return -(-(4 + 8 + PAYLOAD_FORMAT.itemsize) // 8) * 8
-
-    def _check_classes(self, observation: SemanticObservation) -> None:
+        Raises:
+            InvalidDataError: the observation's label set has more than 255 classes.
+        """
         if observation.num_classes > EMPTY_ID:
             from evsmap.errors import InvalidDataError
 
             raise InvalidDataError(f"multiclass-bayes stores class ids in one byte: at most "
                                    f"{EMPTY_ID} classes, got {observation.num_classes}")
-
-    def query(self, points: np.ndarray):
-        return self._labelled_query(points, "classes")
 
 
 def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBayesMap:

@@ -1,46 +1,25 @@
 """``orgb`` - ORGBMap: OctoMap occupancy with the RGB colour of the points averaged per voxel,
-as OctoMap's ``ColorOcTree`` (EVSMaP Table IV's colour-only baseline row)."""
+as OctoMap's ``ColorOcTree`` (EVSMaP Table IV's colour-only baseline row).
+
+The node type is OctoMap's own :data:`~evsmap.mapping.node_type.COLOR_OCTREE`: per frame, each
+hit voxel's colour becomes the ``ColorOcTree::averageNodeColor`` of its stored colour and the
+mean colour of the frame's points in it (the first colour is copied); pruning ignores colour, an
+inner node's colour is the average of its children's (``updateInnerOccupancy``). Files: ``.ot``
+is a byte-compatible ``ColorOcTree``, ``.bt`` the occupancy only.
+"""
 
 from __future__ import annotations
 
-import numpy as np
-
-from evsmap.data import Frame, SemanticObservation
-from evsmap.mapping.occupancy import ScanUpdate
-from evsmap.mapping.tree import Tree, build_color_tree
+from evsmap.mapping.node_type import COLOR_OCTREE
 from evsmap.registry import UPDATERS
-from evsmap.updaters.base import FramePoints, OctreeUpdater
+from evsmap.updaters.base import OctreeUpdater
 
 
 class ORGBMap(OctreeUpdater):
-    """Colour occupancy octree.
-
-    Per frame, each hit voxel's colour becomes the ``ColorOcTree::averageNodeColor`` of its
-    stored colour and the mean colour of the frame's points in it (the first colour is copied);
-    pruning ignores colour, an inner node's colour is the average of its children's
-    (``ColorOcTree``'s ``updateInnerOccupancy``). Files: ``.ot`` is a byte-compatible
-    ``ColorOcTree``, ``.bt`` the occupancy only.
-    """
+    """Colour occupancy octree (OctoMap's ``ColorOcTree``)."""
 
     name = "orgb"
-    tree_type = "ColorOcTree"
-
-    def _init_payloads(self) -> None:
-        self.map.add_payload("rgb", np.uint8, (3,), fill=255)  # white = no colour (OctoMap)
-
-    def _update_payloads(self, frame: Frame, points: FramePoints, update: ScanUpdate,
-                         observation: SemanticObservation | None) -> None:
-        pixels, voxels, local = self.endpoint_voxels(points)
-        if voxels.size:
-            self._average_colours(frame, pixels, voxels, local)
-
-    def _set_payload_record(self, record: np.ndarray | None) -> None:
-        if record is not None:
-            self.map.payload("rgb")[:] = record
-
-    def tree(self) -> Tree:
-        return build_color_tree(self.map.codes, np.asarray(self.map.logodds),
-                                self.map.payload("rgb"))
+    node_type = COLOR_OCTREE
 
 
 @UPDATERS.register("orgb", description="ORGBMap: OctoMap occupancy + averaged RGB "

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from baselines import semantic_slam_kernels as k
-from baselines.semantic_slam import pack_rgb, unpack_rgb, voc_colormap
+from baselines.semantic_slam_node import pack_rgb, unpack_rgb, voc_colormap
 from evsmap.data import Frame, Intrinsics, SemanticObservation
 from evsmap.mapping.keys import KEY_OFFSET
 from evsmap.registry import UPDATERS

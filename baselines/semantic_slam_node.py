@@ -1,0 +1,79 @@
+"""semantic_slam's node types (``.ot`` ids ``SemanticSlamOcTreeBayes`` /
+``SemanticSlamOcTreeMax``) and its class colours, without the compiled node pool, so that
+loading the plug-ins registers the types (and ``.ot`` files of them read by id) without
+compiling anything.
+
+The full ``.ot`` record is the node pool's state: colour, the packed class colours (PASCAL VOC
+colours ``0x00RRGGBB``, semantic_slam keeps classes as colours) and their confidences. The leaf
+view of :class:`baselines.semantic_slam.SemanticSlamMap` holds the colour, the packed colours and
+the classes they are the colours of. A node is 48 B (Bayesian) or 32 B (max) in semantic_slam's
+memory; its published file is a ``ColorOcTree`` with the top class colour.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
+from evsmap.mapping.tree import Tree
+
+FUSION_RULES = ("bayes", "max")
+
+WHITE = 0xFFFFFF
+"""A packed colour that is no class (semantic_slam's unset semantic colour)."""
+
+
+def voc_colormap(n: int) -> np.ndarray:
+    """semantic_slam's ``color_map``: the PASCAL VOC colours of classes ``0..n-1`` (bits of the
+    class id spread over the high bits of r, g, b), ``uint8`` (n, 3)."""
+    ids = np.arange(int(n), dtype=np.int64)
+    out = np.zeros((len(ids), 3), dtype=np.int64)
+    c = ids.copy()
+    for j in range(8):
+        for ch in range(3):
+            out[:, ch] |= ((c >> ch) & 1) << (7 - j)
+        c >>= 3
+    return out.astype(np.uint8)
+
+
+def pack_rgb(rgb: np.ndarray) -> np.ndarray:
+    """``uint32`` ``0x00RRGGBB`` of (..., 3) ``uint8`` colours (the cloud's bgr0 bytes)."""
+    rgb = np.asarray(rgb).astype(np.uint32)
+    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+
+
+def unpack_rgb(packed: np.ndarray) -> np.ndarray:
+    """(..., 3) ``uint8`` r, g, b of ``0x00RRGGBB`` values (``getSemanticColor``)."""
+    p = np.asarray(packed).astype(np.uint32)
+    return np.stack([(p >> 16) & 0xFF, (p >> 8) & 0xFF, p & 0xFF], axis=-1).astype(np.uint8)
+
+
+def _publish(updater, tree: Tree):
+    """semantic_slam's file: ``writeData`` writes the log-odds and ``getSemanticColor`` (the
+    first semantic colour; white when unset) of every node under the type ``ColorOcTree``."""
+    top = np.asarray(tree.payload["colors"]).reshape(tree.num_nodes, updater.slots)[:, 0]
+    return "ColorOcTree", replace(tree, payload=unpack_rgb(top)), None
+
+
+def _node_type(rule: str) -> NodeType:
+    slots = 3 if rule == "bayes" else 1
+    return NODE_TYPES.add(NodeType(
+        "SemanticSlamOcTreeBayes" if rule == "bayes" else "SemanticSlamOcTreeMax",
+        record=np.dtype([("rgb", "u1", (3,)), ("colors", "<u4", (slots,)),
+                         ("conf", "<f4", (slots,))]),
+        columns=(Column("rgb", np.uint8, (3,), fill=255),
+                 Column("sem_colors", np.uint32, (slots,), fill=WHITE),
+                 Column("sem_classes", np.int16, (slots,), fill=-1)),
+        # semantic_slam's node in RAM: a max node 32 B, a Bayesian node 48 B
+        node_bytes=48 if rule == "bayes" else 32,
+        label="sem_classes", colour="rgb", publish=_publish, uses_semantics=True,
+        description=f"[14] semantic_slam's node, {rule} fusion: RGB + {slots} x (packed class "
+                    f"colour, conf)"))
+
+
+NODE_TYPES_BY_RULE = {rule: _node_type(rule) for rule in FUSION_RULES}
+"""semantic_slam's node types: the full ``.ot`` record is the node pool's state (colour, packed
+class colours, confidences); the leaf view (``map``) holds the colour, the packed colours and
+the classes they are the VOC colours of."""
