@@ -75,6 +75,24 @@ def read_list(path: Path, columns: int) -> list[list[str]]:
     return rows
 
 
+def _pose_rows(path: Path, rows: list[list[str]]) -> np.ndarray:
+    """``groundtruth.txt``'s rows as an N x 8 array (timestamp tx ty tz qx qy qz qw); a value
+    that is not a finite number, or a quaternion of length zero, is an error naming the row."""
+    out = np.empty((len(rows), 8))
+    for n, row in enumerate(rows):
+        try:
+            out[n] = [float(v) for v in row[:8]]
+        except ValueError:
+            raise DataFormatError(f"{path}: pose row {n + 1} ({' '.join(row[:8])}) is not 8 "
+                                  f"numbers") from None
+    bad = ~np.isfinite(out).all(axis=1) | (np.linalg.norm(out[:, 4:8], axis=1) < 1e-12)
+    if bad.any():
+        n = int(np.flatnonzero(bad)[0])
+        raise DataFormatError(f"{path}: pose row {n + 1} ({' '.join(rows[n][:8])}) has a "
+                              f"non-finite value or a zero quaternion")
+    return out
+
+
 def _candidates(a: np.ndarray, b: np.ndarray, max_difference: float):
     """For each a_i, the indices j of b (into the sorted order) with |a_i - b_j| < tolerance."""
     order_b = np.argsort(b, kind="stable")
@@ -204,7 +222,7 @@ class TumSequence(Sequence):
         gt = read_list(gt_path, 8)
         if len(gt) < 1:
             raise DataFormatError(f"{gt_path}: no poses (camera-to-world poses are required)")
-        gt_arr = np.array([[float(v) for v in row] for row in gt])
+        gt_arr = _pose_rows(gt_path, gt)
         order = np.argsort(gt_arr[:, 0], kind="stable")
         gt_arr = gt_arr[order]
         dup = np.diff(gt_arr[:, 0]) <= 0

@@ -96,6 +96,12 @@ def test_bad_inputs_are_named(small_tum):
     (small_tum / "groundtruth.txt").write_text("1.0 2.0 3.0\n")
     with pytest.raises(DataFormatError, match=r"groundtruth.txt:1: expected 8 fields"):
         TumSequence(path=small_tum)
+    (small_tum / "groundtruth.txt").write_text("1.0 0 0 0 0 0 x 1\n")
+    with pytest.raises(DataFormatError, match=r"groundtruth.txt: pose row 1 .* not 8 numbers"):
+        TumSequence(path=small_tum)
+    (small_tum / "groundtruth.txt").write_text("1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 0\n")
+    with pytest.raises(DataFormatError, match=r"pose row 2 .* zero quaternion"):
+        TumSequence(path=small_tum)
     (small_tum / "groundtruth.txt").unlink()
     with pytest.raises(DataFormatError, match="groundtruth.txt: file not found"):
         TumSequence(path=small_tum)
