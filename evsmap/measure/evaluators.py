@@ -82,16 +82,19 @@ class ConfusionEvaluator(SegmentationEvaluator):
         class_names: names for the per-class scores (default: none).
         ignore_index: the labels' void value (default: evsmap's, 255).
         source: the dataset's name, for messages.
+        needs: what an unlabelled frame's message says is needed.
         name: the key of the result.
     """
 
     def __init__(self, *, num_classes: int, class_names: Sequence[str] = (),
                  ignore_index: int | None = None, source: str | None = None,
+                 needs: str = "scoring a segmenter needs a labelled dataset",
                  name: str = "confusion") -> None:
         from evsmap.metrics import ConfusionMatrix
 
         self.name = name
         self.source = source
+        self.needs = needs
         self.class_names = tuple(class_names)
         self._make = (lambda: ConfusionMatrix(num_classes)) if ignore_index is None else \
             (lambda: ConfusionMatrix(num_classes, ignore_index))
@@ -103,8 +106,8 @@ class ConfusionEvaluator(SegmentationEvaluator):
     def check(self, index: int, frame: Frame) -> None:
         if frame.labels is None:
             where = f" of {self.source!r}" if self.source else ""
-            raise EvsmapError(f"frame {frame.name!r}{where} has no ground-truth labels: scoring "
-                              f"a segmenter needs a labelled dataset")
+            raise EvsmapError(f"frame {frame.name!r}{where} has no ground-truth labels: "
+                              f"{self.needs}")
 
     def process(self, index: int, frame: Frame, observation: SemanticObservation) -> None:
         self.check(index, frame)

@@ -38,7 +38,6 @@ import csv
 import io
 import json
 import math
-import os
 import sys
 import time
 from collections.abc import Callable
@@ -47,10 +46,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 import torch.distributed as dist
-import torch.nn.functional as F
 from torch import nn
 from tqdm import tqdm
 
@@ -74,6 +71,14 @@ from evsmap.train.checkpoint import (
     seed_everything,
     set_rng_state,
 )
+from evsmap.train.evaluate import (
+    card_has_test,
+    final_test,
+    open_test_split,
+    predict_classes,
+    validate,
+)
+from evsmap.train.processes import Processes, start_processes
 from evsmap.train.recipe import (
     Recipe,
     RecipeError,
@@ -130,70 +135,6 @@ class RunOptions:
     messages: Any = None
 
 
-# -- processes ------------------------------------------------------------------------------------
-
-@dataclass
-class Processes:
-    """This process's place in the run (one process: rank 0 of 1)."""
-
-    rank: int
-    world: int
-    local_rank: int
-    device: torch.device
-    backend: str | None
-    started: bool  # whether this code initialised the process group (and tears it down)
-
-    @property
-    def main(self) -> bool:
-        return self.rank == 0
-
-    def sum_(self, tensor: torch.Tensor) -> torch.Tensor:
-        if self.world > 1:
-            dist.all_reduce(tensor, op=dist.ReduceOp.SUM)
-        return tensor
-
-    def gather(self, obj: Any) -> list[Any]:
-        if self.world == 1:
-            return [obj]
-        out: list[Any] = [None] * self.world
-        dist.all_gather_object(out, obj)
-        return out
-
-
-def _device(text: str | None) -> torch.device:
-    if text is None:
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(text)
-    except (RuntimeError, ValueError):
-        raise EvsmapError(f"--device must be cpu, cuda or cuda:N, got {text!r}") from None
-    if device.type not in ("cpu", "cuda"):
-        raise EvsmapError(f"--device must be cpu, cuda or cuda:N, got {text!r}")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise EvsmapError("--device cuda: torch sees no CUDA device here (use --device cpu)")
-    return device
-
-
-def start_processes(device: str | None) -> Processes:
-    """Read torchrun's environment and join the process group (gloo on the CPU, nccl on CUDA)."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    rank = int(os.environ.get("RANK", "0"))
-    local = int(os.environ.get("LOCAL_RANK", "0"))
-    dev = _device(device)
-    if world <= 1:
-        return Processes(0, 1, 0, dev, None, False)
-    if dev.type == "cuda":
-        dev = torch.device("cuda", local)
-        torch.cuda.set_device(dev)
-    backend = "nccl" if dev.type == "cuda" else "gloo"
-    started = False
-    if not dist.is_initialized():
-        dist.init_process_group(backend=backend, init_method="env://", rank=rank,
-                                world_size=world)
-        started = True
-    return Processes(rank, world, local, dev, backend, started)
-
-
 # -- schedule and loss ----------------------------------------------------------------------------
 
 class EpochSchedule:
@@ -241,128 +182,6 @@ class TrainingLoss(nn.Module):
                                   weights=(1.0,) + (self.side_weight,) * (heads - 1))
             self._by_heads[heads] = loss
         return loss(outputs, labels)
-
-
-# -- validation -----------------------------------------------------------------------------------
-
-def predict_classes(segmenter, frame, device: torch.device) -> np.ndarray:
-    """The class map ``evsmap eval`` scores for ``frame``: ``segmenter.predict(frame).argmax``
-    on the CPU; on a GPU the same steps (preprocess, network, bilinear resize to the frame,
-    most likely class) with the tensors moved there."""
-    k = min(3, int(segmenter.num_classes))
-    if device.type == "cpu":
-        return segmenter.predict(frame, k=k).argmax
-    inputs = tuple(t.to(device) for t in segmenter.preprocess(frame))
-    with torch.inference_mode():
-        logits = segmenter.module(*inputs)
-        h, w = frame.rgb.shape[:2]
-        if tuple(logits.shape[-2:]) != (h, w):
-            logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
-        scores = logits[0].float().permute(1, 2, 0).contiguous()
-        classes = torch.softmax(scores, dim=-1).topk(k, dim=-1).indices[..., 0]
-    return classes.to(torch.int16).cpu().numpy()
-
-
-def validate(segmenter, sequence, procs: Processes, *, bar: bool = False) -> np.ndarray:
-    """The confusion matrix of the network on ``sequence``, summed over the processes (each
-    predicts frames ``rank, rank + world, ...``)."""
-    from evsmap.metrics import ConfusionMatrix
-
-    n = int(segmenter.num_classes)
-    matrix = ConfusionMatrix(n)
-    indices = range(procs.rank, len(sequence), procs.world)
-    for i in tqdm(indices, desc="validating", unit="frame", leave=False, file=sys.stderr,
-                  disable=not bar):
-        frame = sequence.frame(i)
-        if frame.labels is None:
-            raise EvsmapError(f"frame {frame.name or i!r} of {sequence.name!r} has no labels: "
-                              f"validation needs a labelled split")
-        matrix.update(predict_classes(segmenter, frame, procs.device), frame.labels)
-    counts = torch.from_numpy(matrix.matrix).to(procs.device if procs.backend == "nccl"
-                                                 else "cpu")
-    return procs.sum_(counts).cpu().numpy()
-
-
-# -- the final test pass --------------------------------------------------------------------------
-
-TEST_SPLIT = "test"
-
-
-def open_test_split(opts: RunOptions, splits) -> tuple[Any, str | None]:
-    """The split a run that validated on another one is finally scored on: (sequence, None);
-    (None, why) when the dataset has no usable test split (Cityscapes: its test labels are all
-    void); (None, None) when there is nothing to do (the run validated on ``test``, or the
-    reader has no splits)."""
-    from evsmap.train.data import open_splits
-
-    if splits.val_split in (None, TEST_SPLIT):
-        return None, None
-    try:
-        test = open_splits(opts.dataset, reader=opts.reader, reader_options=opts.reader_options,
-                           train_split=TEST_SPLIT, val_split=TEST_SPLIT, limit=opts.limit).val
-    except EvsmapError as exc:
-        return None, f"no {TEST_SPLIT} split to score ({exc})"
-    meta = getattr(test, "meta", None) or {}
-    if TEST_SPLIT in (meta.get("void_label_splits") or ()):
-        return None, f"the {TEST_SPLIT} labels of {splits.reader} are all void"
-    return test, None
-
-
-def _card_has_test(path: Path) -> bool:
-    """Whether the card of weights file ``path`` records a final test pass."""
-    from evsmap.segmenters.weights import read_checkpoint
-
-    try:
-        return "test_split" in dict(read_checkpoint(path).get("card") or {})
-    except (EvsmapError, OSError):
-        return False
-
-
-def final_test(opts: RunOptions, splits, segmenter, out: Path, *, device: torch.device,
-               bar: bool = False) -> dict[str, Any] | None:
-    """Score ``best.pt``'s weights on the test split (rank 0, after the last epoch, through
-    :func:`validate` as validation does, so ``evsmap eval`` gives the same mIoU), write
-    ``test_miou``, ``test_split`` and ``test_frames`` into its card (the file rewritten
-    atomically, its tensors unchanged) and return them; None when there is no test pass (see
-    :func:`open_test_split`; a note says why). The network keeps ``best.pt``'s weights."""
-    from evsmap.metrics import ConfusionMatrix
-    from evsmap.segmenters.weights import read_checkpoint
-
-    def note(text: str) -> None:
-        print(f"note: no final test pass: {text}", file=opts.messages or sys.stdout, flush=True)
-
-    sequence, why = open_test_split(opts, splits)
-    if sequence is None:
-        if why:
-            note(why)
-        return None
-    t0 = time.perf_counter()
-    saved = read_checkpoint(out / BEST)
-    state, card = saved["state_dict"], dict(saved["card"])
-    segmenter.module.load_state_dict(state, strict=True)
-    segmenter.module.eval()
-    try:
-        counts = validate(segmenter, sequence, Processes(0, 1, 0, device, None, False), bar=bar)
-    except EvsmapError as exc:
-        note(str(exc))
-        return None
-    if not counts.sum():
-        note(f"every label of the {TEST_SPLIT} split is void")
-        return None
-    miou = ConfusionMatrix.from_matrix(counts).result().miou
-    fields = {"test_miou": None if math.isnan(miou) else float(miou), "test_split": TEST_SPLIT,
-              "test_frames": len(sequence)}
-    card.update(fields)
-    save_weights(out / BEST, state, card)
-    print(f"test mIoU {_pct(fields['test_miou'])} ({_best_text(card)}, {len(sequence)} frames of "
-          f"split {TEST_SPLIT}, {time.perf_counter() - t0:.1f} s)",
-          file=opts.messages or sys.stdout, flush=True)
-    return fields
-
-
-def _best_text(card: dict[str, Any]) -> str:
-    epoch = card.get("val_epoch") or card.get("epochs")
-    return f"best.pt, epoch {epoch}" if epoch else "best.pt"
 
 
 # -- the run --------------------------------------------------------------------------------------
@@ -703,7 +522,7 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
     # the final test pass: after the last epoch, or on --resume of a finished run whose best.pt
     # has none yet (a run finished before evsmap made the pass)
     if procs.main and epochs_done >= recipe.epochs and best is not None and (
-            done_here or not _card_has_test(out / BEST)):
+            done_here or not card_has_test(out / BEST)):
         test = final_test(opts, splits, segmenter, out, device=procs.device, bar=tty)
         if test is not None:
             run.update(test)
