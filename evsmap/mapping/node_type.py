@@ -156,6 +156,14 @@ class NodeType:
     def column_names(self) -> tuple[str, ...]:
         return self._names
 
+    def __reduce__(self):
+        """A registered node type pickles as its id (its rules may be lambdas or closures), so
+        an updater holding one can cross a process boundary."""
+        if NODE_TYPES._types.get(self.tree_id) is not self:
+            raise TypeError(f"node type {self.tree_id!r} is not registered: only registered node "
+                            f"types pickle (by their id)")
+        return (_registered, (self.tree_id,))
+
     def to_record(self, columns: Mapping[str, np.ndarray], n: int) -> np.ndarray | None:
         """The payload records of ``n`` leaves from their columns (None without a record)."""
         if self.record is None:
@@ -244,6 +252,11 @@ class NodeTypeRegistry:
 
 NODE_TYPES = NodeTypeRegistry()
 """Every node type evsmap can read, by ``.ot`` id."""
+
+
+def _registered(tree_id: str) -> NodeType:
+    """The registered node type ``tree_id`` (unpickling)."""
+    return NODE_TYPES.get(tree_id)
 
 
 # --------------------------------------------------------------------------- OctoMap's own

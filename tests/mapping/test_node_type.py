@@ -136,6 +136,16 @@ def test_custom_node_type_round_trips_through_write_and_restore(visits, frames, 
     assert np.array_equal(again.map.payload("visits"), updater.map.payload("visits"))
 
 
+def test_registered_types_pickle_by_id(visits):
+    import pickle
+
+    updater = UPDATERS.create("classic-semantic", front_end="classwise")
+    assert pickle.loads(pickle.dumps(updater)).node_type is updater.node_type
+    assert pickle.loads(pickle.dumps(visits)) is visits
+    with pytest.raises(TypeError, match="not registered"):
+        pickle.dumps(NodeType("Unregistered"))
+
+
 def test_restore_refuses_another_node_type(visits, frames, tmp_path):
     orgb = UPDATERS.create("orgb", resolution=0.1)
     orgb.integrate(frames[0])
