@@ -30,4 +30,19 @@ def run(args: argparse.Namespace) -> int:
         width = max((len(e.name) for e in entries), default=0)
         for e in entries:
             print(f"  {e.name:<{width}}  {e.description}")
+    _print_cards()
     return 0
+
+
+def _print_cards() -> None:
+    """The model cards (:mod:`evsmap.segmenters.model_card`): name, label set, input, depth."""
+    from evsmap.segmenters.model_card import MODEL_CARDS
+
+    cards = list(MODEL_CARDS.items().values())
+    print("model cards:")
+    width = max((len(c.name) for c in cards), default=0)
+    for c in cards:
+        depth = "RGB-D" if c.uses_depth else "RGB"
+        print(f"  {c.name:<{width}}  {c.class_set}, {depth}, "
+              f"{c.input_size[1]}x{c.input_size[0]}; paper figures: {len(c.published)}, "
+              f"known weight files: {len(c.weights)}")
