@@ -11,9 +11,10 @@ Not to be confused with :mod:`evsmap.segmenters.cards`: that is the *weights-fil
 record written beside a ``state_dict`` (what one file holds: model, options, tensors, training
 run). A model card says what a network is before any file exists.
 
-Names: the plain segmenter name is the network's default card (``feagnet-v1``: NYUv2, 40
-classes); a card for another label set is ``<segmenter>.<dataset>`` (``feagnet-v1.sunrgbd``,
-``esanet-r34-nbt1d.cityscapes``). :attr:`ModelCard.options` are the segmenter options that build
+Names: a segmenter's default card, where it has one, is named after it (``feagnet-v1``: NYUv2,
+40 classes); a card for another label set is ``<segmenter>.<dataset>`` (``feagnet-v1.sunrgbd``;
+the baselines have only these, ``esanet-r34-nbt1d.nyuv2`` .. ``.cityscapes``, one per value of
+their ``dataset`` option). :attr:`ModelCard.options` are the segmenter options that build
 the card's network. :data:`MODEL_CARDS` is the registry: a taken name raises
 :class:`~evsmap.errors.DuplicateNameError`, an unknown one
 :class:`~evsmap.errors.UnknownNameError` with the closest name. The built-in cards are added by
