@@ -92,6 +92,19 @@ def _probe(paths: list[str]) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------ the driver
+def timing_nodes(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The nodes that time: those with the head node's CPU model and CPU count; when the head
+    is not among ``nodes`` (it has no CPUs), the largest group of alike nodes (ties: the most
+    CPUs, then the first listed). Each node: ``cpu_model``, ``cpus``, ``head``."""
+    groups: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    for node in nodes:
+        groups.setdefault((node["cpu_model"], node["cpus"]), []).append(node)
+    head = next((n for n in nodes if n["head"]), None)
+    if head is not None:
+        return groups[(head["cpu_model"], head["cpus"])]
+    return max(groups.values(), key=lambda g: (len(g), g[0]["cpus"]))
+
+
 class _RayTasks(Executor):
     """A :class:`concurrent.futures.Executor` whose tasks are Ray tasks made by ``launch``; the
     futures complete as the tasks finish. Leaving it on an error cancels what is still
@@ -214,14 +227,7 @@ class RayExecutor(CellExecutor):
              "cpus": int(n["Resources"]["CPU"]), "head": HEAD_RESOURCE in n["Resources"]}
             for n, p in zip(nodes, probes, strict=True)]
         self._max_cpus = max(n["cpus"] for n in self._nodes)
-        groups: dict[tuple[str, int], list[dict[str, Any]]] = {}
-        for node in self._nodes:
-            groups.setdefault((node["cpu_model"], node["cpus"]), []).append(node)
-        head = next((n for n in self._nodes if n["head"]), None)
-        if head is not None:
-            chosen = groups[(head["cpu_model"], head["cpus"])]
-        else:
-            chosen = max(groups.values(), key=lambda g: (len(g), g[0]["cpus"]))
+        chosen = timing_nodes(self._nodes)
         for node in self._nodes:
             node["times"] = node in chosen
         self._slots = [TimingSlot(name=n["host"], cpus=n["cpus"], node_id=n["node_id"])
