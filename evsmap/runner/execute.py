@@ -10,613 +10,58 @@ records, beyond the paper's tables); Table IV's cells are then read from those r
 
 from __future__ import annotations
 
-import hashlib
-import math
-import os
-import socket
-import subprocess
 import time
 import traceback
-from dataclasses import dataclass
-from datetime import UTC, datetime
-from pathlib import Path
-from typing import Any
-
-import numpy as np
 
 from evsmap.errors import EvsmapError
-from evsmap.paths import REPO_ROOT
+from evsmap.runner.cell_base import (
+    RETRY_PAUSE_S,
+    STRICT_PAUSE_S,
+    base_fields,
+    environment,
+    git_commit,
+    na_record,
+    now,
+    spec_inputs,
+)
 from evsmap.runner.context import RunContext
-from evsmap.runner.records import CellRecord, needs_text
-from evsmap.tables.schema import CellSpec, Component, load_tables
+from evsmap.runner.mapping_cells import (
+    MAPPING_WEIGHTS,
+    REFERENCE_ROW,
+    VARIANT_ROWS,
+    MappingRun,
+    mapping_record,
+    mapping_runs,
+    observations_key,
+    open_mapping_sequence,
+    runtime_sequence,
+    sequence_identity,
+    table4_record,
+    weights_identity,
+)
+from evsmap.runner.network_cells import (
+    build_segmenter,
+    dataset_miou,
+    run_accuracy,
+    run_complexity,
+    run_speed,
+)
+from evsmap.runner.records import CellRecord
+from evsmap.tables.schema import CellSpec
 
-MAPPING_WEIGHTS = "nyuv2"
-"""The dataset the segmenters of the mapping systems are trained on (40 NYUv2 classes)."""
-
-REFERENCE_ROW = "octomap-cpp"
-"""The C++ OctoMap (occupancy only) mapped beside Table IV's systems as a reference."""
-
-
-# ----------------------------------------------------------------------------- environment
-def environment(threads: int | None = None) -> dict[str, Any]:
-    """CPU model, core and thread counts, library versions, git commit and host."""
-    from evsmap.environment import describe
-    from evsmap.measure.speed import library_versions
-
-    env: dict[str, Any] = dict(describe())
-    env["threads"] = threads or os.cpu_count() or 1
-    env["host"] = socket.gethostname()
-    try:
-        env["versions"] = dict(library_versions())
-    except Exception:  # pragma: no cover - a missing optional library
-        env["versions"] = {}
-    from importlib.metadata import PackageNotFoundError, version
-
-    env["versions"].pop("python", None)  # already in env["python"]
-    for dist in ("numba", "octomap-python", "open3d", "evsmap"):
-        try:
-            env["versions"][dist] = version(dist)
-        except PackageNotFoundError:
-            pass
-    env["git_commit"] = git_commit()
-    from evsmap.lock import lock_status
-
-    env["lock"] = lock_status()
-    return env
-
-
-def git_commit() -> str | None:
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True,
-                             text=True, timeout=10, check=False)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None
-
-
-def _now() -> str:
-    return datetime.now(UTC).isoformat(timespec="seconds")
-
-
-def _base(spec: CellSpec) -> dict[str, Any]:
-    return {"key": spec.key, "table": spec.table, "row": spec.row, "label": spec.label,
-            "kind": spec.kind, "metrics": list(spec.metrics), "inputs": spec_inputs(spec)}
-
-
-def spec_inputs(spec: CellSpec) -> dict[str, Any]:
-    return {"segmenter": spec.segmenter.spec if spec.segmenter else None,
-            "updater": spec.updater.spec if spec.updater else None,
-            "datasets": list(spec.datasets), "split": spec.split,
-            "input_size": list(spec.input_size) if spec.input_size else None,
-            "voxel_size": spec.voxel_size, "hardware": spec.hardware,
-            "config_key": spec.config_key}
-
-
-def na_record(spec: CellSpec, needs: list[str], ctx: RunContext) -> CellRecord:
-    return CellRecord(**_base(spec), status="na", needs=list(needs), reason=needs_text(needs),
-                      started=_now())
-
-
-# ----------------------------------------------------------------------------- networks
-def build_segmenter(component: Component, *, input_size=None, backend: str | None = None,
-                    weights: str | None = None):
-    """The segmenter of ``component`` (seeded: untrained networks get the same weights every
-    run, so ONNX exports are reused)."""
-    import torch
-
-    from evsmap.registry import SEGMENTERS
-
-    config = dict(component.config)
-    params = SEGMENTERS.get(component.name).parameters()
-    if input_size is not None and "input_size" in params:
-        config["input_size"] = tuple(input_size)
-    if backend is not None and "backend" in params:
-        config["backend"] = backend
-    if weights is not None:
-        config["weights"] = weights
-    torch.manual_seed(0)
-    return SEGMENTERS.create(component.name, **config)
-
-
-def _size(spec: CellSpec, segmenter) -> tuple[int, int]:
-    return tuple(spec.input_size) if spec.input_size else tuple(segmenter.default_size)
-
-
-def run_complexity(spec: CellSpec, ctx: RunContext) -> CellRecord:
-    from evsmap.measure.complexity import measure_complexity
-
-    segmenter = build_segmenter(spec.segmenter)
-    h, w = _size(spec, segmenter)
-    rec = measure_complexity(segmenter.module, segmenter.example_inputs(h, w))
-    quantities = _quantities(spec)
-    values = {col: float(rec.params if q == "params" else rec.flops)
-              for col, q in quantities.items()}
-    if set(quantities.values()) == {"params"}:  # no input size in a parameter count
-        notes = ["every parameter of the network, training-only heads included where it has them; "
-                 "the count does not depend on the input size"]
-    else:
-        notes = [f"fvcore at {w}x{h} (1 MAC = 1 FLOP, as fvcore and the paper's lineage "
-                 f"count)"]
-    if rec.uncounted_ops and "flops" in quantities.values():
-        notes.append("operators fvcore does not count: " + ", ".join(sorted(rec.uncounted_ops)))
-    return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
-                      details=rec.as_dict())
-
-
-def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
-    from evsmap.measure.complexity import measure_complexity
-    from evsmap.measure.speed import measure_speed
-
-    segmenter = build_segmenter(spec.segmenter, input_size=spec.input_size)
-    h, w = _size(spec, segmenter)
-    inputs = segmenter.example_inputs(h, w)
-    macs = measure_complexity(segmenter.module, inputs).flops
-    from evsmap.measure.contention import CalibrationLog, machine_log_path
-    from evsmap.models.onnx_export import default_cache_dir
-
-    # ONNX exports: the cache shared across runs (content-addressed by network and weights)
-    cache = default_cache_dir() if ctx.speed_backend == "onnxruntime" else None
-    log = CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
-                         machine_path=machine_log_path())
-
-    def measure():
-        return measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,
-                             runs=ctx.speed_runs, warmup=ctx.speed_warmup, threads=ctx.threads,
-                             macs=macs, input_names=segmenter.input_names,
-                             key=spec.segmenter.spec, cache_dir=cache,
-                             max_rounds=ctx.max_rounds, stable_rel_iqr=ctx.stable_rel_iqr,
-                             calibration_log=log)
-
-    rec = measure()
-    if rec.contention.get("contended"):
-        # one more try once the other work may have passed; keep the less contended
-        time.sleep(STRICT_PAUSE_S if ctx.strict_timing else RETRY_PAUSE_S)
-        again = measure()
-        from evsmap.measure.contention import severity
-
-        if severity(again.contention) < severity(rec.contention):
-            rec = again
-        if ctx.strict_timing and rec.contention.get("contended"):
-            return CellRecord(**_base(spec), status="na", needs=["an idle machine"],
-                              reason=f"n/a - --strict-timing: the machine was busy "
-                                     f"({rec.flag}); rerun when it is idle",
-                              details=rec.as_dict(), started=_now())
-    values = {col: float(rec.fps_median) for col in spec.metrics}
-    notes = [f"{ctx.speed_backend} on the CPU ({rec.threads} threads, {rec.cpu}), {w}x{h}, "
-             f"median of {rec.runs} runs after {rec.warmup} warm-up"
-             + (f" (round {rec.rounds} of at most {ctx.max_rounds}: the first with IQR/median "
-                f"<= {ctx.stable_rel_iqr:g})" if rec.rounds > 1 and rec.stable else "")
-             + "; untrained weights (speed does not depend on them)"]
-    details = rec.as_dict()
-    if rec.flag:
-        notes.append(f"timing flagged - {rec.flag}")
-        details["timing_flag"] = rec.flag
-    return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
-                      details=details)
-
-
-STRICT_PAUSE_S = 20.0
-"""``--strict-timing``: seconds to wait before timing a contended cell a second time."""
-RETRY_PAUSE_S = 3.0
-"""Without ``--strict-timing``: the same, shorter (the cell is flagged if still contended)."""
-
-
-def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
-    dataset = spec.datasets[0]
-    path = ctx.dataset_path(dataset)
-    choice = ctx.weights_choice(spec.segmenter.spec, dataset)
-    if path is None or choice is None:  # guarded by the caller's needs check
-        raise EvsmapError(f"{spec.key}: dataset or weights missing")
-    split = spec.split or "test"
-    result, frames = dataset_miou(spec.segmenter, dataset, path, split, choice.path,
-                                  input_size=spec.input_size, backend=ctx.speed_backend,
-                                  limit=10 if ctx.quick else None)
-    values = {col: float(result.miou) for col in spec.metrics}
-    notes = [f"{dataset} {split} split, {frames} images, weights {choice.file}", choice.note()]
-    return CellRecord(**_base(spec), status="ok", values=values, notes=notes,
-                      details=result.as_dict())
-
-
-def dataset_miou(component: Component, dataset: str, path: str | os.PathLike[str], split: str,
-                 weights: str | os.PathLike[str], *, input_size=None,
-                 backend: str | None = None, limit: int | None = None):
-    """``(result, frames)``: one dataset-level confusion matrix of ``component`` with
-    ``weights`` over ``dataset``'s ``split`` (:class:`~evsmap.metrics.ConfusionMatrix`'s
-    result; its ``miou`` over the classes present in ground truth or prediction)."""
-    from evsmap.datasets.lookup import dataset_classes
-    from evsmap.measure.engine import run_segmentation
-    from evsmap.measure.evaluators import ConfusionEvaluator
-    from evsmap.registry import READERS
-
-    segmenter = build_segmenter(component, input_size=input_size, backend=backend,
-                                weights=str(weights))
-    config: dict[str, Any] = {"path": str(path), "split": split}
-    if input_size and "resolution" in READERS.get(dataset).parameters():
-        config["resolution"] = f"{input_size[1]}x{input_size[0]}"
-    if limit is not None:
-        config["limit"] = limit
-    sequence = READERS.create(dataset, **config)
-    n_data, names = dataset_classes(sequence)
-    if n_data is not None and n_data != segmenter.num_classes:
-        raise EvsmapError(f"{component.spec} predicts {segmenter.num_classes} classes, "
-                          f"{dataset} has {n_data}")
-    scored = run_segmentation(sequence, segmenter, evaluators=[
-        ConfusionEvaluator(num_classes=segmenter.num_classes, class_names=names,
-                           source=sequence.name)])
-    return scored.results["confusion"], scored.frames
-
-
-def _quantities(spec: CellSpec) -> dict[str, str]:
-    table = load_tables()[spec.table]
-    return {col: table.column(col).quantity for col in spec.metrics}
-
-
-# ----------------------------------------------------------------------------- mapping runs
-@dataclass(frozen=True)
-class MappingRun:
-    """One system mapping one sequence (an ``extra/mapping/...`` record)."""
-
-    row: str
-    label: str
-    segmenter: Component | None
-    updater: Component
-    sequence: str
-    voxel_size: float
-
-    @property
-    def key(self) -> str:
-        return f"extra/mapping/{self.row}/{self.sequence}@{self.voxel_size:g}m"
-
-
-VARIANT_ROWS = {"tfeagmap": ("-classwise", "TFEAGMap, classwise variant",
-                              {"front_end": "classwise"})}
-"""Table IV rows also mapped with a named variant of their updater (row suffix, label, options):
-TFEAGMap with evsmap's classwise classic-semantic beside semantic_slam's own pipeline, so the
-report shows what semantic_slam's front end, ray casting and fusion details cost."""
-
-
-def mapping_runs(sequences: list[str], voxel_size: float) -> list[MappingRun]:
-    """Table IV's systems (and :data:`VARIANT_ROWS`) plus the C++ OctoMap reference on each of
-    ``sequences``."""
-    table = load_tables()["table4"]
-    runs = []
-    for seq in sequences:
-        for system in table.rows:
-            if system.implemented and system.updater is not None:
-                segmenter = system.segmenter_for(MAPPING_WEIGHTS)
-                runs.append(MappingRun(system.id, system.label, segmenter, system.updater,
-                                       seq, voxel_size))
-                if system.id in VARIANT_ROWS:
-                    suffix, label, options = VARIANT_ROWS[system.id]
-                    runs.append(MappingRun(system.id + suffix, label, segmenter,
-                                           system.updater.with_options(options), seq,
-                                           voxel_size))
-        runs.append(MappingRun(REFERENCE_ROW, "OctoMap (C++)", None, Component("octomap-cpp"),
-                               seq, voxel_size))
-    return runs
-
-
-def open_mapping_sequence(ctx: RunContext, name: str):
-    from evsmap.registry import READERS
-    from evsmap.runner.context import MAPPING_SEQUENCES
-    from evsmap.synth.sequence import SyntheticSequence
-
-    if name == "synthetic":
-        # rendered once per run into the cache (TUM layout, read back bit-identical), so the
-        # mapping runs, the segmentation cache and the timings all read the same frames cheaply
-        from evsmap.cache import cache_dir, source_digest
-        from evsmap.readers.tum import METADATA_FILE
-        from evsmap.synth.write import write_synthetic
-
-        o = ctx.synthetic
-        # the cache shared across runs, keyed by the options and the renderer's source
-        folder = cache_dir("sequences") / (
-            f"synthetic-{o['scene']}-s{o['seed']}-{o['width']}x{o['height']}-{o['frames']}f"
-            + ("-noise" if o.get("noise") else "") + f"-{source_digest('evsmap.synth')}")
-        if not (folder / METADATA_FILE).is_file():
-            write_synthetic(SyntheticSequence(**o), folder, overwrite=True)
-        return READERS.create("tum", path=str(folder))
-    path = ctx.dataset_path(name)
-    if path is None:
-        raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")
-    info = MAPPING_SEQUENCES[name]
-    return READERS.create(info["reader"], path=str(path), **info["options"])
-
-
-def sequence_identity(sequence) -> str:
-    """What a sequence's frames are, for the shared segmentation cache: its folder (resolved)
-    and that folder's modification time and size, so frames replaced in place, or another
-    rendering of the synthetic scene (its folder names the renderer's source digest), get new
-    entries."""
-    path = getattr(sequence, "root", None) or getattr(sequence, "path", None)
-    if path is None:
-        return str(getattr(sequence, "name", "unknown"))
-    p = Path(path).resolve()
-    try:
-        st = p.stat()
-        return f"{p}:{st.st_mtime_ns}:{st.st_size}"
-    except OSError:
-        return str(p)
-
-
-_WEIGHTS_IDS: dict[tuple[str, int, int, int], str] = {}
-
-
-def weights_identity(path: str | os.PathLike[str]) -> str:
-    """What a weights file's tensors are, for cache keys: ``tensors:<sha256>`` from the card's
-    ``tensors_sha256`` when the file has a card, else ``file:<sha256>`` of its bytes. Computed
-    once per (path, inode, size, modification time) in this process."""
-    path = Path(path)
-    st = path.stat()
-    memo = (str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns)
-    found = _WEIGHTS_IDS.get(memo)
-    if found is None:
-        from evsmap.segmenters.cards import inspect_weights
-
-        card = inspect_weights(path).card
-        sha = card.get("tensors_sha256") if card is not None else None
-        if isinstance(sha, str) and sha:
-            found = f"tensors:{sha}"
-        else:
-            digest = hashlib.sha256()
-            with open(path, "rb") as f:
-                for chunk in iter(lambda: f.read(1 << 20), b""):
-                    digest.update(chunk)
-            found = f"file:{digest.hexdigest()}"
-        _WEIGHTS_IDS[memo] = found
-    return found
-
-
-def observations_key(segmenter: str, weights: str | os.PathLike[str],
-                     sequence: str) -> dict[str, Any]:
-    """The segmentation cache's key of a network's observations: the segmenter, the weights
-    file's path and its tensors (:func:`weights_identity`: a file replaced under the same name
-    gets a new key), the sequence."""
-    return {"segmenter": segmenter, "weights": str(weights),
-            "weights_id": weights_identity(weights), "sequence": sequence}
-
-
-def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
-    """Map ``run.sequence`` with ``run``'s system; time each update, add the segmentation time
-    per frame, measure the map file and (on the synthetic sequence) its 3D quality."""
-    from evsmap.registry import UPDATERS
-    from evsmap.runner.segcache import SegmentationCache
-
-    base = {"key": run.key, "table": "extra", "row": run.row, "label": run.label,
-            "kind": "mapping", "metrics": [],
-            "inputs": {"segmenter": run.segmenter.spec if run.segmenter else None,
-                       "updater": run.updater.spec, "sequence": run.sequence,
-                       "voxel_size": run.voxel_size}}
-    semantic = run.segmenter is not None
-    choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) if semantic else None
-    weights = choice.path if choice is not None else None
-    if run.sequence != "synthetic" and ctx.dataset_path(run.sequence) is None:
-        return CellRecord(**base, status="na", needs=[f"dataset:{run.sequence}"],
-                          reason=needs_text([f"dataset:{run.sequence}"]), started=_now())
-    sequence = open_mapping_sequence(ctx, run.sequence)
-    n = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
-    indices = list(range(n))
-    notes: list[str] = []
-    from evsmap.cache import cache_dir
-
-    # observations: the cache shared across runs (keyed by segmenter, weights' tensors and the
-    # sequence's frames); timings: this run's own, never another run's
-    shared = SegmentationCache(cache_dir("segmentation"))
-    cache = SegmentationCache(Path(ctx.out) / "cache" / "segmentation")
-    frames_id = sequence_identity(sequence)
-    observations: list | None = None
-    segment_ms: list[float] = []
-    from evsmap.measure.contention import CalibrationLog, Probe, contention, machine_log_path
-
-    before = Probe.take()  # the machine around the timed part (segmentation and update)
-    if semantic:
-        labelled = n > 0 and sequence.frame(0).labels is not None
-        if choice is not None:
-            net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
-            observations, segment_ms, reused = shared.observations(
-                net, sequence, indices,
-                key={**observations_key(run.segmenter.spec, weights, sequence.name),
-                     "frames": frames_id})
-            if reused:  # computed in another run: time the network in this one
-                segment_ms, _ = cache.timings(net, sequence, indices, key={
-                    "segmenter": run.segmenter.spec, "weights_id": weights_identity(weights),
-                    "backend": "onnxruntime", "threads": ctx.threads,
-                    "sequence": sequence.name})
-            notes.append(f"labels from {run.segmenter.spec} with weights {choice.file} "
-                         f"(onnxruntime)")
-            notes.append(choice.note())
-        elif labelled:
-            from evsmap.registry import SEGMENTERS
-
-            oracle = SEGMENTERS.create("oracle", **ctx.oracle)
-            observations, _, _ = shared.observations(
-                oracle, sequence, indices, key={"segmenter": "oracle", **ctx.oracle,
-                                                "sequence": sequence.name, "frames": frames_id})
-            net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
-            segment_ms, _ = cache.timings(net, sequence, indices, key={
-                "segmenter": run.segmenter.spec, "backend": ctx.speed_backend,
-                "threads": ctx.threads, "sequence": sequence.name})
-            notes.append(f"labels from the oracle segmenter ({_options(ctx.oracle)}: ground "
-                         f"truth with seeded noise), no trained weights; segmentation time of "
-                         f"the untrained {run.segmenter.spec} ({ctx.speed_backend}) on the "
-                         f"same frames")
-        else:
-            need = f"weights:{run.segmenter.spec}@{MAPPING_WEIGHTS}"
-            return CellRecord(**base, status="na", needs=[need],
-                              reason=needs_text([need]) + f" ({run.sequence} has no "
-                              f"ground-truth labels for the oracle)", started=_now())
-    from evsmap.measure.engine import rates, run_mapping
-    from evsmap.measure.evaluators import MapFiles, MapStatistics, pruned_share
-
-    # the map's own memory: from before the updater is made to its files (the observations
-    # were computed beforehand)
-    mapped = run_mapping(
-        sequence, lambda: UPDATERS.create(run.updater.name, resolution=run.voxel_size,
-                                          **run.updater.config),
-        observations=observations, indices=indices,
-        evaluators=[MapStatistics(), MapFiles()])
-    updater, memory = mapped.updater, mapped.memory
-    stats, sizes = mapped.results["stats"], mapped.results["files"].sizes
-    update_ms = list(mapped.update_ms)
-    machine = contention(before, Probe.take(),
-                         CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
-                                        machine_path=machine_log_path()))
-    map_bytes = sizes["published"]  # Table IV's "Map Size": the file each system itself writes
-    update_hz, end_to_end_hz = rates(update_ms, segment_ms)
-    values: dict[str, float] = {
-        "frames": float(n), "update_hz": update_hz,
-        "end_to_end_hz": end_to_end_hz, "map_bytes": float(map_bytes),
-        "map_bytes_full": float(sizes["full"]), "nodes": float(stats.nodes),
-        "leaves": float(stats.leaves),
-        "peak_rss_bytes": float(memory.peak_rss_bytes),
-        "rss_added_bytes": float(memory.added_bytes)}
-    if stats.octomap_memory_bytes is not None:
-        values["octomap_memory_bytes"] = float(stats.octomap_memory_bytes)
-    if stats.map_nbytes is not None:
-        values["map_nbytes"] = float(stats.map_nbytes)
-    share = pruned_share(updater)
-    if share is not None:
-        values["pruned_share"] = float(share)
-    details: dict[str, Any] = {
-        "update_ms": update_ms, "segment_ms": segment_ms, "nodes": stats.nodes,
-        "leaves": stats.leaves, "sequence_name": sequence.name, **values}
-    notes.append(f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians "
-                 f"over frames (update only; end to end = segmentation + update)")
-    details["contention"] = machine
-    details["calibration_gmacs"] = math.sqrt(machine["before"]["calibration_gmacs"]
-                                             * machine["after"]["calibration_gmacs"])
-    if machine["contended"]:
-        from evsmap.measure.contention import describe
-
-        flag = describe(machine) + " around this mapping run"
-        details["timing_flag"] = flag
-        notes.append(f"timing flagged - {flag}")
-    if run.sequence == "synthetic" and updater.has_leaf_map:
-        from evsmap.measure.evaluators import MapQualityEvaluator
-        from evsmap.synth.sequence import SyntheticSequence
-
-        truth = SyntheticSequence(**ctx.synthetic).ground_truth(run.voxel_size)
-        quality = MapQualityEvaluator(truth).evaluate(updater)  # outside the memory scope
-        q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
-        details["quality"] = q
-        for name in ("precision", "recall", "semantic_accuracy", "semantic_accuracy_all",
-                     "map_miou"):
-            if q.get(name) is not None and np.isfinite(q[name]):
-                values[name] = float(q[name])
-        _save_map_artifact(updater, run, ctx)
-        if observations is not None:
-            _save_segmentation_artifact(sequence, indices[len(indices) // 2],
-                                        observations[len(indices) // 2], run, ctx,
-                                        "oracle" if weights is None else run.segmenter.spec)
-    return CellRecord(**base, status="ok", values=values, notes=notes, details=details)
-
-
-def _options(config: dict[str, Any]) -> str:
-    return ", ".join(f"{k}={v}" for k, v in sorted(config.items())) or "defaults"
-
-
-def _save_map_artifact(updater, run: MappingRun, ctx: RunContext) -> None:
-    from evsmap.updaters.export import occupied_points
-
-    centres, rgb, labels = occupied_points(updater)
-    folder = Path(ctx.out) / "artifacts"
-    folder.mkdir(parents=True, exist_ok=True)
-    n = len(centres)
-    np.savez_compressed(
-        folder / f"map-{run.row}-{run.sequence}.npz", centres=centres.astype(np.float32),
-        labels=labels if labels is not None else np.full(n, -1, dtype=np.int16),
-        colors=rgb if rgb is not None else np.zeros((n, 3), dtype=np.uint8),
-        resolution=np.float64(run.voxel_size))
-
-
-def _save_segmentation_artifact(sequence, index: int, observation, run: MappingRun,
-                                ctx: RunContext, source: str) -> None:
-    folder = Path(ctx.out) / "artifacts"
-    path = folder / f"seg-{source}-{run.sequence}.npz"
-    if path.exists():
-        return
-    folder.mkdir(parents=True, exist_ok=True)
-    frame = sequence.frame(index)
-    title = (f"{source} on {sequence.name} frame {index}"
-             + (f" ({_options(ctx.oracle)})" if source == "oracle" else ""))
-    np.savez_compressed(path, rgb=frame.rgb, gt=frame.labels, pred=observation.argmax,
-                        title=np.str_(title))
-
-
-def runtime_sequence(sequences: list[str], runs: dict[str, CellRecord],
-                     voxel: float) -> tuple[str, bool]:
-    """The one sequence Table IV's Runtime column is measured on for every row: the first of
-    the column's ``sequences`` that every implemented Table IV system mapped here, else the
-    synthetic one (which every system can map, with the oracle's labels). Returns it and
-    whether it is that fallback."""
-    rows = [r.id for r in load_tables()["table4"].rows
-            if r.implemented and r.updater is not None]
-    for seq in sequences:
-        found = [runs.get(f"extra/mapping/{row}/{seq}@{voxel:g}m") for row in rows]
-        if all(r is not None and r.status == "ok" for r in found):
-            return seq, False
-    return "synthetic", True
-
-
-def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) -> CellRecord:
-    """A Table IV cell from the mapping runs: the map size on its sequence, or the end-to-end
-    rate on the one sequence every row's rate comes from (:func:`runtime_sequence`), so the
-    column compares systems on the same frames."""
-    base = _base(spec)
-    voxel = spec.voxel_size or ctx.voxel_size
-
-    def run_of(seq: str) -> CellRecord | None:
-        return runs.get(f"extra/mapping/{spec.row}/{seq}@{voxel:g}m")
-
-    quantities = _quantities(spec)
-    values, notes, details = {}, [], {}
-    for col, q in quantities.items():
-        if q == "map_size":
-            source = run_of(spec.datasets[0])
-            if source is None or source.status != "ok":
-                return _from_failed(spec, source)
-            values[col] = source.values["map_bytes"]
-            notes += source.notes
-            details[col] = {"source": source.key}
-        else:  # runtime_hz
-            seq, fallback = runtime_sequence(list(spec.datasets), runs, voxel)
-            source = run_of(seq)
-            if source is None or source.status != "ok":
-                return _from_failed(spec, source)
-            values[col] = source.values["end_to_end_hz"]
-            base["inputs"]["sequence"] = seq
-            notes.append(f"end-to-end rate measured on {seq} for every row"
-                         + (" (no sequence of the paper's could be mapped by every system "
-                            "here)" if fallback else "") + "; " + "; ".join(source.notes))
-            details[col] = {"source": source.key}
-            for name in ("timing_flag", "calibration_gmacs"):
-                if (source.details or {}).get(name):
-                    details[name] = source.details[name]
-    return CellRecord(**base, status="ok", values=values, notes=notes, details=details,
-                      started=_now())
-
-
-def _from_failed(spec: CellSpec, source: CellRecord | None) -> CellRecord:
-    if source is None:
-        return CellRecord(**_base(spec), status="error", error="its mapping run did not run",
-                          started=_now())
-    return CellRecord(**_base(spec), status=source.status, needs=source.needs,
-                      reason=source.reason, error=source.error, started=_now())
-
-
-# ----------------------------------------------------------------------------- dispatch
 RUNNERS = {"complexity": run_complexity, "speed": run_speed, "accuracy": run_accuracy}
 
 
 def execute_spec(spec: CellSpec, ctx: RunContext) -> CellRecord:
     """Run one non-mapping cell, turning errors into ``error`` records."""
-    started, t0 = _now(), time.perf_counter()
+    started, t0 = now(), time.perf_counter()
     try:
         record = RUNNERS[spec.kind](spec, ctx)
     except EvsmapError as exc:
-        record = CellRecord(**_base(spec), status="error", error=str(exc))
+        record = CellRecord(**base_fields(spec), status="error", error=str(exc))
     except Exception as exc:  # a bug: keep the traceback in the record, go on with the run
-        record = CellRecord(**_base(spec), status="error", error=f"{type(exc).__name__}: {exc}",
+        record = CellRecord(**base_fields(spec), status="error",
+                            error=f"{type(exc).__name__}: {exc}",
                             details={"traceback": traceback.format_exc()})
     record.started, record.seconds = started, time.perf_counter() - t0
     record.environment = environment(ctx.threads)
@@ -624,7 +69,7 @@ def execute_spec(spec: CellSpec, ctx: RunContext) -> CellRecord:
 
 
 def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
-    started, t0 = _now(), time.perf_counter()
+    started, t0 = now(), time.perf_counter()
     base = {"key": run.key, "table": "extra", "row": run.row, "label": run.label,
             "kind": "mapping", "metrics": [],
             "inputs": {"sequence": run.sequence, "voxel_size": run.voxel_size,
@@ -640,3 +85,13 @@ def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
     record.started, record.seconds = started, time.perf_counter() - t0
     record.environment = environment(ctx.threads)
     return record
+
+
+__all__ = [
+    "MAPPING_WEIGHTS", "REFERENCE_ROW", "RETRY_PAUSE_S", "RUNNERS", "STRICT_PAUSE_S",
+    "VARIANT_ROWS", "MappingRun", "build_segmenter", "dataset_miou", "environment",
+    "execute_mapping", "execute_spec", "git_commit", "mapping_record", "mapping_runs",
+    "na_record", "now", "observations_key", "open_mapping_sequence", "run_accuracy",
+    "run_complexity", "run_speed", "runtime_sequence", "sequence_identity", "spec_inputs",
+    "table4_record", "weights_identity",
+]

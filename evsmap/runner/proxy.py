@@ -137,7 +137,7 @@ def mapping_key(row: str, room: int) -> str:
 
 def proxy_accuracy(ctx: RunContext, model: str, data: Path) -> CellRecord:
     """The mIoU of ``model``'s proxy weights on the synthrooms test split."""
-    from evsmap.runner.execute import dataset_miou
+    from evsmap.runner.network_cells import dataset_miou
     from evsmap.segmenters.cards import inspect_weights
     from evsmap.tables.schema import Component
 
@@ -169,7 +169,7 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
     from evsmap.datasets.common import read_manifest
     from evsmap.metrics import evaluate_map
     from evsmap.registry import READERS, UPDATERS
-    from evsmap.runner.execute import build_segmenter
+    from evsmap.runner.network_cells import build_segmenter
     from evsmap.synth.sequence import SyntheticSequence
     from evsmap.tables.schema import Component, load_tables
 
@@ -232,7 +232,8 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
 def _guarded(make: Callable[[], list[CellRecord]], keys: list[tuple[str, str, str, str]],
              ctx: RunContext) -> list[CellRecord]:
     """``make()``, or one ``error`` record per (key, row, label, kind) when it raises."""
-    from evsmap.runner.execute import _now, environment
+    from evsmap.runner.cell_base import environment
+    from evsmap.runner.cell_base import now as _now
 
     started, t0 = _now(), time.perf_counter()
     try:

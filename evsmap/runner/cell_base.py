@@ -1,0 +1,86 @@
+"""What every cell record carries: the machine's environment (CPU, threads, library versions,
+git commit, lock status), the time it started, the fields a table cell names, ``na`` records,
+and the pauses before a contended timing is taken again."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+from datetime import UTC, datetime
+from typing import Any
+
+from evsmap.paths import REPO_ROOT
+from evsmap.runner.context import RunContext
+from evsmap.runner.records import CellRecord, needs_text
+from evsmap.tables.schema import CellSpec, load_tables
+
+
+def environment(threads: int | None = None) -> dict[str, Any]:
+    """CPU model, core and thread counts, library versions, git commit and host."""
+    from evsmap.environment import describe
+    from evsmap.measure.speed import library_versions
+
+    env: dict[str, Any] = dict(describe())
+    env["threads"] = threads or os.cpu_count() or 1
+    env["host"] = socket.gethostname()
+    try:
+        env["versions"] = dict(library_versions())
+    except Exception:  # pragma: no cover - a missing optional library
+        env["versions"] = {}
+    from importlib.metadata import PackageNotFoundError, version
+
+    env["versions"].pop("python", None)  # already in env["python"]
+    for dist in ("numba", "octomap-python", "open3d", "evsmap"):
+        try:
+            env["versions"][dist] = version(dist)
+        except PackageNotFoundError:
+            pass
+    env["git_commit"] = git_commit()
+    from evsmap.lock import lock_status
+
+    env["lock"] = lock_status()
+    return env
+
+
+def git_commit() -> str | None:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True,
+                             text=True, timeout=10, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None
+
+
+def now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def base_fields(spec: CellSpec) -> dict[str, Any]:
+    return {"key": spec.key, "table": spec.table, "row": spec.row, "label": spec.label,
+            "kind": spec.kind, "metrics": list(spec.metrics), "inputs": spec_inputs(spec)}
+
+
+def spec_inputs(spec: CellSpec) -> dict[str, Any]:
+    return {"segmenter": spec.segmenter.spec if spec.segmenter else None,
+            "updater": spec.updater.spec if spec.updater else None,
+            "datasets": list(spec.datasets), "split": spec.split,
+            "input_size": list(spec.input_size) if spec.input_size else None,
+            "voxel_size": spec.voxel_size, "hardware": spec.hardware,
+            "config_key": spec.config_key}
+
+
+def na_record(spec: CellSpec, needs: list[str], ctx: RunContext) -> CellRecord:
+    return CellRecord(**base_fields(spec), status="na", needs=list(needs), reason=needs_text(needs),
+                      started=now())
+
+
+def column_quantities(spec: CellSpec) -> dict[str, str]:
+    table = load_tables()[spec.table]
+    return {col: table.column(col).quantity for col in spec.metrics}
+
+
+STRICT_PAUSE_S = 20.0
+"""``--strict-timing``: seconds to wait before timing a contended cell a second time."""
+RETRY_PAUSE_S = 3.0
+"""Without ``--strict-timing``: the same, shorter (the cell is flagged if still contended)."""

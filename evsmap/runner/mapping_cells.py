@@ -1,0 +1,379 @@
+"""Mapping runs and Table IV: one system mapping one sequence (an ``extra/mapping/...``
+record, timed through the measurement engine, with the segmentation cache's observations), and
+Table IV's cells read from those runs so that each map is built once."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evsmap.errors import EvsmapError
+from evsmap.runner.cell_base import base_fields, column_quantities, now
+from evsmap.runner.context import RunContext
+from evsmap.runner.network_cells import build_segmenter
+from evsmap.runner.records import CellRecord, needs_text
+from evsmap.tables.schema import CellSpec, Component, load_tables
+
+MAPPING_WEIGHTS = "nyuv2"
+"""The dataset the segmenters of the mapping systems are trained on (40 NYUv2 classes)."""
+
+REFERENCE_ROW = "octomap-cpp"
+"""The C++ OctoMap (occupancy only) mapped beside Table IV's systems as a reference."""
+
+
+@dataclass(frozen=True)
+class MappingRun:
+    """One system mapping one sequence (an ``extra/mapping/...`` record)."""
+
+    row: str
+    label: str
+    segmenter: Component | None
+    updater: Component
+    sequence: str
+    voxel_size: float
+
+    @property
+    def key(self) -> str:
+        return f"extra/mapping/{self.row}/{self.sequence}@{self.voxel_size:g}m"
+
+
+VARIANT_ROWS = {"tfeagmap": ("-classwise", "TFEAGMap, classwise variant",
+                              {"front_end": "classwise"})}
+"""Table IV rows also mapped with a named variant of their updater (row suffix, label, options):
+TFEAGMap with evsmap's classwise classic-semantic beside semantic_slam's own pipeline, so the
+report shows what semantic_slam's front end, ray casting and fusion details cost."""
+
+
+def mapping_runs(sequences: list[str], voxel_size: float) -> list[MappingRun]:
+    """Table IV's systems (and :data:`VARIANT_ROWS`) plus the C++ OctoMap reference on each of
+    ``sequences``."""
+    table = load_tables()["table4"]
+    runs = []
+    for seq in sequences:
+        for system in table.rows:
+            if system.implemented and system.updater is not None:
+                segmenter = system.segmenter_for(MAPPING_WEIGHTS)
+                runs.append(MappingRun(system.id, system.label, segmenter, system.updater,
+                                       seq, voxel_size))
+                if system.id in VARIANT_ROWS:
+                    suffix, label, options = VARIANT_ROWS[system.id]
+                    runs.append(MappingRun(system.id + suffix, label, segmenter,
+                                           system.updater.with_options(options), seq,
+                                           voxel_size))
+        runs.append(MappingRun(REFERENCE_ROW, "OctoMap (C++)", None, Component("octomap-cpp"),
+                               seq, voxel_size))
+    return runs
+
+
+def open_mapping_sequence(ctx: RunContext, name: str):
+    from evsmap.registry import READERS
+    from evsmap.runner.context import MAPPING_SEQUENCES
+    from evsmap.synth.sequence import SyntheticSequence
+
+    if name == "synthetic":
+        # rendered once per run into the cache (TUM layout, read back bit-identical), so the
+        # mapping runs, the segmentation cache and the timings all read the same frames cheaply
+        from evsmap.cache import cache_dir, source_digest
+        from evsmap.readers.tum import METADATA_FILE
+        from evsmap.synth.write import write_synthetic
+
+        o = ctx.synthetic
+        # the cache shared across runs, keyed by the options and the renderer's source
+        folder = cache_dir("sequences") / (
+            f"synthetic-{o['scene']}-s{o['seed']}-{o['width']}x{o['height']}-{o['frames']}f"
+            + ("-noise" if o.get("noise") else "") + f"-{source_digest('evsmap.synth')}")
+        if not (folder / METADATA_FILE).is_file():
+            write_synthetic(SyntheticSequence(**o), folder, overwrite=True)
+        return READERS.create("tum", path=str(folder))
+    path = ctx.dataset_path(name)
+    if path is None:
+        raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")
+    info = MAPPING_SEQUENCES[name]
+    return READERS.create(info["reader"], path=str(path), **info["options"])
+
+
+def sequence_identity(sequence) -> str:
+    """What a sequence's frames are, for the shared segmentation cache: its folder (resolved)
+    and that folder's modification time and size, so frames replaced in place, or another
+    rendering of the synthetic scene (its folder names the renderer's source digest), get new
+    entries."""
+    path = getattr(sequence, "root", None) or getattr(sequence, "path", None)
+    if path is None:
+        return str(getattr(sequence, "name", "unknown"))
+    p = Path(path).resolve()
+    try:
+        st = p.stat()
+        return f"{p}:{st.st_mtime_ns}:{st.st_size}"
+    except OSError:
+        return str(p)
+
+
+_WEIGHTS_IDS: dict[tuple[str, int, int, int], str] = {}
+
+
+def weights_identity(path: str | os.PathLike[str]) -> str:
+    """What a weights file's tensors are, for cache keys: ``tensors:<sha256>`` from the card's
+    ``tensors_sha256`` when the file has a card, else ``file:<sha256>`` of its bytes. Computed
+    once per (path, inode, size, modification time) in this process."""
+    path = Path(path)
+    st = path.stat()
+    memo = (str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns)
+    found = _WEIGHTS_IDS.get(memo)
+    if found is None:
+        from evsmap.segmenters.cards import inspect_weights
+
+        card = inspect_weights(path).card
+        sha = card.get("tensors_sha256") if card is not None else None
+        if isinstance(sha, str) and sha:
+            found = f"tensors:{sha}"
+        else:
+            digest = hashlib.sha256()
+            with open(path, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    digest.update(chunk)
+            found = f"file:{digest.hexdigest()}"
+        _WEIGHTS_IDS[memo] = found
+    return found
+
+
+def observations_key(segmenter: str, weights: str | os.PathLike[str],
+                     sequence: str) -> dict[str, Any]:
+    """The segmentation cache's key of a network's observations: the segmenter, the weights
+    file's path and its tensors (:func:`weights_identity`: a file replaced under the same name
+    gets a new key), the sequence."""
+    return {"segmenter": segmenter, "weights": str(weights),
+            "weights_id": weights_identity(weights), "sequence": sequence}
+
+
+def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
+    """Map ``run.sequence`` with ``run``'s system; time each update, add the segmentation time
+    per frame, measure the map file and (on the synthetic sequence) its 3D quality."""
+    from evsmap.registry import UPDATERS
+    from evsmap.runner.segcache import SegmentationCache
+
+    base = {"key": run.key, "table": "extra", "row": run.row, "label": run.label,
+            "kind": "mapping", "metrics": [],
+            "inputs": {"segmenter": run.segmenter.spec if run.segmenter else None,
+                       "updater": run.updater.spec, "sequence": run.sequence,
+                       "voxel_size": run.voxel_size}}
+    semantic = run.segmenter is not None
+    choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) if semantic else None
+    weights = choice.path if choice is not None else None
+    if run.sequence != "synthetic" and ctx.dataset_path(run.sequence) is None:
+        return CellRecord(**base, status="na", needs=[f"dataset:{run.sequence}"],
+                          reason=needs_text([f"dataset:{run.sequence}"]), started=now())
+    sequence = open_mapping_sequence(ctx, run.sequence)
+    n = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
+    indices = list(range(n))
+    notes: list[str] = []
+    from evsmap.cache import cache_dir
+
+    # observations: the cache shared across runs (keyed by segmenter, weights' tensors and the
+    # sequence's frames); timings: this run's own, never another run's
+    shared = SegmentationCache(cache_dir("segmentation"))
+    cache = SegmentationCache(Path(ctx.out) / "cache" / "segmentation")
+    frames_id = sequence_identity(sequence)
+    observations: list | None = None
+    segment_ms: list[float] = []
+    from evsmap.measure.contention import CalibrationLog, Probe, contention, machine_log_path
+
+    before = Probe.take()  # the machine around the timed part (segmentation and update)
+    if semantic:
+        labelled = n > 0 and sequence.frame(0).labels is not None
+        if choice is not None:
+            net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
+            observations, segment_ms, reused = shared.observations(
+                net, sequence, indices,
+                key={**observations_key(run.segmenter.spec, weights, sequence.name),
+                     "frames": frames_id})
+            if reused:  # computed in another run: time the network in this one
+                segment_ms, _ = cache.timings(net, sequence, indices, key={
+                    "segmenter": run.segmenter.spec, "weights_id": weights_identity(weights),
+                    "backend": "onnxruntime", "threads": ctx.threads,
+                    "sequence": sequence.name})
+            notes.append(f"labels from {run.segmenter.spec} with weights {choice.file} "
+                         f"(onnxruntime)")
+            notes.append(choice.note())
+        elif labelled:
+            from evsmap.registry import SEGMENTERS
+
+            oracle = SEGMENTERS.create("oracle", **ctx.oracle)
+            observations, _, _ = shared.observations(
+                oracle, sequence, indices, key={"segmenter": "oracle", **ctx.oracle,
+                                                "sequence": sequence.name, "frames": frames_id})
+            net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
+            segment_ms, _ = cache.timings(net, sequence, indices, key={
+                "segmenter": run.segmenter.spec, "backend": ctx.speed_backend,
+                "threads": ctx.threads, "sequence": sequence.name})
+            notes.append(f"labels from the oracle segmenter ({_options(ctx.oracle)}: ground "
+                         f"truth with seeded noise), no trained weights; segmentation time of "
+                         f"the untrained {run.segmenter.spec} ({ctx.speed_backend}) on the "
+                         f"same frames")
+        else:
+            need = f"weights:{run.segmenter.spec}@{MAPPING_WEIGHTS}"
+            return CellRecord(**base, status="na", needs=[need],
+                              reason=needs_text([need]) + f" ({run.sequence} has no "
+                              f"ground-truth labels for the oracle)", started=now())
+    from evsmap.measure.engine import rates, run_mapping
+    from evsmap.measure.evaluators import MapFiles, MapStatistics, pruned_share
+
+    # the map's own memory: from before the updater is made to its files (the observations
+    # were computed beforehand)
+    mapped = run_mapping(
+        sequence, lambda: UPDATERS.create(run.updater.name, resolution=run.voxel_size,
+                                          **run.updater.config),
+        observations=observations, indices=indices,
+        evaluators=[MapStatistics(), MapFiles()])
+    updater, memory = mapped.updater, mapped.memory
+    stats, sizes = mapped.results["stats"], mapped.results["files"].sizes
+    update_ms = list(mapped.update_ms)
+    machine = contention(before, Probe.take(),
+                         CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
+                                        machine_path=machine_log_path()))
+    map_bytes = sizes["published"]  # Table IV's "Map Size": the file each system itself writes
+    update_hz, end_to_end_hz = rates(update_ms, segment_ms)
+    values: dict[str, float] = {
+        "frames": float(n), "update_hz": update_hz,
+        "end_to_end_hz": end_to_end_hz, "map_bytes": float(map_bytes),
+        "map_bytes_full": float(sizes["full"]), "nodes": float(stats.nodes),
+        "leaves": float(stats.leaves),
+        "peak_rss_bytes": float(memory.peak_rss_bytes),
+        "rss_added_bytes": float(memory.added_bytes)}
+    if stats.octomap_memory_bytes is not None:
+        values["octomap_memory_bytes"] = float(stats.octomap_memory_bytes)
+    if stats.map_nbytes is not None:
+        values["map_nbytes"] = float(stats.map_nbytes)
+    share = pruned_share(updater)
+    if share is not None:
+        values["pruned_share"] = float(share)
+    details: dict[str, Any] = {
+        "update_ms": update_ms, "segment_ms": segment_ms, "nodes": stats.nodes,
+        "leaves": stats.leaves, "sequence_name": sequence.name, **values}
+    notes.append(f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians "
+                 f"over frames (update only; end to end = segmentation + update)")
+    details["contention"] = machine
+    details["calibration_gmacs"] = math.sqrt(machine["before"]["calibration_gmacs"]
+                                             * machine["after"]["calibration_gmacs"])
+    if machine["contended"]:
+        from evsmap.measure.contention import describe
+
+        flag = describe(machine) + " around this mapping run"
+        details["timing_flag"] = flag
+        notes.append(f"timing flagged - {flag}")
+    if run.sequence == "synthetic" and updater.has_leaf_map:
+        from evsmap.measure.evaluators import MapQualityEvaluator
+        from evsmap.synth.sequence import SyntheticSequence
+
+        truth = SyntheticSequence(**ctx.synthetic).ground_truth(run.voxel_size)
+        quality = MapQualityEvaluator(truth).evaluate(updater)  # outside the memory scope
+        q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
+        details["quality"] = q
+        for name in ("precision", "recall", "semantic_accuracy", "semantic_accuracy_all",
+                     "map_miou"):
+            if q.get(name) is not None and np.isfinite(q[name]):
+                values[name] = float(q[name])
+        _save_map_artifact(updater, run, ctx)
+        if observations is not None:
+            _save_segmentation_artifact(sequence, indices[len(indices) // 2],
+                                        observations[len(indices) // 2], run, ctx,
+                                        "oracle" if weights is None else run.segmenter.spec)
+    return CellRecord(**base, status="ok", values=values, notes=notes, details=details)
+
+
+def _options(config: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v}" for k, v in sorted(config.items())) or "defaults"
+
+
+def _save_map_artifact(updater, run: MappingRun, ctx: RunContext) -> None:
+    from evsmap.updaters.export import occupied_points
+
+    centres, rgb, labels = occupied_points(updater)
+    folder = Path(ctx.out) / "artifacts"
+    folder.mkdir(parents=True, exist_ok=True)
+    n = len(centres)
+    np.savez_compressed(
+        folder / f"map-{run.row}-{run.sequence}.npz", centres=centres.astype(np.float32),
+        labels=labels if labels is not None else np.full(n, -1, dtype=np.int16),
+        colors=rgb if rgb is not None else np.zeros((n, 3), dtype=np.uint8),
+        resolution=np.float64(run.voxel_size))
+
+
+def _save_segmentation_artifact(sequence, index: int, observation, run: MappingRun,
+                                ctx: RunContext, source: str) -> None:
+    folder = Path(ctx.out) / "artifacts"
+    path = folder / f"seg-{source}-{run.sequence}.npz"
+    if path.exists():
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    frame = sequence.frame(index)
+    title = (f"{source} on {sequence.name} frame {index}"
+             + (f" ({_options(ctx.oracle)})" if source == "oracle" else ""))
+    np.savez_compressed(path, rgb=frame.rgb, gt=frame.labels, pred=observation.argmax,
+                        title=np.str_(title))
+
+
+def runtime_sequence(sequences: list[str], runs: dict[str, CellRecord],
+                     voxel: float) -> tuple[str, bool]:
+    """The one sequence Table IV's Runtime column is measured on for every row: the first of
+    the column's ``sequences`` that every implemented Table IV system mapped here, else the
+    synthetic one (which every system can map, with the oracle's labels). Returns it and
+    whether it is that fallback."""
+    rows = [r.id for r in load_tables()["table4"].rows
+            if r.implemented and r.updater is not None]
+    for seq in sequences:
+        found = [runs.get(f"extra/mapping/{row}/{seq}@{voxel:g}m") for row in rows]
+        if all(r is not None and r.status == "ok" for r in found):
+            return seq, False
+    return "synthetic", True
+
+
+def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) -> CellRecord:
+    """A Table IV cell from the mapping runs: the map size on its sequence, or the end-to-end
+    rate on the one sequence every row's rate comes from (:func:`runtime_sequence`), so the
+    column compares systems on the same frames."""
+    base = base_fields(spec)
+    voxel = spec.voxel_size or ctx.voxel_size
+
+    def run_of(seq: str) -> CellRecord | None:
+        return runs.get(f"extra/mapping/{spec.row}/{seq}@{voxel:g}m")
+
+    quantities = column_quantities(spec)
+    values, notes, details = {}, [], {}
+    for col, q in quantities.items():
+        if q == "map_size":
+            source = run_of(spec.datasets[0])
+            if source is None or source.status != "ok":
+                return _from_failed(spec, source)
+            values[col] = source.values["map_bytes"]
+            notes += source.notes
+            details[col] = {"source": source.key}
+        else:  # runtime_hz
+            seq, fallback = runtime_sequence(list(spec.datasets), runs, voxel)
+            source = run_of(seq)
+            if source is None or source.status != "ok":
+                return _from_failed(spec, source)
+            values[col] = source.values["end_to_end_hz"]
+            base["inputs"]["sequence"] = seq
+            notes.append(f"end-to-end rate measured on {seq} for every row"
+                         + (" (no sequence of the paper's could be mapped by every system "
+                            "here)" if fallback else "") + "; " + "; ".join(source.notes))
+            details[col] = {"source": source.key}
+            for name in ("timing_flag", "calibration_gmacs"):
+                if (source.details or {}).get(name):
+                    details[name] = source.details[name]
+    return CellRecord(**base, status="ok", values=values, notes=notes, details=details,
+                      started=now())
+
+
+def _from_failed(spec: CellSpec, source: CellRecord | None) -> CellRecord:
+    if source is None:
+        return CellRecord(**base_fields(spec), status="error", error="its mapping run did not run",
+                          started=now())
+    return CellRecord(**base_fields(spec), status=source.status, needs=source.needs,
+                      reason=source.reason, error=source.error, started=now())
