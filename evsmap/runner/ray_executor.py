@@ -50,6 +50,20 @@ def import_ray() -> Any:
     return ray
 
 
+def check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Fail at once, in one line, when nothing answers at ``HOST:PORT`` (Ray itself retries
+    for minutes); ``auto`` and other forms are left to Ray."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise EvsmapError(f"--executor ray: nothing answers at {address} "
+                          f"({exc.strerror or exc}); start the cluster's head there with "
+                          f"`ray start --head --port={port}`") from None
+
+
 # ------------------------------------------------------------- run on the nodes (importable)
 def _placed(result: dict[str, Any], cpus: int, whole_node: bool) -> dict[str, Any]:
     """``result`` (a record's dict) with where it ran in ``environment["executor"]``."""
@@ -142,10 +156,10 @@ class RayExecutor(CellExecutor):
     """Cells as Ray tasks (see the module's docstring for the placement).
 
     Args:
-        address: the cluster to join (``HOST:6379``, ``auto``, ``ray://HOST:10001``); it is
-            left running at the end. None starts a local cluster, stopped at the end. A Ray
-            already initialised in this process (``ray.init`` called by the caller) is used
-            as it is and left as it is.
+        address: the cluster to join (``HOST:6379``, or ``auto``: the cluster started on
+            this machine with ``ray start``); it is left running at the end. None starts a
+            local cluster, stopped at the end. A Ray already initialised in this process
+            (``ray.init`` called by the caller) is used as it is and left as it is.
         num_cpus: the CPUs of a local cluster (default: this machine's).
     """
 
@@ -153,6 +167,8 @@ class RayExecutor(CellExecutor):
 
     def __init__(self, *, address: str | None = None, num_cpus: int | None = None) -> None:
         self._ray = import_ray()
+        if address:
+            check_reachable(address)
         self.address = address
         self.num_cpus = num_cpus or os.cpu_count() or 1
         self._own_session = False
@@ -207,9 +223,18 @@ class RayExecutor(CellExecutor):
                  if n.get("Alive") and n.get("Resources", {}).get("CPU", 0) >= 1]
         if not nodes:
             raise EvsmapError("--executor ray: the cluster has no live node with CPUs")
-        probes = self._ray.get([
-            self._probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(
-                n["NodeID"], soft=False)).remote(paths) for n in nodes])
+        refs = [self._probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(
+            n["NodeID"], soft=False)).remote(paths) for n in nodes]
+        probes = []
+        for node, ref in zip(nodes, refs, strict=True):
+            try:
+                probes.append(self._ray.get(ref))
+            except Exception as exc:  # noqa: BLE001 - e.g. evsmap is not installed there
+                first = str(exc).strip().splitlines()[-1] if str(exc).strip() else repr(exc)
+                raise EvsmapError(
+                    f"--executor ray: node {node.get('NodeManagerHostname', node['NodeID'])} "
+                    f"cannot run evsmap ({first}): install the same evsmap on every "
+                    f"node") from None
         mine = evsmap_version()
         for probe in probes:
             if probe["missing"]:

@@ -134,6 +134,20 @@ def test_unknown_executor_and_address_without_ray():
         matrix.make_executor("local", address="head:6379")
 
 
+def test_an_address_where_nothing_answers_fails_at_once(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as sock:  # a port that was free a moment ago
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    code = main(["reproduce", "--executor", "ray", "--address", f"127.0.0.1:{port}",
+                 "--quick", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert f"nothing answers at 127.0.0.1:{port}" in err[0]
+    assert not (tmp_path / "run").exists()
+
+
 def test_missing_ray_is_one_line_and_exit_2(monkeypatch, tmp_path, capsys):
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now fails
     with pytest.raises(EvsmapError, match=r'pip install "evsmap\[ray\]"'):
