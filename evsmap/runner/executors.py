@@ -75,8 +75,12 @@ class CellExecutor:
 
     def pool(self, workers: int, threads: int) -> Executor:
         """An executor for the cells that are not timed; ``workers`` is the ``--workers``
-        setting, ``threads`` the threads a cell uses."""
+        setting, ``threads`` the threads a cell uses (:meth:`pool_threads`)."""
         raise NotImplementedError
+
+    def pool_threads(self, threads: int) -> int:
+        """The threads a pooled cell gets when the run asks for ``threads``."""
+        return threads
 
     def timing_slots(self) -> list[TimingSlot]:
         """Where timed cells run; as many run at once as there are slots, one per slot."""

@@ -285,9 +285,11 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
     if by_config or timed or runs_left:
         executor.prepare(ctx)
     if by_config:
-        with executor.pool(workers, ctx.threads) as ex:
+        threads = executor.pool_threads(ctx.threads)
+        data = (ctx if threads == ctx.threads else replace(ctx, threads=threads)).as_dict()
+        with executor.pool(workers, threads) as ex:
             futures: dict[Future, list[CellSpec]] = {
-                ex.submit(_spec_worker, group[0].table, group[0].key, ctx.as_dict()): group
+                ex.submit(_spec_worker, group[0].table, group[0].key, data): group
                 for group in by_config.values()}
             for fut in as_completed(futures):
                 group = futures[fut]

@@ -265,10 +265,14 @@ class RayExecutor(CellExecutor):
         return list(self._slots)
 
     # -- tasks -----------------------------------------------------------------------------
+    def pool_threads(self, threads: int) -> int:
+        """At most the largest node's CPUs (a task asking for more would never run)."""
+        return max(1, min(threads, self._max_cpus))
+
     def pool(self, workers: int, threads: int) -> Executor:
         """Ray decides how many run at once from the CPUs each reserves; ``workers`` is not
         used."""
-        cpus = max(1, min(threads, self._max_cpus))
+        cpus = self.pool_threads(threads)
         task = self._pooled.options(num_cpus=cpus)
         return _RayTasks(self._ray, lambda fn, args: task.remote(fn, args, cpus))
 
@@ -283,14 +287,16 @@ class RayExecutor(CellExecutor):
         return _RayTasks(self._ray, lambda fn, args: task.remote(fn, args, slot.cpus))
 
     def describe(self) -> dict[str, Any]:
-        return {"name": self.name, "address": self.address or "local cluster",
+        return {"name": self.name,
+                "address": self.address or ("local cluster" if self._own_session else None),
                 "nodes": [dict(n) for n in self._nodes]}
 
     def summary(self) -> str:
         """One line for the run's output: the nodes, and which of them time."""
         timing = [n for n in self._nodes if n.get("times")]
         cpus = sum(n["cpus"] for n in self._nodes)
-        where = self.address or "a local cluster"
+        where = self.address or ("a local cluster" if self._own_session
+                                 else "the Ray this process had joined")
         first = timing[0] if timing else None
         kind = f"{first['cpu_model']}, {first['cpus']} CPUs" if first else "none"
         return (f"ray ({where}): {len(self._nodes)} node(s), {cpus} CPUs; timed cells on "

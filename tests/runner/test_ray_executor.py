@@ -98,8 +98,10 @@ def test_ray_runs_the_matrix_as_the_local_pool_does(cluster, tmp_path):
     assert math.isfinite(mapped.values["end_to_end_hz"])
     # where each cell ran: pooled cells reserve their threads, the timed one the whole node
     node = ray.get_runtime_context().get_node_id()
+    threads = min(ray_ctx.threads, 2)  # the run's threads, at most the node's CPUs
     assert v2.environment["executor"] == {"name": "ray", "node_id": node, "node": slot.name,
-                                          "cpus": 2, "whole_node": False}
+                                          "cpus": threads, "whole_node": False}
+    assert v2.environment["threads"] == threads
     assert mapped.environment["executor"]["whole_node"] is True
     assert mapped.environment["executor"]["cpus"] == mapped.environment["threads"] == 2
     assert local["extra/mapping/evsmap/synthetic@0.1m"].environment["executor"] == {
