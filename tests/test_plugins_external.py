@@ -64,7 +64,8 @@ def plugin_package(tmp_path, monkeypatch):
 
 def test_doc_package_is_one_module_and_one_entry_point_each():
     files = doc_files()
-    assert sorted(files) == ["maxconf_map.py", "pyproject-entry-points", "row_bands.py"]
+    assert sorted(files) == ["maxconf_map.py", "pyproject-entry-points", "row_bands.py",
+                             "systems.toml"]
     entries = entry_points_txt(files["pyproject-entry-points"]).splitlines()[1:]
     assert entries == ["maxconf_map = maxconf_map", "row_bands = row_bands"]
 
@@ -96,3 +97,57 @@ def test_entry_point_plugins_map_the_synthetic_sequence(plugin_package, tmp_path
     assert again.stats().nodes == record["nodes"]
     again.write(tmp_path / "again.ot")
     assert (tmp_path / "again.ot").read_bytes() == out.read_bytes()
+
+
+def test_the_doc_systems_map_beside_table_iv_in_the_runner(plugin_package, tmp_path):
+    """``evsmap reproduce --systems``: the doc's system becomes a mapping run of the plan, and
+    the runner's mapping cell maps it with the plug-in segmenter's own labels (not a network:
+    no weights, no oracle)."""
+    import tomllib
+    from concurrent.futures import ThreadPoolExecutor
+
+    from evsmap.runner import matrix
+    from evsmap.runner.context import RunContext
+    from evsmap.runner.systems import parse_systems
+
+    systems = parse_systems(tomllib.loads(doc_files()["systems.toml"]), source="systems.toml")
+    assert [(s.id, s.segmenter.spec, s.segmenter_is_network) for s in systems] == [
+        ("maxconf", "row-bands(first_class=10)", False)]
+    empty = tmp_path / "data"
+    empty.mkdir()
+    ctx = RunContext.create(tmp_path / "run", data_root=empty, quick=True)
+    full = matrix.plan(ctx, ["table4"], systems)
+    mine = [r for r in full.runs if r.row == "maxconf"]
+    assert len(mine) == len(full.sequences) == 1 and mine[0].own_labels
+    assert mine[0].key == f"extra/mapping/maxconf/synthetic@{ctx.voxel_size:g}m"
+    [record] = matrix.run_matrix(ctx, matrix.Plan(specs=[], runs=mine, sequences=["synthetic"]),
+                                 pool=lambda n: ThreadPoolExecutor(1),
+                                 fresh=lambda: ThreadPoolExecutor(1))  # in this process
+    assert record.status == "ok", record.error
+    assert record.values["map_bytes"] > 0 and record.values["nodes"] > 100
+    assert any("labels from row-bands(first_class=10)" in n for n in record.notes)
+    assert len(record.details["segment_ms"]) == len(record.details["update_ms"]) > 0
+    with np.load(tmp_path / "run" / "artifacts" / "map-maxconf-synthetic.npz") as saved:
+        labels = saved["labels"]
+    assert set(np.unique(labels[labels >= 0]).tolist()) <= {10, 11, 12, 13}
+
+
+@pytest.mark.parametrize("text, message", [
+    ('[[systems]]\nid = "orgbmap"\nupdater = { name = "orgb" }\n', "the id is taken"),
+    ('[[systems]]\nid = "x"\nupdater = { name = "no-such-updater" }\n', "no-such-updater"),
+    ('[[systems]]\nid = "x"\nupdater = { name = "orgb", options = { colour = 1 } }\n',
+     "colour"),
+    ('[[systems]]\nid = "x"\nupdater = { name = "orgb" }\nsegmentr = { name = "oracle" }\n',
+     "segmentr"),
+    ('[[systems]]\nid = "Bad Id"\nupdater = { name = "orgb" }\n', "an id is lower-case"),
+    ("[[systems]\n", "not valid TOML"),
+])
+def test_a_bad_systems_file_is_one_line_and_nothing_is_written(capsys, tmp_path, text, message):
+    path = tmp_path / "systems.toml"
+    path.write_text(text, encoding="utf-8")
+    out = tmp_path / "run"
+    code = main(["reproduce", "--quick", "--tables", "IV", "--systems", str(path), "--out",
+                 str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and str(path) in err, err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()

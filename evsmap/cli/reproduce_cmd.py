@@ -84,6 +84,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="refuse to time on a busy machine: stop at once when the load average "
                         "exceeds the cores, and record a speed cell whose calibration shows "
                         "contention (twice) as not measured instead of flagging it")
+    p.add_argument("--systems", type=Path, default=None, metavar="FILE",
+                   help="with Table IV: a TOML file of your own mapping systems (registered "
+                        "updaters and segmenters, e.g. plug-ins) mapped beside the paper's on "
+                        "the same sequences; see docs/plugins.md (with --resume: the run's)")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out: keep its finished cells, run the rest")
     p.add_argument("--force", action="store_true",
@@ -135,6 +139,10 @@ def run(args: argparse.Namespace) -> int:
                               f"{', '.join(stored)}; resume it without --tables (or with the "
                               f"same list)")
         args.tables = stored
+        stored_systems = previous.get("systems") or []
+        if args.systems is not None:
+            raise EvsmapError(f"--resume: a resumed run keeps its systems ({len(stored_systems)} "
+                              f"stored in {out / 'run.json'}); resume it without --systems")
     elif out.exists() and any(out.iterdir()):
         raise EvsmapError(f"--out {out}: folder exists and is not empty (use --resume to "
                           f"continue a run there)")
@@ -152,6 +160,7 @@ def run(args: argparse.Namespace) -> int:
         raise EvsmapError(f"--weights-dir {args.weights_dir}: no such folder")
     # checked before anything is written: an unknown or missing executor is a usage error
     executor = make_executor(args.executor, address=args.address)
+    systems = _systems(args, out)
     if args.data_root is not None and not args.data_root.is_dir():
         raise EvsmapError(f"--data-root {args.data_root}: no such folder")
     if args.strict_timing:
@@ -167,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
 
     ctx = RunContext.create(out, data_root=args.data_root, weights_dir=args.weights_dir,
                             quick=args.quick, strict_timing=args.strict_timing)
-    the_plan = plan(ctx, args.tables)
+    the_plan = plan(ctx, args.tables, systems)
     if "table4" in args.tables and ctx.dataset_path("tum") is None:
         print(f"note: no real TUM sample under {ctx.data_root} (or datasets/): Table IV maps the "
               f"synthetic room only; `evsmap datasets fetch tum-fr1-xyz` adds the sample")
@@ -178,7 +187,8 @@ def run(args: argparse.Namespace) -> int:
         if name != "synthetic":
             sequences[name] = _describe_sequence(ctx, name)
     fields = dict(run=stamp, started=started, finished=None, tables=args.tables,
-                  environment=env, sequences=sequences)
+                  environment=env, sequences=sequences,
+                  systems=[s.as_dict() for s in systems])
     write_run_file(ctx, the_plan, out / "run.json", **fields)
 
     total = len(the_plan.keys)
@@ -216,6 +226,26 @@ def run(args: argparse.Namespace) -> int:
         print(f"  failed: {r.key}: {r.error}")
     print(f"report written to {out}/ ({', '.join(p.name for p in written[:6])}, ...)")
     return 1 if err else 0
+
+
+def _systems(args: argparse.Namespace, out: Path) -> list:
+    """The user's mapping systems: ``--systems FILE``, or a resumed run's (its ``run.json``)."""
+    from evsmap.runner.mapping_cells import REFERENCE_ROW, VARIANT_ROWS
+    from evsmap.runner.systems import load_systems, systems_from_records
+    from evsmap.tables.schema import load_tables
+
+    taken = {r.id for r in load_tables()["table4"].rows} | {REFERENCE_ROW} | {
+        row + suffix for row, (suffix, _, _) in VARIANT_ROWS.items()}
+    if args.resume:
+        import json
+
+        stored = json.loads((out / "run.json").read_text()).get("systems") or []
+        return systems_from_records(stored, source=str(out / "run.json")) if stored else []
+    if args.systems is None:
+        return []
+    if "table4" not in args.tables:
+        raise EvsmapError("--systems: your systems are mapped with Table IV; add IV to --tables")
+    return load_systems(args.systems, taken=taken)
 
 
 def _describe_sequence(ctx: RunContext, name: str) -> dict:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from evsmap.runner.cell_base import base_fields, column_quantities, now
 from evsmap.runner.context import RunContext
 from evsmap.runner.network_cells import build_segmenter
 from evsmap.runner.records import CellRecord, needs_text
+from evsmap.runner.systems import ExtraSystem
 from evsmap.tables.schema import CellSpec, Component, load_tables
 
 MAPPING_WEIGHTS = "nyuv2"
@@ -37,6 +39,9 @@ class MappingRun:
     updater: Component
     sequence: str
     voxel_size: float
+    own_labels: bool = False
+    """The segmenter is not a network: its own predictions are the labels (no weights, no
+    oracle); a user's system (``--systems``) with such a segmenter."""
 
     @property
     def key(self) -> str:
@@ -50,9 +55,10 @@ TFEAGMap with evsmap's classwise classic-semantic beside semantic_slam's own pip
 report shows what semantic_slam's front end, ray casting and fusion details cost."""
 
 
-def mapping_runs(sequences: list[str], voxel_size: float) -> list[MappingRun]:
-    """Table IV's systems (and :data:`VARIANT_ROWS`) plus the C++ OctoMap reference on each of
-    ``sequences``."""
+def mapping_runs(sequences: list[str], voxel_size: float,
+                 systems: Sequence[ExtraSystem] = ()) -> list[MappingRun]:
+    """Table IV's systems (and :data:`VARIANT_ROWS`) plus the C++ OctoMap reference, then the
+    user's ``systems`` (``--systems``), on each of ``sequences``."""
     table = load_tables()["table4"]
     runs = []
     for seq in sequences:
@@ -68,6 +74,10 @@ def mapping_runs(sequences: list[str], voxel_size: float) -> list[MappingRun]:
                                            voxel_size))
         runs.append(MappingRun(REFERENCE_ROW, "OctoMap (C++)", None, Component("octomap-cpp"),
                                seq, voxel_size))
+        for extra in systems:
+            runs.append(MappingRun(extra.id, extra.label, extra.segmenter, extra.updater, seq,
+                                   voxel_size, own_labels=extra.segmenter is not None
+                                   and not extra.segmenter_is_network))
     return runs
 
 
@@ -163,7 +173,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                        "updater": run.updater.spec, "sequence": run.sequence,
                        "voxel_size": run.voxel_size}}
     semantic = run.segmenter is not None
-    choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) if semantic else None
+    choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) \
+        if semantic and not run.own_labels else None
     weights = choice.path if choice is not None else None
     if run.sequence != "synthetic" and ctx.dataset_path(run.sequence) is None:
         return CellRecord(**base, status="na", needs=[f"dataset:{run.sequence}"],
@@ -186,7 +197,17 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     before = Probe.take()  # the machine around the timed part (segmentation and update)
     if semantic:
         labelled = n > 0 and sequence.frame(0).labels is not None
-        if choice is not None:
+        if run.own_labels:  # not a network: its own labels, its own time
+            own = build_segmenter(run.segmenter)
+            observations, segment_ms, reused = shared.observations(
+                own, sequence, indices, key={"segmenter": run.segmenter.spec,
+                                             "sequence": sequence.name, "frames": frames_id})
+            if reused:
+                segment_ms, _ = cache.timings(own, sequence, indices, key={
+                    "segmenter": run.segmenter.spec, "threads": ctx.threads,
+                    "sequence": sequence.name})
+            notes.append(f"labels from {run.segmenter.spec} (not a network: no weights)")
+        elif choice is not None:
             net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
             observations, segment_ms, reused = shared.observations(
                 net, sequence, indices,

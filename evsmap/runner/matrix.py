@@ -26,7 +26,7 @@ from __future__ import annotations
 import multiprocessing
 import queue
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import (
     Executor,
     Future,
@@ -58,6 +58,7 @@ from evsmap.runner.executors import (
     fresh_process,
 )
 from evsmap.runner.records import CellRecord, RecordStore, needs_text
+from evsmap.runner.systems import ExtraSystem
 from evsmap.tables.schema import CellSpec, expand, load_tables
 
 TABLES = ("table1", "table2", "table3", "table4")
@@ -80,8 +81,10 @@ class Plan:
         return [s.key for s in self.specs] + [r.key for r in self.runs]
 
 
-def plan(ctx: RunContext, tables: Iterable[str] = TABLES) -> Plan:
-    """Expand ``tables`` against what is available here."""
+def plan(ctx: RunContext, tables: Iterable[str] = TABLES,
+         systems: Sequence[ExtraSystem] = ()) -> Plan:
+    """Expand ``tables`` against what is available here; with Table IV, the user's ``systems``
+    (``--systems``) map the same sequences as its rows."""
     loaded = load_tables()
     specs: list[CellSpec] = []
     for tid in tables:
@@ -103,7 +106,7 @@ def plan(ctx: RunContext, tables: Iterable[str] = TABLES) -> Plan:
         sequences = ["synthetic"] + [
             d for d in ("tum", "rtabmap", "asl", "ours1", "ours2")
             if ctx.dataset_path(d) is not None]
-    runs = mapping_runs(sequences, ctx.voxel_size) if sequences else []
+    runs = mapping_runs(sequences, ctx.voxel_size, systems) if sequences else []
     return Plan(specs, runs, sequences, skipped)
 
 
@@ -315,7 +318,7 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
     for run in the_plan.runs:
         if run.key in done:
             continue
-        if run.segmenter is not None and \
+        if run.segmenter is not None and not run.own_labels and \
                 ctx.weights_path(run.segmenter.spec, "nyuv2") is None and \
                 _unlabelled(ctx, run.sequence, labels_cache):
             need = f"weights:{run.segmenter.spec}@nyuv2"
