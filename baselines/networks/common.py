@@ -12,7 +12,8 @@ A network module describes its network once::
         depth=None)
 
 ``build`` names the builder (``module:function``, imported only when a segmenter is made, so
-registering imports no torch); it is called as ``builder(num_classes=N)`` and returns the
+registering imports no torch); it is called as ``builder(num_classes=N)`` (plus
+``dataset=<the card's dataset>`` when it takes a ``dataset`` keyword) and returns the
 ``nn.Module`` whose ``forward(rgb)`` - or ``forward(rgb, depth)`` for an RGB-D network - gives
 logits ``(B, C, h, w)`` (upsampled to the input or not: the segmenter resizes).
 
@@ -24,6 +25,7 @@ height above ground, angle with gravity, :mod:`baselines.hha`); ``None`` for an 
 from __future__ import annotations
 
 import importlib
+import inspect
 from collections.abc import Mapping
 from dataclasses import dataclass
 from os import PathLike
@@ -120,10 +122,11 @@ def register_network(name: str, *, build: str, description: str, citation: str,
         card = MODEL_CARDS.get(f"{name}.{key}")
         classes = card.num_classes if num_classes is None else int(num_classes)
         builder = getattr(importlib.import_module(module_name), function)
+        options = {"dataset": key} if "dataset" in inspect.signature(builder).parameters else {}
         return make_segmenter(
-            name=name, module=builder(num_classes=classes), card=card, num_classes=classes,
-            depth=depth, backend=backend, weights=weights, input_size=input_size,
-            config={"num_classes": classes, "dataset": key})
+            name=name, module=builder(num_classes=classes, **options), card=card,
+            num_classes=classes, depth=depth, backend=backend, weights=weights,
+            input_size=input_size, config={"num_classes": classes, "dataset": key})
 
     factory.__name__ = name.replace("-", "_").replace(".", "_")
     first = datasets[default]
