@@ -199,6 +199,13 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         labelled = n > 0 and sequence.frame(0).labels is not None
         if run.own_labels:  # not a network: its own labels, its own time
             own = build_segmenter(run.segmenter)
+            from evsmap.measure.engine import is_oracle
+
+            if is_oracle(own) and not labelled:
+                need = f"labels:{run.sequence}"
+                return CellRecord(**base, status="na", needs=[need],
+                                  reason=f"n/a - {run.segmenter.spec} reads ground-truth labels "
+                                         f"and {run.sequence} has none", started=now())
             observations, segment_ms, reused = shared.observations(
                 own, sequence, indices, key={"segmenter": run.segmenter.spec,
                                              "sequence": sequence.name, "frames": frames_id})
@@ -206,7 +213,11 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                 segment_ms, _ = cache.timings(own, sequence, indices, key={
                     "segmenter": run.segmenter.spec, "threads": ctx.threads,
                     "sequence": sequence.name})
-            notes.append(f"labels from {run.segmenter.spec} (not a network: no weights)")
+            if is_oracle(own):  # ground truth read, not a segmentation: no segmentation time
+                segment_ms = []
+            notes.append(f"labels from {run.segmenter.spec} (not a network: no weights"
+                         + ("; reads ground truth, so end to end = update only)"
+                            if is_oracle(own) else ")"))
         elif choice is not None:
             net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
             observations, segment_ms, reused = shared.observations(
