@@ -108,7 +108,8 @@ class ModelCard:
         citation: the paper that introduces the network.
         dataset: the dataset whose label set it predicts (and its weights are trained on).
         input_size: the default network input ``(height, width)`` of the built network.
-        num_classes: classes of the classifier.
+        num_classes: classes of the classifier: the label set's, or one more where the head
+            keeps the void class as class 0 (e.g. PGDENet's 41 on NYUv2).
         class_set: the label set's name (a key of :data:`CLASS_SETS`).
         uses_depth: reads depth besides RGB.
         normalization: how a frame is standardised before the network.
@@ -144,7 +145,8 @@ class ModelCard:
                              f"{self.segmenter!r}")
         if not (len(self.input_size) == 2 and all(int(s) > 0 for s in self.input_size)):
             raise ValueError(f"model card {self.name!r}: input_size is (height, width)")
-        if CLASS_SETS.get(self.class_set) != self.num_classes:
+        size = CLASS_SETS.get(self.class_set)
+        if size is None or self.num_classes not in (size, size + 1):  # + 1: void kept
             raise ValueError(f"model card {self.name!r}: class set {self.class_set!r} does not "
                              f"have {self.num_classes} classes (known: {CLASS_SETS})")
         object.__setattr__(self, "options", tuple(sorted(dict(self.options).items())))
