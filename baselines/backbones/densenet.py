@@ -9,7 +9,10 @@ Names (torchvision's): ``features.conv0`` (7x7 stride 2), ``features.norm0``, ``
 ``norm1, relu1, conv1`` (1x1 to 128) and ``norm2, relu2, conv2`` (3x3 to 32);
 ``features.transition{1..3}`` with ``norm, relu, conv, pool``; ``features.norm5``; ``classifier``
 (1000 classes, only with ``with_classifier=True``). A torchvision ImageNet state dict loads with
-``load_state_dict`` (``strict=False`` without the classifier, which drops only ``classifier.*``).
+``load_state_dict`` (``strict=False`` without the classifier, which drops only ``classifier.*``)
+after :func:`rename_legacy_keys`: torchvision's published checkpoint
+(``densenet121-a639ec97.pth``) stores the dense layers under their pre-0.4 names (``norm.1``,
+``conv.1``, ``norm.2``, ``conv.2``), which torchvision renames while loading.
 
 :meth:`DenseNet.forward_features` returns, for an input of size ``H x W``:
 
@@ -29,13 +32,19 @@ torchvision's classifier path.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-__all__ = ["DenseBlock", "DenseLayer", "DenseNet", "Transition", "densenet121"]
+__all__ = ["DenseBlock", "DenseLayer", "DenseNet", "Transition", "densenet121",
+           "rename_legacy_keys"]
+
+#: A dense layer's parameter under its pre-0.4 torchvision name (``...denselayer1.norm.1.weight``).
+_LEGACY_KEY = re.compile(r"^(.*denselayer\d+\.(?:norm|relu|conv))\.([12]\.[a-z_]+)$")
 
 
 class DenseLayer(nn.Module):
@@ -197,3 +206,14 @@ def densenet121(*, with_classifier: bool = False) -> DenseNet:
     """
     return DenseNet(block_config=(6, 12, 24, 16), growth_rate=32, num_init_features=64,
                     bn_size=4, with_classifier=with_classifier)
+
+
+def rename_legacy_keys(state_dict: Mapping[str, Any]) -> dict[str, Any]:
+    """``state_dict`` with the dense layers' pre-0.4 torchvision names (``...denselayer1.norm.1.
+    weight``) renamed to the current ones (``...denselayer1.norm1.weight``); other keys as
+    they are. What torchvision does when it loads its published DenseNet checkpoints."""
+    renamed = {}
+    for key, value in state_dict.items():
+        match = _LEGACY_KEY.match(key)
+        renamed[match.group(1) + match.group(2) if match else key] = value
+    return renamed

@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from baselines.backbones.densenet import DenseNet, densenet121
+from baselines.backbones.densenet import DenseNet, densenet121, rename_legacy_keys
 
 TORCHVISION_PARAMS = 7_978_856  # torchvision densenet121, ImageNet classifier included
 CLASSIFIER_PARAMS = 1024 * 1000 + 1000
@@ -72,3 +72,19 @@ def test_classifier_logits() -> None:
     with torch.no_grad():
         assert model(torch.randn(2, 3, 64, 64)).shape == (2, 1000)
     assert isinstance(model, DenseNet)
+
+
+def test_torchvision_checkpoint_names_are_renamed() -> None:
+    model = densenet121(with_classifier=True)
+    legacy = {}
+    for key, value in model.state_dict().items():
+        for new, old in (("norm1.", "norm.1."), ("conv1.", "conv.1."), ("norm2.", "norm.2."),
+                         ("conv2.", "conv.2.")):
+            if ".denselayer" in key and f".{new}" in key:
+                key = key.replace(f".{new}", f".{old}")
+        legacy[key] = value
+    assert "features.denseblock1.denselayer1.norm.1.weight" in legacy
+    assert "features.transition1.norm.weight" in legacy  # transitions keep their names
+    renamed = rename_legacy_keys(legacy)
+    assert set(renamed) == set(model.state_dict())
+    densenet121(with_classifier=True).load_state_dict(renamed, strict=True)
