@@ -60,7 +60,7 @@ class FeatureSeparation(nn.Module):
                                 nn.Linear(channels // reduction, channels), nn.Sigmoid())
 
     def forward(self, guide: Tensor, main: Tensor) -> Tensor:
-        pooled = torch.cat([guide, main], dim=1).mean(dim=(2, 3))
+        pooled = F.adaptive_avg_pool2d(torch.cat([guide, main], dim=1), 1).flatten(1)
         weights = self.fc(pooled)[:, :, None, None]
         return main + weights * guide
 

@@ -177,7 +177,7 @@ def test_complexity_command(capsys) -> None:
     assert record["inputs"] == ["rgb", "hha"]
     # fvcore MACs at 64x128; at 480x640: docs/baselines/sagate-r101.md
     assert record["conv_macs"] == 4_833_345_536
-    assert record["flops"] == pytest.approx(4_851_130_880, rel=1e-3)
+    assert record["flops"] == pytest.approx(4_852_310_528, rel=1e-3)  # = the release's
     assert {"aten::softmax", "aten::sigmoid", "aten::leaky_relu"} <= set(
         record["uncounted_ops"])
 
