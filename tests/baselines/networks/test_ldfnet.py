@@ -109,6 +109,7 @@ def test_classes_change_only_the_two_classifiers():
     assert sum(p.numel() for p in nine.parameters()) == PARAMS - 10 * (16 * 4 + 1 + 128 + 1)
 
 
+@pytest.mark.slow
 def test_onnx_matches_torch(tmp_path, segmenter):
     ort = require_module("onnxruntime")
     module = segmenter.module.eval()
