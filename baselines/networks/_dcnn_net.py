@@ -7,8 +7,9 @@ public code has ResNet-152). docs/baselines/dcnn-r152.md gives every choice and 
   it has exactly the parameters of the plain convolution it replaces. ``alpha`` = 1000/120 per
   metre: the release's kernel uses ``exp(-|dD|)`` on depth read as ``png / 120`` from
   millimetre PNGs.
-* Depth-aware average pooling: the window's values weighted by ``F`` and divided by the number
-  of pixels in the window (the release's kernel; the paper's formula divides by ``sum F``).
+* Depth-aware average pooling: the window's values weighted by ``F``, divided by ``sum F``
+  (the paper's formula; the release's kernel counts each padding cell of a border window with
+  weight 1, as a plain average pooling that includes padding, and so does this one).
 * Encoder: a DeepLab-style ResNet-152 (output stride 8, dilated ``layer3``/``layer4``) whose
   7x7 stem convolution and the 3x3 convolution of each stage's first bottleneck are
   depth-aware (the release makes each VGG stage's first convolution depth-aware); the depth
@@ -122,8 +123,9 @@ class DepthAwareConv2d(nn.Module):
 
 
 class DepthAwareAvgPool2d(nn.Module):
-    """Average pooling whose samples are weighted by the depth similarity to the window centre,
-    divided by the number of pixels of the window inside the image (the release's kernel).
+    """Average pooling whose samples are weighted by the depth similarity to the window centre:
+    ``sum F x / sum F``, padding cells counting as zero values of weight 1 (the release's
+    kernel; on flat depth it is ``nn.AvgPool2d(k, 1, k // 2)``).
 
     Args:
         kernel_size: window size (odd); stride 1, padding ``kernel_size // 2``.
@@ -144,9 +146,9 @@ class DepthAwareAvgPool2d(nn.Module):
                                       **geometry)
         columns = F.unfold(x, self.kernel_size, **geometry).view(batch, channels, k, -1)
         total = (columns * similarity.unsqueeze(1)).sum(2)
-        inside = F.unfold(torch.ones_like(depth), self.kernel_size, **geometry).sum(1,
-                                                                                     keepdim=True)
-        return (total / inside).view(batch, channels, height, width)
+        inside = F.unfold(torch.ones_like(depth), self.kernel_size, **geometry)
+        weight = (similarity * inside + (1.0 - inside)).sum(1, keepdim=True)
+        return (total / weight).view(batch, channels, height, width)
 
 
 def _downsample_depth(depth: Tensor) -> Tensor:

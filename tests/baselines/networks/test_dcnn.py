@@ -118,16 +118,20 @@ def test_depth_aware_conv_weights_taps_by_depth_difference():
     assert out[0, 0, 1, 1].item() == pytest.approx(8 + math.exp(-ALPHA * 0.3), rel=1e-5)
 
 
-def test_depth_aware_pooling_divides_by_the_window_inside_the_image():
+def test_depth_aware_pooling_is_a_depth_weighted_mean():
     pool = DepthAwareAvgPool2d(kernel_size=3)
-    x = torch.ones(1, 2, 4, 4)
+    x = torch.randn(1, 2, 5, 6)
     with torch.no_grad():
-        flat = pool(x, torch.ones(1, 1, 4, 4))
-        assert torch.allclose(flat, torch.ones(1, 2, 4, 4))  # corners: 4 of 4 pixels inside
-        depth = torch.ones(1, 1, 4, 4)
-        depth[0, 0, 0, 1] = 1.5
-        out = pool(x, depth)
-    assert out[0, 0, 1, 1].item() == pytest.approx((8 + math.exp(-ALPHA * 0.5)) / 9, rel=1e-5)
+        # flat depth: a plain 3x3 average pooling that counts the padding (the release's kernel)
+        flat = pool(x, torch.ones(1, 1, 5, 6))
+        assert torch.allclose(flat, nn.AvgPool2d(3, 1, 1)(x), atol=1e-6)
+        ones = torch.ones(1, 1, 3, 3)
+        ones[0, 0, 0, 0] = 2.0  # a brighter pixel 0.5 m behind the centre
+        depth = torch.ones(1, 1, 3, 3)
+        depth[0, 0, 0, 0] = 1.5
+        out = pool(ones, depth)
+    e = math.exp(-ALPHA * 0.5)
+    assert out[0, 0, 1, 1].item() == pytest.approx((8 + 2 * e) / (8 + e), rel=1e-5)
 
 
 def test_complexity_code_path(segmenter):
