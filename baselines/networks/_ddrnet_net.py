@@ -19,6 +19,10 @@ builder), 5,695,987 parameters for 19 classes (Table II's 5.7 M; with the auxili
 5,734,342). The input height and width must be multiples of 8 (the branches meet at
 ``input // 8``, as in the official code).
 
+Parameter names are the release's (``conv1`` for the stem, ``layer3_``/``layer4_``/``layer5_``
+for the high-resolution branch, ``spp.scale1..4`` with their pooling at index 0,
+``final_layer``), so a state dict of the release loads with ``strict=True``.
+
 This module imports torch; :mod:`baselines.networks.ddrnet` registers the network without it.
 """
 
@@ -143,19 +147,25 @@ class DAPPM(nn.Module):
 
     def __init__(self, *, in_channels: int, branch: int, out_channels: int) -> None:
         super().__init__()
+        # the release's names: scale0 (the map), scale1..4 (pooling, BN, ReLU, 1x1),
+        # process1..4 (BN-ReLU-3x3), compression, shortcut
         self.scale0 = _bn_relu_conv(in_channels, branch)
-        self.scales = nn.ModuleList(_bn_relu_conv(in_channels, branch) for _ in range(4))
-        self.process = nn.ModuleList(_bn_relu_conv(branch, branch, 3) for _ in range(4))
+        pools: list[nn.Module] = [nn.AvgPool2d(k, stride=st, padding=p)
+                                  for k, st, p in self._POOLS]
+        pools.append(nn.AdaptiveAvgPool2d((1, 1)))
+        for i, pool in enumerate(pools, start=1):
+            setattr(self, f"scale{i}", nn.Sequential(pool, *_bn_relu_conv(in_channels, branch)))
+        for i in range(1, 5):
+            setattr(self, f"process{i}", _bn_relu_conv(branch, branch, 3))
         self.compression = _bn_relu_conv(5 * branch, out_channels)
         self.shortcut = _bn_relu_conv(in_channels, out_channels)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         size = x.shape[-2:]
-        pooled = [F.avg_pool2d(x, k, stride=s, padding=p) for k, s, p in self._POOLS]
-        pooled.append(F.adaptive_avg_pool2d(x, 1))
         outs = [self.scale0(x)]
-        for scale, process, p in zip(self.scales, self.process, pooled, strict=True):
-            outs.append(process(_up(scale(p), size) + outs[-1]))
+        for i in range(1, 5):
+            scale, process = getattr(self, f"scale{i}"), getattr(self, f"process{i}")
+            outs.append(process(_up(scale(x), size) + outs[-1]))
         return self.compression(torch.cat(outs, dim=1)) + self.shortcut(x)
 
 
@@ -197,7 +207,7 @@ class DualResNet(nn.Module):
         super().__init__()
         self.num_classes = num_classes
         w, high = width, 2 * width
-        self.stem = nn.Sequential(
+        self.conv1 = nn.Sequential(  # the stem
             nn.Conv2d(3, w, 3, stride=2, padding=1), _bn(w), nn.ReLU(),
             nn.Conv2d(w, w, 3, stride=2, padding=1), _bn(w), nn.ReLU())
         self.layer1 = _stage(BasicBlock, w, w, blocks[0])
@@ -205,9 +215,10 @@ class DualResNet(nn.Module):
         self.layer3 = _stage(BasicBlock, 2 * w, 4 * w, blocks[2], stride=2)
         self.layer4 = _stage(BasicBlock, 4 * w, 8 * w, blocks[3], stride=2)
         self.layer5 = _stage(Bottleneck, 8 * w, 8 * w, 1, stride=2)
-        self.high3 = _stage(BasicBlock, 2 * w, high, 2)
-        self.high4 = _stage(BasicBlock, high, high, 2)
-        self.high5 = _stage(Bottleneck, high, high, 1)
+        # the high-resolution branch (the release's trailing-underscore names)
+        self.layer3_ = _stage(BasicBlock, 2 * w, high, 2)
+        self.layer4_ = _stage(BasicBlock, high, high, 2)
+        self.layer5_ = _stage(Bottleneck, high, high, 1)
         self.compression3 = nn.Sequential(nn.Conv2d(4 * w, high, 1, bias=False), _bn(high))
         self.compression4 = nn.Sequential(nn.Conv2d(8 * w, high, 1, bias=False), _bn(high))
         self.down3 = nn.Sequential(nn.Conv2d(high, 4 * w, 3, stride=2, padding=1, bias=False),
@@ -216,23 +227,24 @@ class DualResNet(nn.Module):
             nn.Conv2d(high, 4 * w, 3, stride=2, padding=1, bias=False), _bn(4 * w), nn.ReLU(),
             nn.Conv2d(4 * w, 8 * w, 3, stride=2, padding=1, bias=False), _bn(8 * w))
         self.spp = DAPPM(in_channels=16 * w, branch=spp_channels, out_channels=4 * w)
-        self.head = SegHead(in_channels=4 * w, channels=head_channels, num_classes=num_classes)
+        self.final_layer = SegHead(in_channels=4 * w, channels=head_channels,
+                                   num_classes=num_classes)
 
     def forward(self, rgb: torch.Tensor) -> torch.Tensor:
         out_size = (rgb.shape[-2] // 8, rgb.shape[-1] // 8)
-        c2 = self.layer1(self.stem(rgb))
+        c2 = self.layer1(self.conv1(rgb))
         c3 = self.layer2(F.relu(c2))
         low = self.layer3(F.relu(c3))
-        high = self.high3(F.relu(c3))
+        high = self.layer3_(F.relu(c3))
         low, high = (low + self.down3(F.relu(high)),
                      high + _up(self.compression3(F.relu(low)), out_size))
         c5 = self.layer4(F.relu(low))
-        high = self.high4(F.relu(high))
+        high = self.layer4_(F.relu(high))
         low, high = (c5 + self.down4(F.relu(high)),
                      high + _up(self.compression4(F.relu(c5)), out_size))
-        high = self.high5(F.relu(high))
+        high = self.layer5_(F.relu(high))
         low = _up(self.spp(self.layer5(F.relu(low))), out_size)
-        return self.head(low + high)
+        return self.final_layer(low + high)
 
 
 def ddrnet_23_slim(*, num_classes: int = 19) -> DualResNet:

@@ -90,6 +90,20 @@ def test_parts_count() -> None:
     assert _params(ddrnet_23_slim(num_classes=11)) == PARAMS - 8 * 65
 
 
+def test_parameter_names_are_the_releases() -> None:
+    keys = set(ddrnet_23_slim().state_dict())
+    # a sample of the release's state-dict keys, one per kind of module
+    release = {"conv1.0.weight", "conv1.0.bias", "conv1.4.running_var", "layer1.0.conv1.weight",
+               "layer2.0.downsample.1.weight", "layer3_.1.bn2.bias", "layer5_.0.conv3.weight",
+               "layer5.0.downsample.0.weight", "compression3.0.weight", "down4.3.weight",
+               "spp.scale0.2.weight", "spp.scale1.1.running_mean", "spp.scale4.3.weight",
+               "spp.process4.2.weight", "spp.compression.0.weight", "spp.shortcut.2.weight",
+               "final_layer.bn1.weight", "final_layer.conv2.bias"}
+    assert release <= keys
+    assert not any(k.startswith("seghead_extra.") for k in keys)  # no auxiliary head
+    assert len(keys) == 333  # as many as the release's inference model (BN counters included)
+
+
 def test_logits_at_an_eighth() -> None:
     model = ddrnet_23_slim(num_classes=19).eval()
     with torch.no_grad():
