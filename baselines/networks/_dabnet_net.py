@@ -15,6 +15,10 @@ A DAB module (depth-wise asymmetric bottleneck): BN-PReLU, a 3x3 conv halving th
 two depth-wise branches of a 3x1 and a 1x3 conv (one plain, one dilated), their sum, BN-PReLU,
 a 1x1 conv back to the input width and the residual.
 
+Parameter names are the release's (``init_conv``, ``bn_prelu_1``, ``downsample_1``,
+``DAB_Block_1.DAB_Module_1_0.conv3x3.conv``, ..., ``classifier.0.conv``), so a state dict of
+the release loads with ``strict=True``.
+
 This module imports torch; :mod:`baselines.networks.dabnet` registers the network without it.
 """
 
@@ -29,19 +33,25 @@ __all__ = ["BNPReLU", "ConvBNPReLU", "DABModule", "DABNet", "DownsamplingBlock",
 _BN_EPS = 1e-3
 
 
-class BNPReLU(nn.Sequential):
-    """BatchNorm (``eps=1e-3``) then a per-channel PReLU.
+class BNPReLU(nn.Module):
+    """BatchNorm (``eps=1e-3``) then a per-channel PReLU (``bn``, ``acti``).
 
     Args:
         channels: the feature channels.
     """
 
     def __init__(self, *, channels: int) -> None:
-        super().__init__(nn.BatchNorm2d(channels, eps=_BN_EPS), nn.PReLU(channels))
+        super().__init__()
+        self.bn = nn.BatchNorm2d(channels, eps=_BN_EPS)
+        self.acti = nn.PReLU(channels)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.acti(self.bn(x))
 
 
-class ConvBNPReLU(nn.Sequential):
-    """A bias-free convolution, then :class:`BNPReLU` (``activate=True``) or nothing.
+class ConvBNPReLU(nn.Module):
+    """A bias-free convolution (``conv``), then :class:`BNPReLU` (``bn_prelu``, when
+    ``activate``).
 
     Args:
         in_channels, out_channels: channels in and out.
@@ -55,13 +65,15 @@ class ConvBNPReLU(nn.Sequential):
     def __init__(self, *, in_channels: int, out_channels: int, kernel: tuple[int, int],
                  stride: int = 1, dilation: tuple[int, int] = (1, 1), groups: int = 1,
                  activate: bool = True) -> None:
+        super().__init__()
         padding = (dilation[0] * (kernel[0] // 2), dilation[1] * (kernel[1] // 2))
-        layers: list[nn.Module] = [nn.Conv2d(in_channels, out_channels, kernel, stride=stride,
-                                             padding=padding, dilation=dilation, groups=groups,
-                                             bias=False)]
-        if activate:
-            layers.append(BNPReLU(channels=out_channels))
-        super().__init__(*layers)
+        self.conv = nn.Conv2d(in_channels, out_channels, kernel, stride=stride, padding=padding,
+                              dilation=dilation, groups=groups, bias=False)
+        self.bn_prelu = BNPReLU(channels=out_channels) if activate else None
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.conv(x)
+        return x if self.bn_prelu is None else self.bn_prelu(x)
 
 
 class DABModule(nn.Module):
@@ -75,23 +87,25 @@ class DABModule(nn.Module):
     def __init__(self, *, channels: int, dilation: int) -> None:
         super().__init__()
         mid = channels // 2
-        self.pre = BNPReLU(channels=channels)
-        self.reduce = ConvBNPReLU(in_channels=channels, out_channels=mid, kernel=(3, 3))
 
         def depthwise(kernel: tuple[int, int], dil: tuple[int, int]) -> ConvBNPReLU:
             return ConvBNPReLU(in_channels=mid, out_channels=mid, kernel=kernel, dilation=dil,
                                groups=mid)
 
-        self.local = nn.Sequential(depthwise((3, 1), (1, 1)), depthwise((1, 3), (1, 1)))
-        self.context = nn.Sequential(depthwise((3, 1), (dilation, 1)),
-                                     depthwise((1, 3), (1, dilation)))
-        self.post = BNPReLU(channels=mid)
-        self.expand = nn.Conv2d(mid, channels, 1, bias=False)
+        self.bn_relu_1 = BNPReLU(channels=channels)
+        self.conv3x3 = ConvBNPReLU(in_channels=channels, out_channels=mid, kernel=(3, 3))
+        self.dconv3x1 = depthwise((3, 1), (1, 1))  # the local branch
+        self.dconv1x3 = depthwise((1, 3), (1, 1))
+        self.ddconv3x1 = depthwise((3, 1), (dilation, 1))  # the dilated branch
+        self.ddconv1x3 = depthwise((1, 3), (1, dilation))
+        self.bn_relu_2 = BNPReLU(channels=mid)
+        self.conv1x1 = ConvBNPReLU(in_channels=mid, out_channels=channels, kernel=(1, 1),
+                                   activate=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        y = self.reduce(self.pre(x))
-        y = self.post(self.local(y) + self.context(y))
-        return self.expand(y) + x
+        y = self.conv3x3(self.bn_relu_1(x))
+        y = self.dconv1x3(self.dconv3x1(y)) + self.ddconv1x3(self.ddconv3x1(y))
+        return self.conv1x1(self.bn_relu_2(y)) + x
 
 
 class DownsamplingBlock(nn.Module):
@@ -106,14 +120,15 @@ class DownsamplingBlock(nn.Module):
         super().__init__()
         self.pool = in_channels < out_channels
         conv_out = out_channels - in_channels if self.pool else out_channels
-        self.conv = nn.Conv2d(in_channels, conv_out, 3, stride=2, padding=1, bias=False)
-        self.post = BNPReLU(channels=out_channels)
+        self.conv3x3 = ConvBNPReLU(in_channels=in_channels, out_channels=conv_out, kernel=(3, 3),
+                                   stride=2, activate=False)
+        self.bn_prelu = BNPReLU(channels=out_channels)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        y = self.conv(x)
+        y = self.conv3x3(x)
         if self.pool:
             y = torch.cat([y, F.max_pool2d(x, 2, stride=2)], dim=1)
-        return self.post(y)
+        return self.bn_prelu(y)
 
 
 def _image_at(rgb: torch.Tensor, halvings: int) -> torch.Tensor:
@@ -122,6 +137,14 @@ def _image_at(rgb: torch.Tensor, halvings: int) -> torch.Tensor:
     for _ in range(halvings):
         rgb = F.avg_pool2d(rgb, 3, stride=2, padding=1)
     return rgb
+
+
+def _dab_stage(stage: int, channels: int, dilations: tuple[int, ...]) -> nn.Sequential:
+    """DAB modules named as the release's (``DAB_Module_<stage>_<i>``)."""
+    block = nn.Sequential()
+    for i, d in enumerate(dilations):
+        block.add_module(f"DAB_Module_{stage}_{i}", DABModule(channels=channels, dilation=d))
+    return block
 
 
 class DABNet(nn.Module):
@@ -141,26 +164,28 @@ class DABNet(nn.Module):
         super().__init__()
         self.num_classes = num_classes
         s = stem_channels
-        self.stem = nn.Sequential(
+        self.init_conv = nn.Sequential(
             ConvBNPReLU(in_channels=3, out_channels=s, kernel=(3, 3), stride=2),
             ConvBNPReLU(in_channels=s, out_channels=s, kernel=(3, 3)),
             ConvBNPReLU(in_channels=s, out_channels=s, kernel=(3, 3)))
-        self.stem_post = BNPReLU(channels=s + 3)
+        self.bn_prelu_1 = BNPReLU(channels=s + 3)
         w1, w2 = widths
-        self.down1 = DownsamplingBlock(in_channels=s + 3, out_channels=w1)
-        self.stage1 = nn.Sequential(*(DABModule(channels=w1, dilation=d) for d in dilations[0]))
-        self.stage1_post = BNPReLU(channels=2 * w1 + 3)
-        self.down2 = DownsamplingBlock(in_channels=2 * w1 + 3, out_channels=w2)
-        self.stage2 = nn.Sequential(*(DABModule(channels=w2, dilation=d) for d in dilations[1]))
-        self.stage2_post = BNPReLU(channels=2 * w2 + 3)
-        self.classifier = nn.Conv2d(2 * w2 + 3, num_classes, 1, bias=False)
+        self.downsample_1 = DownsamplingBlock(in_channels=s + 3, out_channels=w1)
+        self.DAB_Block_1 = _dab_stage(1, w1, dilations[0])
+        self.bn_prelu_2 = BNPReLU(channels=2 * w1 + 3)
+        self.downsample_2 = DownsamplingBlock(in_channels=2 * w1 + 3, out_channels=w2)
+        self.DAB_Block_2 = _dab_stage(2, w2, dilations[1])
+        self.bn_prelu_3 = BNPReLU(channels=2 * w2 + 3)
+        self.classifier = nn.Sequential(ConvBNPReLU(in_channels=2 * w2 + 3,
+                                                    out_channels=num_classes, kernel=(1, 1),
+                                                    activate=False))
 
     def forward(self, rgb: torch.Tensor) -> torch.Tensor:
-        x = self.stem_post(torch.cat([self.stem(rgb), _image_at(rgb, 1)], dim=1))
-        x0 = self.down1(x)
-        x = self.stage1_post(torch.cat([self.stage1(x0), x0, _image_at(rgb, 2)], dim=1))
-        x0 = self.down2(x)
-        x = self.stage2_post(torch.cat([self.stage2(x0), x0, _image_at(rgb, 3)], dim=1))
+        x = self.bn_prelu_1(torch.cat([self.init_conv(rgb), _image_at(rgb, 1)], dim=1))
+        x0 = self.downsample_1(x)
+        x = self.bn_prelu_2(torch.cat([self.DAB_Block_1(x0), x0, _image_at(rgb, 2)], dim=1))
+        x0 = self.downsample_2(x)
+        x = self.bn_prelu_3(torch.cat([self.DAB_Block_2(x0), x0, _image_at(rgb, 3)], dim=1))
         logits = self.classifier(x)
         return F.interpolate(logits, size=rgb.shape[-2:], mode="bilinear", align_corners=False)
 

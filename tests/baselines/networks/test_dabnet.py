@@ -77,6 +77,23 @@ def test_parts_count() -> None:
     assert _params(dabnet(num_classes=11)) == PARAMS - 8 * 259
 
 
+def test_parameter_names_are_the_releases() -> None:
+    keys = set(dabnet().state_dict())
+    # a sample of the release's state-dict keys, one per kind of module
+    release = {"init_conv.0.conv.weight", "init_conv.2.bn_prelu.bn.running_var",
+               "init_conv.1.bn_prelu.acti.weight", "bn_prelu_1.bn.weight",
+               "downsample_1.conv3x3.conv.weight", "downsample_1.bn_prelu.acti.weight",
+               "DAB_Block_1.DAB_Module_1_2.bn_relu_1.bn.bias",
+               "DAB_Block_1.DAB_Module_1_0.conv3x3.bn_prelu.bn.weight",
+               "DAB_Block_2.DAB_Module_2_5.ddconv1x3.conv.weight",
+               "DAB_Block_2.DAB_Module_2_0.dconv3x1.bn_prelu.acti.weight",
+               "DAB_Block_2.DAB_Module_2_3.bn_relu_2.bn.running_mean",
+               "DAB_Block_2.DAB_Module_2_1.conv1x1.conv.weight", "downsample_2.conv3x3.conv.weight",
+               "bn_prelu_3.acti.weight", "classifier.0.conv.weight"}
+    assert release <= keys
+    assert len(keys) == 486  # as many as the release's (BN counters included)
+
+
 def test_output_is_input_sized_logits() -> None:
     model = dabnet(num_classes=19).eval()
     with torch.no_grad():
