@@ -56,9 +56,10 @@ def test_index(built_run):
     assert "run 20250101-120000" in index and "Test CPU @ 3 GHz" in index
     assert "| octomap-python | not installed |" in index
     assert "`dataset:tum`" in index and "/data" in index
-    # ok / n/a / error / not run / no value / paper only for Table I
+    # ok / n/a / error / not run / no value / paper only for Table I: every row is implemented
+    # (the comparison networks), so the cells the fixture has no record of are "not run"
     assert "| Table I: FEAGNet compared to SOTA networks on NYUv2 and SUN RGBD | 5 | 2 | 1 | " \
-           "17 | 0 | 45 |" in index
+           "62 | 0 | 0 |" in index
     for link in ("table1.md", "table4.csv", "extra.csv", "networks.png", "mapping.png",
                  "qualitative.png"):
         assert f"]({link})" in index
@@ -75,7 +76,7 @@ def test_plots_skipped_without_data(tmp_path):
     assert not (root / "networks.png").exists()  # a stale figure is removed
     index = (root / "index.md").read_text()
     assert "networks.png: skipped" in index and "qualitative.png: skipped" in index
-    assert "| 0 | 0 | 0 | 25 | 0 | 45 |" in index  # Table I: nothing run
+    assert "| 0 | 0 | 0 | 70 | 0 | 0 |" in index  # Table I: nothing run, no row paper only
 
 
 def test_missing_and_corrupt_inputs(tmp_path):
