@@ -213,7 +213,9 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
         return False
     series = list(dict.fromkeys(p["series"] for p in points))
     colors = {s: f"C{i}" for i, s in enumerate(series)}
-    fig = _figure(13, 5.6)
+    ratios = speed_ratios(points)
+    # the ratio panel's two-line labels need about a third of an inch a network
+    fig = _figure(13, max(5.6, 0.36 * len(ratios) + 1.6))
     left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.0, 1.1]})
 
     shown = [p for p in points if p["flops"] is not None]
@@ -252,7 +254,6 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
         _empty(left, "no network with measured FLOPs")
     left.set_title("Speed against cost, this machine", fontsize=10)
 
-    ratios = speed_ratios(points)
     if ratios:
         y = np.arange(len(ratios))[::-1].astype(float)
         h = 0.38
@@ -279,7 +280,7 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
 
         right.legend(handles=[Patch(color="0.4", label="measured here (same run, drift-corrected)"),
                               Patch(facecolor="white", edgecolor="0.4", hatch="///",
-                                    label="the paper (Jetson, TensorRT)")],
+                                    label="the paper (its printed FPS)")],
                      fontsize=7, loc="lower right")
     else:
         _empty(right, f"{SPEED_BASELINE} not timed in this run: no speed ratio")
