@@ -130,7 +130,10 @@ def register_network(name: str, *, build: str, description: str, citation: str,
 
     factory.__name__ = name.replace("-", "_").replace(".", "_")
     first = datasets[default]
-    SEGMENTERS.add(name, factory, description=description, paper_size=tuple(first.input_size))
+    # gate=False: the regression gates leave the compared networks out (timed in every
+    # `evsmap reproduce` beside FEAGNet instead; see docs/gates.md, "What is gated")
+    SEGMENTERS.add(name, factory, description=description, paper_size=tuple(first.input_size),
+                   gate=False)
 
 
 def class_names(num_classes: int, dataset: str) -> tuple[str, ...]:

@@ -151,3 +151,18 @@ def test_gate_end_to_end_passes_on_its_baseline_and_fails_on_the_scaled_ones(tmp
         assert r.returncode == 1, r.stdout + r.stderr
         assert "gate FAILED" in r.stdout and "read/rosbag" in r.stdout
         assert f"| read/rosbag | {why} |" in r.stdout
+
+
+def test_networks_registered_with_gate_false_are_left_out_unbuilt(monkeypatch):
+    from evsmap.gate.run import discover
+    from evsmap.registry import SEGMENTERS
+
+    built_names = []
+    real_create = SEGMENTERS.create
+    monkeypatch.setattr(SEGMENTERS, "create",
+                        lambda name, **kw: built_names.append(name) or real_create(name, **kw))
+    context, built = discover(threads=1)
+    compared = {"acnet-r50", "rdfnet-r101", "ssma", "ldn121"}
+    assert compared <= set(context["not_gated"])
+    assert not compared & (set(context["networks"]) | set(built) | set(built_names))
+    assert {"feagnet-v1", "esanet-r34-nbt1d"} <= set(context["networks"])
