@@ -14,6 +14,7 @@ cell and reads its record (a plain dict) from a future, whichever executor runs 
 
 from __future__ import annotations
 
+import abc
 import multiprocessing
 from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
@@ -55,7 +56,7 @@ def fresh_process() -> Executor:
                                max_tasks_per_child=1)
 
 
-class CellExecutor:
+class CellExecutor(abc.ABC):
     """What runs the cells of one ``reproduce`` run; entered once around the run
     (``with executor: ...``), which starts and stops whatever it needs."""
 
@@ -67,29 +68,29 @@ class CellExecutor:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (optional hook: nothing to release by default)
         """Release what :meth:`__enter__` or :meth:`prepare` started."""
 
-    def prepare(self, ctx: RunContext) -> None:
+    def prepare(self, ctx: RunContext) -> None:  # noqa: B027 (optional hook)
         """Check that the cells of ``ctx``'s run can run here (before any is scheduled)."""
 
+    @abc.abstractmethod
     def pool(self, workers: int, threads: int) -> Executor:
         """An executor for the cells that are not timed; ``workers`` is the ``--workers``
         setting, ``threads`` the threads a cell uses (:meth:`pool_threads`)."""
-        raise NotImplementedError
 
     def pool_threads(self, threads: int) -> int:
         """The threads a pooled cell gets when the run asks for ``threads``."""
         return threads
 
+    @abc.abstractmethod
     def timing_slots(self) -> list[TimingSlot]:
         """Where timed cells run; as many run at once as there are slots, one per slot."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def fresh(self, slot: TimingSlot) -> Executor:
         """An executor that runs each task submitted to it alone in ``slot``, in a fresh
         interpreter."""
-        raise NotImplementedError
 
     def placement(self) -> dict[str, Any]:
         """Said in a record's ``environment["executor"]`` when the cell's own worker did not

@@ -42,12 +42,11 @@ def test_bad_systems_are_one_line_naming_the_file(items, message):
     assert text.startswith("mine.toml: ") and message in text and "\n" not in text
 
 
-def test_the_oracle_on_a_sequence_without_labels_is_not_applicable(tmp_path, data_root):
+def test_the_oracle_on_a_sequence_without_labels_is_not_applicable(tmp_path, tum_dir):
     [system] = _systems({"id": "mine", "updater": {"name": "multiclass-bayes"},
                          "segmenter": {"name": "oracle"}})
-    ctx = RunContext.create(tmp_path / "run", data_root=data_root, quick=True)
-    if ctx.dataset_path("tum") is None:
-        pytest.skip("needs the TUM sample")
+    ctx = RunContext.create(tmp_path / "run", data_root=tum_dir.parent, quick=True)
+    assert ctx.dataset_path("tum") is not None
     plan = matrix.plan(ctx, ["table4"], [system])
     runs = [r for r in plan.runs if r.row == "mine" and r.sequence == "tum"]
     assert len(runs) == 1 and runs[0].own_labels

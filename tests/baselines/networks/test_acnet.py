@@ -50,14 +50,6 @@ def _torchvision_resnet50_keys() -> set[str]:
     return keys
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def model() -> ACNet:
     torch.manual_seed(0)

@@ -30,14 +30,6 @@ ONNX_RTOL = 1e-4  # of the logits' largest magnitude (BN statistics randomised b
 SMALL = (64, 128)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def model() -> CANet:
     torch.manual_seed(0)

@@ -21,14 +21,6 @@ ONNX_ATOL = 1e-4  # logits of order 1 (BN statistics randomised below)
 SMALL = (64, 128)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _params(module: torch.nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
 

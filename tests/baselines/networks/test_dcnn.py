@@ -30,15 +30,6 @@ SMALL = (64, 128)
 ONNX_TOLERANCE = 1e-5  # relative to the largest logit
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """One intra-op thread: on a busy 2-core machine OpenMP spin-waits slow small ops down."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def segmenter():
     torch.manual_seed(0)

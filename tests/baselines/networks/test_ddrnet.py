@@ -34,14 +34,6 @@ CONV_MACS_SMALL = 141_942_784
 UNCOUNTED = {"aten::add", "aten::avg_pool2d"}
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _params(module: torch.nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
 

@@ -27,15 +27,6 @@ SMALL = (64, 128)  # 1/8 map of 8x16 = 128 nodes (more than K = 64)
 ONNX_TOLERANCE = 1e-5  # relative to the largest logit
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """One intra-op thread: on a busy 2-core machine OpenMP spin-waits slow small ops down."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def segmenter():
     torch.manual_seed(0)

@@ -36,14 +36,6 @@ CONV_MACS_SMALL = 4_337_594_368
 FLOPS_SMALL = 4_350_186_496
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _params(module: torch.nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
 

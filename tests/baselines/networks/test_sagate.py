@@ -36,14 +36,6 @@ RESNET101_DEEP = (44_549_160 - 2_049_000 - 9_408 + 9 * (3 * 64 + 64 * 64 + 64 * 
                   + 2 * 64 + 64 * 256 + 64 * 64)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def model() -> SAGateNet:
     torch.manual_seed(0)

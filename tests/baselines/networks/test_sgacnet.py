@@ -40,14 +40,6 @@ CONV_MACS_SMALL = 997_570_176
 FLOPS_SMALL = 1_004_628_736
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _params(module: torch.nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
 

@@ -30,15 +30,6 @@ SMALL = (64, 128)  # 1/16 map of 4x8
 ONNX_TOLERANCE = 1e-5  # relative to the largest logit
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    """One intra-op thread: on a busy 2-core machine OpenMP spin-waits slow small ops down."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _calibrate(module: torch.nn.Module) -> None:
     """Batch-norm statistics of a trained network's magnitude: the input batch norms see
     0-255 images, the others random statistics, so activations neither vanish nor explode."""
