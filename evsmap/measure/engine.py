@@ -25,7 +25,7 @@ the timed spans.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -335,7 +335,3 @@ def _check_names(evaluators: list[Any]) -> None:
         raise InvalidDataError(f"two evaluators named {', '.join(twice)}: give each its own "
                                f"name")
 
-
-def stage_medians(stages: Mapping[str, list[float]]) -> dict[str, float]:
-    """Median ms per frame of each stage of a ``stages_ms`` mapping."""
-    return StageTimes(dict(stages)).medians()

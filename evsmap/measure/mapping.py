@@ -8,12 +8,10 @@ from dataclasses import asdict, dataclass, field
 from os import PathLike
 from typing import Any
 
-import numpy as np
-
 from evsmap.data import Sequence
 from evsmap.errors import InvalidDataError
 from evsmap.interfaces import MapUpdater, Segmenter
-from evsmap.measure.engine import rates, run_mapping
+from evsmap.measure.engine import StageTimes, rates, run_mapping
 from evsmap.measure.evaluators import (
     FILE_FORMATS,
     MapFiles,
@@ -87,7 +85,7 @@ class MappingRecord:
 
     def stage_medians(self) -> dict[str, float]:
         """Median ms per frame of each stage in :attr:`stages_ms`."""
-        return {k: float(np.median(v)) for k, v in self.stages_ms.items() if v}
+        return StageTimes(dict(self.stages_ms)).medians()
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
