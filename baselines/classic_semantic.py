@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from baselines import semantic_slam_fusion
+from baselines import classic_semantic_kernels, semantic_slam_fusion
 from baselines.semantic_slam_node import voc_colormap
 from evsmap.data import Frame, SemanticObservation
 from evsmap.mapping import fusion
@@ -47,15 +47,39 @@ def voxel_distributions(voxel: np.ndarray, classes: np.ndarray, probs: np.ndarra
     return state.classes[:, :slots], conf[:, :slots].astype(np.float32)
 
 
+USE_KERNEL = True
+"""Fuse with the compiled kernel (:mod:`baselines.classic_semantic_kernels`); False selects the
+numpy reference (:func:`_update_numpy`; the tests compare the two)."""
+
+_NO_COLOURS = np.zeros((0, 3), np.uint8)
+
+
 def _update(updater: ClassicSemanticMap, frame: Frame, points: FramePoints, update: ScanUpdate,
             observation: SemanticObservation) -> None:
     """The frame's colours and semantics on its hit voxels: ``averageNodeColor`` and one
-    fusion per voxel of the mean distribution of its points."""
+    fusion per voxel of the mean distribution of its points (compiled kernel, or numpy)."""
     pixels, voxels, local = updater.endpoint_voxels(points)
     if not voxels.size:
         return
     m = updater.map
-    fusion.average_frame_colours(m.payload("rgb"), frame.colors(), pixels, voxels, local)
+    colors = frame.colors()
+    if USE_KERNEL:
+        k = observation.k
+        if classic_semantic_kernels.frame_update(
+                m.payload("sem_classes"), m.payload("sem_conf"), m.payload("rgb"), voxels, local,
+                pixels, observation.classes.reshape(-1, k), observation.probs.reshape(-1, k),
+                _NO_COLOURS if colors is None else colors, colors is not None,
+                updater.slots == 3, fusion.PROB_MIN, fusion.DENSE_LIMIT):
+            return
+    _update_numpy(updater, colors, pixels, voxels, local, observation)
+
+
+def _update_numpy(updater: ClassicSemanticMap, colors: np.ndarray | None, pixels: np.ndarray,
+                  voxels: np.ndarray, local: np.ndarray,
+                  observation: SemanticObservation) -> None:
+    """The reference implementation (numpy, whole arrays)."""
+    m = updater.map
+    fusion.average_frame_colours(m.payload("rgb"), colors, pixels, voxels, local)
     cls = observation.classes.reshape(-1, observation.k)[pixels]
     prb = observation.probs.reshape(-1, observation.k)[pixels]
     slots = m.payload("sem_classes").shape[1]
