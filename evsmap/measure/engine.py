@@ -213,6 +213,11 @@ class MappingPass:
         results: each map evaluator's ``evaluate(updater)``, by the evaluator's ``name``.
         segmenter_not_run: why the segmenter given was not run (the updater uses no
             semantics), else ``None``.
+        wall_s: seconds from the first frame's read to the last frame's update (reading,
+            segmentation and update, however they overlapped; not the warm-up nor the
+            evaluators): ``frames / wall_s`` is the end-to-end rate.
+        pipelined: whether the stages of consecutive frames overlapped
+            (:mod:`evsmap.measure.pipelined`).
     """
 
     sequence: str
@@ -223,10 +228,17 @@ class MappingPass:
     memory: PeakMemory | None
     results: dict[str, Any]
     segmenter_not_run: str | None = None
+    wall_s: float = float("nan")
+    pipelined: bool = False
 
     @property
     def frames(self) -> int:
         return len(self.indices)
+
+    @property
+    def hz_wall(self) -> float:
+        """End-to-end rate: frames / wall time (``nan`` without frames)."""
+        return self.frames / self.wall_s if self.frames and self.wall_s > 0 else float("nan")
 
     @property
     def update_ms(self) -> list[float]:
@@ -262,7 +274,8 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
                 evaluators: Iterable[MapEvaluator] = (),
                 indices: Iterable[int] | None = None, frames: int | None = None,
                 skip_bad: bool = False, measure_memory: bool = True,
-                progress: Callable[[Any], Any] | None = None) -> MappingPass:
+                progress: Callable[[Any], Any] | None = None, pipeline: bool = False,
+                warmup: int = 0) -> MappingPass:
     """Integrate frames of ``sequence`` into a map, timing each stage.
 
     Args:
@@ -276,6 +289,11 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
             scope (writing the map's files is part of the mapping's memory).
         indices, frames, skip_bad, progress: as for :func:`run_segmentation`.
         measure_memory: measure the peak resident memory (resets the kernel's peak counter).
+        pipeline: overlap reading, segmentation and the update of consecutive frames
+            (:func:`~evsmap.measure.pipelined.pipelined_frames`); the updater sees the same
+            frames and observations in the same order, so the map is the same.
+        warmup: segmentations of the first frame before the loop, not timed (a network's first
+            call builds its session, quantises and tunes: not a per-frame cost).
     """
     if not sequence.has_poses:
         raise EvsmapError(f"{sequence.name}: {sequence.meta.get('layout', 'this dataset')} has no "
@@ -288,7 +306,7 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
                                f"{len(order)} frames")
     evaluators = list(evaluators)
     _check_names(evaluators)
-    times, skipped, done = StageTimes(), SkippedFrames(), []
+    times, update_times, skipped, done = StageTimes(), StageTimes(), SkippedFrames(), []
     memory = PeakMemory() if measure_memory else None
     not_run = None
     if memory is not None:
@@ -300,22 +318,48 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
             not_run = f"the segmenter was not run: {type(the_map).__name__} uses no semantics"
             segmenter = None
         semantic = the_map.uses_semantics
-        for position, index, frame in _timed_frames(sequence, order, times, skip_bad=skip_bad,
-                                                    skipped=skipped, progress=progress):
-            observation = None
-            if segmenter is not None:
-                observation = timed_predict(segmenter, frame, times)
-            elif observations is not None and semantic:
-                observation = observations[order.index(index) if skipped.frames else position]
-            timed_update(the_map, frame, observation, times)
-            done.append(index)
+        if warmup and segmenter is not None and order:
+            first = sequence.frame(order[0])
+            for _ in range(int(warmup)):
+                segmenter.predict(first)
+
+        def observation_at(position: int, index: int) -> SemanticObservation | None:
+            if observations is None or not semantic:
+                return None
+            return observations[order.index(index) if skipped.frames else position]
+
+        t_start = time.perf_counter()
+        if pipeline:
+            from evsmap.measure.pipelined import pipelined_frames
+
+            segment_times = StageTimes()
+            for position, index, frame, observation in pipelined_frames(
+                    sequence, order, segmenter=segmenter, read_times=times,
+                    segment_times=segment_times, timed_predict=timed_predict,
+                    skip_bad=skip_bad, skipped=skipped, progress=progress):
+                if segmenter is None:
+                    observation = observation_at(position, index)
+                timed_update(the_map, frame, observation, update_times)
+                done.append(index)
+            for stage, values in segment_times.stages.items():
+                times.stages[stage] = values
+        else:
+            for position, index, frame in _timed_frames(sequence, order, times,
+                                                        skip_bad=skip_bad, skipped=skipped,
+                                                        progress=progress):
+                observation = timed_predict(segmenter, frame, times) \
+                    if segmenter is not None else observation_at(position, index)
+                timed_update(the_map, frame, observation, update_times)
+                done.append(index)
+        wall_s = time.perf_counter() - t_start
+        times.stages["update"] = update_times.get("update")
         results = {ev.name: ev.evaluate(the_map) for ev in evaluators}
     finally:
         if memory is not None:
             memory.__exit__(None, None, None)
     return MappingPass(sequence=sequence.name, updater=the_map, indices=done, times=times,
                        skipped=skipped, memory=memory, results=results,
-                       segmenter_not_run=not_run)
+                       segmenter_not_run=not_run, wall_s=wall_s, pipelined=bool(pipeline))
 
 
 def in_memory(frames: list[Frame], name: str = "frames") -> Sequence:

@@ -11,7 +11,7 @@ from typing import Any
 from evsmap.data import Sequence
 from evsmap.errors import InvalidDataError
 from evsmap.interfaces import MapUpdater, Segmenter
-from evsmap.measure.engine import StageTimes, rates, run_mapping
+from evsmap.measure.engine import StageTimes, is_oracle, rates, run_mapping
 from evsmap.measure.evaluators import (
     FILE_FORMATS,
     MapFiles,
@@ -39,8 +39,15 @@ class MappingRecord:
             ``preprocess`` / ``network`` / ``postprocess`` (a network segmenter's
             ``last_timings``), ``oracle``, ``update``.
         hz_median: ``1000 / median(update_ms)``.
-        hz_end_to_end: ``1000 / median(update_ms + segment_ms)`` per frame (Table IV's
-            "Runtime (Hz)": segmentation and update).
+        hz_end_to_end: frames / wall time of the whole loop, reading, segmentation and
+            update included, however they overlapped (``wall_s``; the segmenter's warm-up and
+            the map's writing excluded): what a robot streaming the sequence gets.
+        hz_segment_update: ``1000 / median(update_ms + segment_ms)`` per frame (Table IV's
+            "Runtime (Hz)": segmentation and update, one after the other, reading excluded).
+        wall_s: the loop's wall time, seconds.
+        pipeline: how the loop ran: ``enabled`` (reading, segmentation and update of
+            consecutive frames overlapped, :mod:`evsmap.measure.pipelined`) and the threads of
+            each stage.
         map_bytes: size of the written map file (the paper's "Map Size"), in ``file_format``.
         map_file: where it was written (``None`` when written to a temporary file).
         file_format: ``"full"`` (the resumable state) or ``"published"`` (what the compared
@@ -81,6 +88,9 @@ class MappingRecord:
     peak_rss_bytes: int | None = None
     start_rss_bytes: int | None = None
     peak_scope: str | None = None
+    hz_segment_update: float = float("nan")
+    wall_s: float = float("nan")
+    pipeline: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def stage_medians(self) -> dict[str, float]:
@@ -100,19 +110,24 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
                  segmenter: Segmenter | None = None, segmenter_name: str | None = None,
                  frames: int | None = None, out: str | PathLike[str] | None = None,
                  progress: Callable[[Any], Any] | None = None,
-                 skip_bad: bool = False, file_format: str = "full") -> MappingRecord:
+                 skip_bad: bool = False, file_format: str = "full", pipeline: bool = False,
+                 threads: dict[str, Any] | None = None) -> MappingRecord:
     """Integrate the first ``frames`` frames of ``sequence`` (all by default) into ``updater``
     (``evsmap map``; :func:`evsmap.measure.engine.run_mapping` times it).
 
     Each frame is read, segmented when a segmenter is given, then integrated; every stage is
     timed. The map is written to ``out`` (or a temporary file) and its byte size recorded.
     With ``skip_bad`` a frame that cannot be read is left out and listed in
-    ``extra["skipped"]``; otherwise its error stops the run.
+    ``extra["skipped"]``; otherwise its error stops the run. With ``pipeline`` the stages of
+    consecutive frames overlap (the same map); ``threads`` (each stage's threads, as the caller
+    set them) is recorded under ``pipeline``. A network segmenter is warmed up on the first
+    frame before the timed loop.
     """
     if file_format not in FILE_FORMATS:
         raise InvalidDataError(f"file format must be full or published, got {file_format!r}")
+    warm = int(segmenter is not None and not is_oracle(segmenter))
     run = run_mapping(sequence, updater, segmenter=segmenter, frames=frames, skip_bad=skip_bad,
-                      progress=progress,
+                      progress=progress, pipeline=pipeline, warmup=warm,
                       evaluators=[MapStatistics(), MapFiles(out=out, file_format=file_format)])
     extra: dict[str, Any] = {}
     if run.segmenter_not_run is not None:
@@ -122,12 +137,13 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
     if skip_bad:
         extra["skipped"] = run.skipped.as_dict()
     stats, files, memory = run.results["stats"], run.results["files"], run.memory
-    hz, hz_end_to_end = rates(run.update_ms, run.segment_ms)
+    hz, hz_segment_update = rates(run.update_ms, run.segment_ms)
     return MappingRecord(
         updater=updater_name, segmenter=segmenter_name, sequence=sequence.name,
         frames=run.frames, resolution=float(updater.resolution),
         update_ms=list(run.update_ms), segment_ms=list(run.segment_ms),
-        hz_median=hz, hz_end_to_end=hz_end_to_end,
+        hz_median=hz, hz_end_to_end=run.hz_wall, hz_segment_update=hz_segment_update,
+        wall_s=run.wall_s, pipeline={"enabled": run.pipelined, **(threads or {})},
         map_bytes=int(files.written_bytes), map_file=files.file,
         octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,
         leaves=stats.leaves, file_format=file_format,
