@@ -17,10 +17,17 @@ import math
 
 import numpy as np
 
+from evsmap.mapping.kernels import _blocks
+
 try:
     import numba
+    from numba import prange
 except ImportError:  # pragma: no cover
     numba = None
+    prange = range
+
+_VOXEL_BLOCK = 512
+"""Local voxels per parallel block (each block allocates its scratch buffers once)."""
 
 _LOGE2 = math.log(2.0)
 
@@ -165,11 +172,13 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
     is pixel ``pixels[p]`` and lies in local voxel ``local_index[p]`` (map leaf
     ``voxels[local_index[p]]``). ``bayes``: eq. 7 leaf update (else the average variant);
     ``printed``: Algorithm 1's printed pairing (else SSMI's); ``semantic``: write each touched
-    leaf's occupancy log-odds from its class vector."""
+    leaf's occupancy log-odds from its class vector. Free leaves and local voxels are updated
+    in parallel: each writes its own leaf."""
     # ---- rays: fuseObsFree on traversed voxels (mcb_miss), and with semantic occupancy the
     # leaf's occupancy (mcb_occupancy; free and hit voxels are disjoint, and a leaf's occupancy
     # depends on its own state only)
-    for f in free:
+    for i in prange(free.shape[0]):
+        f = free[i]
         if classes[f, 0] < 0:
             if not semantic:
                 continue
@@ -196,7 +205,6 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
     # ---- local map (build_local): per voxel, its points in their original order (a stable
     # counting sort), summed slot by slot as numpy's per-slot bincount does
     n = voxels.shape[0]
-    k = obs_cls.shape[1]
     n_points = local_index.shape[0]
     counts = np.zeros(n, dtype=np.int64)
     for p in range(n_points):
@@ -209,6 +217,19 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
     for p in range(n_points):
         members[fill[local_index[p]]] = p
         fill[local_index[p]] += 1
+    # the voxels in blocks, in parallel (each leaf is one voxel's: disjoint writes)
+    for b in prange(_blocks(n, _VOXEL_BLOCK)):
+        _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, members, pixels,
+                      obs_cls, obs_p, span, psi, phi, theta, min_lo, max_lo, prob_min, bayes,
+                      printed, semantic, b * _VOXEL_BLOCK, min(n, (b + 1) * _VOXEL_BLOCK))
+
+
+def _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, members, pixels,
+                  obs_cls, obs_p, span, psi, phi, theta, min_lo, max_lo, prob_min, bayes,
+                  printed, semantic, first, last):
+    """The local node and leaf update of local voxels ``first`` to ``last`` (their points:
+    ``members[start[m]:start[m + 1]]``), with their own scratch buffers."""
+    k = obs_cls.shape[1]
     part = np.zeros((k, span))
     used = np.zeros(span, dtype=np.bool_)
     touched = np.empty(span, dtype=np.int64)
@@ -224,7 +245,7 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
     best_c = np.empty(3, dtype=np.int64)
     best_v = np.empty(3)
     kept = np.zeros(3)
-    for m in range(n):
+    for m in range(first, last):
         n_touched = 0
         # each (slot, class) sum runs over the voxel's points in their order, as bincount's
         for t in range(start[m], start[m + 1]):
@@ -372,14 +393,16 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
             occupancy[g] = _occupancy(classes, lodds, others, g)
 
 
+
 if numba is not None:
     _opts = {"cache": True, "nogil": True}
+    _local_voxels = numba.njit(**_opts)(_local_voxels)
     _logaddexp = numba.njit(**_opts)(_logaddexp)
     _clip = numba.njit(**_opts)(_clip)
     _rank = numba.njit(**_opts)(_rank)
     _occupancy = numba.njit(**_opts)(_occupancy)
     _store_ranked = numba.njit(**_opts)(_store_ranked)
     _observe = numba.njit(**_opts)(_observe)
-    frame_update = numba.njit(**_opts)(_frame_update)
+    frame_update = numba.njit(parallel=True, **_opts)(_frame_update)
 else:  # pragma: no cover
     frame_update = None

@@ -26,7 +26,7 @@ import numpy as np
 
 from evsmap.data import Frame
 from evsmap.interfaces import FREE, OCCUPIED, UNKNOWN, PointQuery
-from evsmap.mapping.kernels import grow_rows
+from evsmap.mapping.kernels import grow_rows, sorted_index
 from evsmap.mapping.keys import pack
 from evsmap.mapping.raycast import frame_points, octomap_keys, scan_keys
 
@@ -227,6 +227,9 @@ class OccupancyMap:
         """Positions of ``codes`` among the leaves and a mask of those that exist (positions of
         missing codes are meaningless)."""
         codes = np.asarray(codes, dtype=np.int64)
+        if sorted_index is not None:
+            pos, found = sorted_index(self._codes, codes.ravel())
+            return pos.reshape(codes.shape), found.reshape(codes.shape)
         pos = np.searchsorted(self._codes, codes)
         found = np.zeros(codes.shape, dtype=bool)
         inside = pos < self._codes.size

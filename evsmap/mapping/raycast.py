@@ -45,7 +45,7 @@ import numpy as np
 
 from evsmap.data import Frame
 from evsmap.geometry import backproject
-from evsmap.mapping.kernels import trace
+from evsmap.mapping.kernels import grid_codes, trace
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 
 CHUNK_ELEMENTS = 1 << 21
@@ -260,7 +260,11 @@ def _clear_occupied(grid: np.ndarray, space: _Space, occupied: np.ndarray) -> No
 
 
 def _grid_codes(grid: np.ndarray, space: _Space, block: int = 1 << 22) -> np.ndarray:
-    """Sorted codes of the set cells of a dense grid, converted a block at a time."""
+    """Sorted codes of the set cells of a dense grid, converted a block at a time (by the
+    compiled :func:`~evsmap.mapping.kernels.grid_codes` with the kernel)."""
+    if USE_KERNEL and grid_codes is not None:
+        return grid_codes(grid, *(int(b) for b in space.base), int(space.strides[0]),
+                          int(space.strides[1]))
     out = np.empty(np.count_nonzero(grid), dtype=np.int64)
     pos = 0
     for start in range(0, grid.size, block):

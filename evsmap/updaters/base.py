@@ -31,6 +31,7 @@ from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 from evsmap.mapping.node_type import OCTREE, NodeType
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams
 from evsmap.mapping.raycast import scan_keys
+from evsmap.mapping.threads import kernel_threads
 from evsmap.mapping.tree import Tree
 
 FILE_FORMATS = ("full", "published")
@@ -251,13 +252,16 @@ class OctreeUpdater(MapUpdater):
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
         if self.uses_semantics:
             observation = check_observation(frame, observation, self.name)
-        points = FramePoints(frame, self.resolution, self.max_range, self.discretize)
-        # the rays are already discretized (once, in FramePoints) when that option is on
-        keys = scan_keys(points.rays, points.origin, self.resolution, max_range=self.max_range,
-                         discretize=False)
-        update = self.map.apply(keys.free, keys.occupied)
-        if self.node_type.update is not None:
-            self.node_type.update(self, frame, points, update, observation)
+        # the compiled kernels run on evsmap.mapping.threads' number of threads, set here in
+        # the thread that launches them
+        with kernel_threads():
+            points = FramePoints(frame, self.resolution, self.max_range, self.discretize)
+            # the rays are already discretized (once, in FramePoints) when that option is on
+            keys = scan_keys(points.rays, points.origin, self.resolution,
+                             max_range=self.max_range, discretize=False)
+            update = self.map.apply(keys.free, keys.occupied)
+            if self.node_type.update is not None:
+                self.node_type.update(self, frame, points, update, observation)
         self.frames += 1
 
     def endpoint_voxels(self, points: FramePoints
