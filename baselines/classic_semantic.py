@@ -49,7 +49,7 @@ def voxel_distributions(voxel: np.ndarray, classes: np.ndarray, probs: np.ndarra
 
 USE_KERNEL = True
 """Fuse with the compiled kernel (:mod:`baselines.classic_semantic_kernels`); False selects the
-numpy reference (:func:`_update_numpy`; the tests compare the two)."""
+numpy reference (:func:`fuse_frame`; the tests compare the two)."""
 
 _NO_COLOURS = np.zeros((0, 3), np.uint8)
 
@@ -63,36 +63,42 @@ def _update(updater: ClassicSemanticMap, frame: Frame, points: FramePoints, upda
         return
     m = updater.map
     colors = frame.colors()
-    if USE_KERNEL:
-        k = observation.k
-        if classic_semantic_kernels.frame_update(
-                m.payload("sem_classes"), m.payload("sem_conf"), m.payload("rgb"), voxels, local,
-                pixels, observation.classes.reshape(-1, k), observation.probs.reshape(-1, k),
-                _NO_COLOURS if colors is None else colors, colors is not None,
-                updater.slots == 3, fusion.PROB_MIN, fusion.DENSE_LIMIT):
-            return
-    _update_numpy(updater, colors, pixels, voxels, local, observation)
+    k = observation.k
+    args = (m.payload("sem_classes"), m.payload("sem_conf"), m.payload("rgb"), voxels, local,
+            pixels, observation.classes.reshape(-1, k), observation.probs.reshape(-1, k))
+    if USE_KERNEL and classic_semantic_kernels.frame_update(
+            *args, _NO_COLOURS if colors is None else colors, colors is not None,
+            updater.slots == 3, fusion.PROB_MIN, fusion.DENSE_LIMIT):
+        return
+    fuse_frame(*args, colors)
 
 
-def _update_numpy(updater: ClassicSemanticMap, colors: np.ndarray | None, pixels: np.ndarray,
-                  voxels: np.ndarray, local: np.ndarray,
-                  observation: SemanticObservation) -> None:
-    """The reference implementation (numpy, whole arrays)."""
-    m = updater.map
-    fusion.average_frame_colours(m.payload("rgb"), colors, pixels, voxels, local)
-    cls = observation.classes.reshape(-1, observation.k)[pixels]
-    prb = observation.probs.reshape(-1, observation.k)[pixels]
-    slots = m.payload("sem_classes").shape[1]
-    obs_c, obs_p = voxel_distributions(local, cls, prb, len(voxels), slots)
-    old_c = m.payload("sem_classes")[voxels]
-    old_p = m.payload("sem_conf")[voxels]
+def fuse_frame(sem_classes: np.ndarray, sem_conf: np.ndarray, rgb: np.ndarray,
+               voxels: np.ndarray, local: np.ndarray, pixels: np.ndarray, obs_classes: np.ndarray,
+               obs_probs: np.ndarray, colors: np.ndarray | None) -> None:
+    """The reference frame update (numpy, whole arrays), in place.
+
+    Args:
+        sem_classes, sem_conf, rgb: the leaf payloads (``int16`` (N, S), ``float32`` (N, S),
+            ``uint8`` (N, 3); S = 3: Bayesian fusion, 1: max).
+        voxels: map rows of the distinct hit voxels; ``local``: each point's position among
+            them; ``pixels``: each point's flat pixel index.
+        obs_classes, obs_probs: the observation's (H*W, k) top-k classes and probabilities.
+        colors: the frame's (H*W, 3) colours, or None.
+    """
+    fusion.average_frame_colours(rgb, colors, pixels, voxels, local)
+    slots = sem_classes.shape[1]
+    obs_c, obs_p = voxel_distributions(local, obs_classes[pixels], obs_probs[pixels],
+                                       len(voxels), slots)
+    old_c = sem_classes[voxels]
+    old_p = sem_conf[voxels]
     if slots == 3:
         new_c, new_p = semantic_slam_fusion.fuse_bayes(old_c, old_p, obs_c, obs_p)
     else:
         c, p = semantic_slam_fusion.fuse_max(old_c[:, 0], old_p[:, 0], obs_c[:, 0], obs_p[:, 0])
         new_c, new_p = np.asarray(c)[:, None], np.asarray(p)[:, None]
-    m.payload("sem_classes")[voxels] = new_c
-    m.payload("sem_conf")[voxels] = new_p
+    sem_classes[voxels] = new_c
+    sem_conf[voxels] = new_p
 
 
 _strongest = strongest_child("conf")

@@ -1,7 +1,7 @@
 """Compiled (numba) frame update of ``classic-semantic``'s ``classwise`` front end.
 
 One pass per hit voxel instead of numpy's whole-array passes, doing exactly what the numpy
-reference in :mod:`baselines.classic_semantic` does with
+reference :func:`baselines.classic_semantic.fuse_frame` does with
 :func:`~baselines.classic_semantic.voxel_distributions` (the mean of the points' top-k
 distributions, through ``evsmap.mapping.fusion.build_local``), semantic_slam's rules
 :func:`baselines.semantic_slam_fusion.fuse_bayes` / :func:`~baselines.semantic_slam_fusion.fuse_max`
