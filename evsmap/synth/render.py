@@ -3,7 +3,8 @@
 
 One ray per pixel through the pixel centre, direction ``R @ [(u - cx)/fx, (v - cy)/fy, 1]`` so the
 hit distance is the z-depth itself. Colour = per-instance albedo x procedural texture x shading
-(ambient + Lambert from ceiling lights with distance fall-off) + sensor noise. Optional Kinect-v1
+(ambient + Lambert from ceiling lights with distance fall-off, compiled in
+:mod:`evsmap.synth.shading`) + sensor noise. Optional Kinect-v1
 style depth noise and holes (see :func:`kinect_noise`).
 """
 
@@ -21,6 +22,7 @@ from evsmap.readers.images import (  # noqa: F401  (re-exported: the renderer's 
     quantize_depth,
 )
 from evsmap.synth.scene import BOX_TRIANGLES, Room
+from evsmap.synth.shading import linear_colour
 
 
 @dataclass(frozen=True)
@@ -55,17 +57,30 @@ class RoomRenderer:
         self._labels = np.append(room.labels, np.uint8(255))
         self._albedo = np.array([p.albedo for p in room.parts] + [(0, 0, 0)], dtype=np.float32)
         self._lights = np.asarray(room.lights, dtype=np.float32).reshape(-1, 3)
+        self._rays: tuple[Intrinsics, np.ndarray] | None = None
+        self.threads = 1
+        """Embree threads of the ray casting (0: all cores). One: a synthetic sequence is read
+        by one reader thread beside the segmentation and the update (``evsmap map
+        --pipeline``); more threads only contend with them."""
+
+    def _camera_rays(self, intrinsics: Intrinsics) -> np.ndarray:
+        """Camera-frame direction of each pixel's ray, (H, W, 3), computed once per camera."""
+        if self._rays is None or self._rays[0] != intrinsics:
+            i = intrinsics
+            u, v = np.meshgrid(np.arange(i.width, dtype=np.float64),
+                               np.arange(i.height, dtype=np.float64))
+            cam = np.stack([(u - i.cx) / i.fx, (v - i.cy) / i.fy, np.ones_like(u)], axis=-1)
+            self._rays = (intrinsics, cam)
+        return self._rays[1]
 
     def cast(self, intrinsics: Intrinsics, pose: np.ndarray) -> dict[str, np.ndarray]:
         """Raw ray-cast of one view: z-depth, part index, world normals, ray directions."""
         h, w = intrinsics.height, intrinsics.width
-        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        cam = np.stack([(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy,
-                        np.ones_like(u)], axis=-1)
+        cam = self._camera_rays(intrinsics)
         dirs = cam.reshape(-1, 3) @ pose[:3, :3].T
         origin = np.broadcast_to(pose[:3, 3], dirs.shape)
         rays = np.concatenate([origin, dirs], axis=1).astype(np.float32)
-        ans = self.scene.cast_rays(self._o3d.core.Tensor(rays))
+        ans = self.scene.cast_rays(self._o3d.core.Tensor(rays), nthreads=self.threads)
         t = ans["t_hit"].numpy()
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         hit = np.isfinite(t)
@@ -88,62 +103,14 @@ class RoomRenderer:
         part = c["part"]
         labels = self._labels[part]
         depth = c["depth"]
-        pts = pose[:3, 3] + c["dirs"] * depth[..., None]
-        shade = self._shade(pts, c["normals"])
-        tex = _texture(pts, part)
-        color = self._albedo[part] * tex[..., None] * shade[..., None]
+        color = linear_colour(pose[:3, 3], c["dirs"], depth, c["normals"], part, self._albedo,
+                              self._lights)
         color = np.clip(color, 0.0, 1.0) ** (1 / 2.2) * 255.0
         if rgb_noise > 0:
             color = color + rng.normal(0.0, rgb_noise, color.shape)
         rgb = np.clip(np.round(color), 0, 255).astype(np.uint8)
         rgb[part < 0] = 0
         return RenderedView(depth, labels, rgb, c["normals"], part, c["dirs"])
-
-    def _shade(self, pts: np.ndarray, normals: np.ndarray) -> np.ndarray:
-        total = np.full(pts.shape[:2], 0.35, dtype=np.float64)
-        for light in self._lights:
-            to = light - pts
-            dist = np.linalg.norm(to, axis=-1)
-            lam = np.clip(np.sum(to * normals, axis=-1) / np.maximum(dist, 1e-6), 0.0, 1.0)
-            total += 0.9 * lam / (1.0 + 0.08 * dist**2) / len(self._lights) ** 0.5
-        return total
-
-
-def _hash01(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, seed: np.ndarray) -> np.ndarray:
-    """Deterministic pseudo-random value in [0, 1) per integer lattice point and seed."""
-    h = (ix.astype(np.uint64) * np.uint64(73856093)) ^ (iy.astype(np.uint64) * np.uint64(19349663))
-    h ^= iz.astype(np.uint64) * np.uint64(83492791)
-    h ^= seed.astype(np.uint64) * np.uint64(2654435761)
-    h ^= h >> np.uint64(13)
-    h *= np.uint64(0x5BD1E995)
-    h ^= h >> np.uint64(15)
-    return (h & np.uint64(0xFFFFFF)).astype(np.float64) / float(0x1000000)
-
-
-def _value_noise(pts: np.ndarray, cell: float, seed: np.ndarray) -> np.ndarray:
-    """Trilinear value noise on a world-fixed lattice of ``cell`` metres (view-consistent)."""
-    g = pts / cell
-    base = np.floor(g)
-    f = g - base
-    f = f * f * (3 - 2 * f)
-    b = base.astype(np.int64) + (1 << 20)
-    out = np.zeros(pts.shape[:-1])
-    for dx in (0, 1):
-        wx = f[..., 0] if dx else 1 - f[..., 0]
-        for dy in (0, 1):
-            wy = f[..., 1] if dy else 1 - f[..., 1]
-            for dz in (0, 1):
-                wz = f[..., 2] if dz else 1 - f[..., 2]
-                out += wx * wy * wz * _hash01(b[..., 0] + dx, b[..., 1] + dy, b[..., 2] + dz, seed)
-    return out
-
-
-def _texture(pts: np.ndarray, part: np.ndarray) -> np.ndarray:
-    """Brightness multiplier around 1: coarse blotches plus fine grain, per instance."""
-    seed = np.maximum(part, 0)
-    coarse = _value_noise(pts, 0.15, seed)
-    fine = _hash01(*np.moveaxis(np.floor(pts / 0.01).astype(np.int64) + (1 << 20), -1, 0), seed + 7)
-    return 0.8 + 0.3 * coarse + 0.1 * fine
 
 
 def kinect_noise(
