@@ -56,10 +56,13 @@ def _choose_layer() -> str | None:
     chosen = str(numba.config.THREADING_LAYER)
     if os.environ.get("NUMBA_THREADING_LAYER") or chosen not in ("default", "safe", "threadsafe"):
         return chosen  # chosen by the user (an explicit layer name)
+    # libgomp reads its wait policy when it loads, which importing numba's omp pool does
+    had_policy = "OMP_WAIT_POLICY" in os.environ
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     layer = "omp" if _has_omp() else "workqueue"
+    if layer != "omp" and not had_policy:
+        del os.environ["OMP_WAIT_POLICY"]
     numba.config.THREADING_LAYER = layer
-    if layer == "omp":
-        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # read when libgomp loads
     return layer
 
 
