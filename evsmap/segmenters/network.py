@@ -3,7 +3,8 @@
 Every registered network (FEAGNet variants, ESANet, FC-HarDNet) is a :class:`NetworkSegmenter`:
 it normalises a :class:`~evsmap.data.Frame` the way the network was trained, resizes it to the
 network's input size, runs the network with torch (eval, inference mode) or ONNX Runtime (CPU,
-through a cached single-file export), and returns the per-pixel top-k classes and probabilities
+through a cached single-file export; ``precision="int8"``: its static QDQ quantisation, see
+:meth:`NetworkSegmenter.calibrate` and :mod:`evsmap.segmenters.quantize`), and returns the per-pixel top-k classes and probabilities
 at the frame's resolution.
 """
 
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import time
 from os import PathLike
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import torch
@@ -19,7 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from evsmap.data import Frame, SemanticObservation
-from evsmap.errors import InvalidDataError, UnknownNameError
+from evsmap.errors import EvsmapError, InvalidDataError, UnknownNameError
 from evsmap.interfaces import Segmenter
 from evsmap.segmenters.normalization import (  # noqa: F401  (re-exported)
     IMAGENET_MEAN,
@@ -29,7 +30,11 @@ from evsmap.segmenters.normalization import (  # noqa: F401  (re-exported)
 )
 from evsmap.segmenters.weights import load_weights
 
+if TYPE_CHECKING:
+    from evsmap.segmenters.quantize import QuantizedModel
+
 BACKENDS = ("torch", "onnxruntime")
+PRECISIONS = ("fp32", "int8")
 
 
 def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Normalization,
@@ -111,6 +116,11 @@ class NetworkSegmenter(Segmenter):
         weights: optional state-dict file to load.
         input_size: (H, W) frames are resized to before the network (default ``default_size``).
         config: the factory's options (recorded, and part of the ONNX cache key).
+        precision: ``"fp32"`` or ``"int8"``. int8 runs only on ONNX Runtime (``backend=
+            "torch"`` with int8 is refused, not switched) and needs :meth:`calibrate` before
+            the first :meth:`predict`, which otherwise raises.
+        int8_scheme: ``"u8s8"`` (default) or ``"s8s8"``
+            (:data:`evsmap.segmenters.quantize.SCHEMES`), used by :meth:`calibrate`.
     """
 
     uses_depth: ClassVar[bool] = True  # overridden per instance
@@ -129,10 +139,19 @@ class NetworkSegmenter(Segmenter):
         weights: str | PathLike[str] | None = None,
         input_size: tuple[int, int] | None = None,
         config: dict | None = None,
+        precision: str = "fp32",
+        int8_scheme: str = "u8s8",
     ) -> None:
         if backend not in BACKENDS:
             raise UnknownNameError(
                 f"unknown backend {backend!r} (known: {', '.join(BACKENDS)})")
+        self.backend = backend
+        self._check_precision(name, precision, int8_scheme)
+        self.precision = precision
+        self.int8_scheme = int8_scheme
+        self.quantization: QuantizedModel | None = None
+        """The int8 model in use (settings, nodes kept in fp32, calibration) once
+        :meth:`calibrate` ran; None before and for fp32."""
         if len(class_names) != num_classes:
             raise InvalidDataError(
                 f"{name}: {len(class_names)} class names for {num_classes} classes")
@@ -143,7 +162,6 @@ class NetworkSegmenter(Segmenter):
         self.uses_depth = uses_depth  # type: ignore[misc]
         self.default_size = tuple(default_size)
         self.normalization = normalization
-        self.backend = backend
         self.input_size = (as_size(input_size, f"{name}: input_size")
                            if input_size is not None else self.default_size)
         self.config = dict(config or {})
@@ -151,6 +169,7 @@ class NetworkSegmenter(Segmenter):
         if weights is not None:
             load_weights(self._module, weights)
         self._session = None
+        self._int8_size: tuple[int, ...] | None = None
         self.last_timings: dict[str, float] = {}
         """Milliseconds of the last :meth:`predict`'s stages: ``preprocess`` (normalise,
         resize), ``network`` (the forward pass on the backend), ``postprocess`` (upsampling,
@@ -188,14 +207,98 @@ class NetworkSegmenter(Segmenter):
         feed = {name: t.numpy() for name, t in zip(self.input_names, inputs, strict=True)}
         return torch.from_numpy(session.run(None, feed)[0])
 
+    def _check_precision(self, name: str, precision: str, scheme: str) -> None:
+        from evsmap.segmenters.quantize import SCHEMES
+
+        if precision not in PRECISIONS:
+            raise UnknownNameError(
+                f"unknown precision {precision!r} (known: {', '.join(PRECISIONS)})")
+        if scheme not in SCHEMES:
+            raise UnknownNameError(
+                f"unknown int8 scheme {scheme!r} (known: {', '.join(SCHEMES)})")
+        if precision == "int8" and self.backend != "onnxruntime":
+            raise InvalidDataError(f"{name}: int8 runs on ONNX Runtime only: pass "
+                                   f"backend='onnxruntime' (backend {self.backend!r} given)")
+
+    def _fp32_onnx(self, inputs: tuple[torch.Tensor, ...],
+                   cache_dir: str | PathLike[str] | None = None):
+        from evsmap.models.onnx_export import cached_onnx
+
+        key = f"{self.name}:{sorted(self.config.items())}"
+        return cached_onnx(self._module, inputs, self.input_names, key=key,
+                           cache_dir=cache_dir)
+
+    def calibrate(self, frames, *, scheme: str | None = None, method: str = "minmax",
+                  auto_exclude: int = 0, source: str = "",
+                  cache_dir: str | PathLike[str] | None = None) -> QuantizedModel:
+        """Quantise the network to int8 with ``frames`` as the calibration set and run int8
+        from now on (``precision`` becomes ``"int8"``).
+
+        The frames are preprocessed as :meth:`predict` does (at :attr:`input_size`) and fed to
+        :func:`evsmap.segmenters.quantize.quantize_model`, which caches the result by the fp32
+        export, the calibration inputs and the settings.
+
+        Args:
+            frames: calibration frames (any iterable of :class:`~evsmap.data.Frame`).
+            scheme: ``"u8s8"`` or ``"s8s8"`` (default :attr:`int8_scheme`).
+            method: calibration method (:data:`evsmap.segmenters.quantize.METHODS`).
+            auto_exclude: keep in fp32 the nodes around this many tensors of worst
+                quantisation SQNR on the calibration frames (0: the rules only).
+            source: what the frames are, recorded in the cache's sidecar.
+            cache_dir: cache folder (default: the ONNX export cache).
+
+        Raises:
+            InvalidDataError: the backend is not onnxruntime, or no frame was given.
+        """
+        from evsmap.segmenters.quantize import Int8Settings, quantize_model
+
+        scheme = self.int8_scheme if scheme is None else scheme
+        self._check_precision(self.name, "int8", scheme)
+        settings = Int8Settings(scheme=scheme, method=method, auto_exclude=auto_exclude)
+        inputs = [self.preprocess(frame) for frame in frames]
+        if not inputs:
+            raise InvalidDataError(f"{self.name}: int8 calibration needs at least one frame")
+        fp32 = self._fp32_onnx(inputs[0], cache_dir)
+        feeds = [{n: t.numpy() for n, t in zip(self.input_names, x, strict=True)}
+                 for x in inputs]
+        self.quantization = quantize_model(
+            fp32_path=fp32, calibration=feeds, settings=settings, cache_dir=cache_dir,
+            stem=self.name, source=source)
+        self.precision, self.int8_scheme = "int8", scheme
+        self._int8_size = tuple(self.input_size)
+        self._session = None
+        return self.quantization
+
+    def precision_record(self) -> dict:
+        """``precision`` and, for int8, the scheme and how the model was made (for records)."""
+        if self.precision != "int8":
+            return {"precision": self.precision}
+        q = self.quantization
+        return {"precision": "int8", "int8_scheme": self.int8_scheme,
+                "int8": None if q is None else {
+                    "method": q.settings["method"], "calibration_frames": q.calibration_frames,
+                    "calibration_source": q.calibration_source,
+                    "auto_exclude": q.settings["auto_exclude"],
+                    "fp32_nodes": len(q.excluded), "model": q.path.name, "cached": q.cached}}
+
+    def _model_path(self, inputs: tuple[torch.Tensor, ...]):
+        if self.precision != "int8":
+            return self._fp32_onnx(inputs)
+        if self.quantization is None:
+            raise EvsmapError(f"{self.name}: int8 needs calibrating first (segmenter."
+                              f"calibrate(frames); the CLI calibrates on "
+                              f"--calibration-frames frames)")
+        if tuple(self.input_size) != self._int8_size:
+            h, w = self._int8_size
+            raise EvsmapError(f"{self.name}: the int8 model was calibrated at {h}x{w}, not "
+                              f"{self.input_size[0]}x{self.input_size[1]}: calibrate again")
+        return self.quantization.path
+
     def _ort_session(self, inputs: tuple[torch.Tensor, ...]):
         if self._session is None:
             import onnxruntime as ort
 
-            from evsmap.models.onnx_export import cached_onnx
-
-            key = f"{self.name}:{sorted(self.config.items())}"
-            path = cached_onnx(self._module, inputs, self.input_names, key=key)
+            path = self._model_path(inputs)
             options = ort.SessionOptions()
             options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
             options.intra_op_num_threads = torch.get_num_threads()
