@@ -18,6 +18,11 @@ under contention a stage's time is its wall time while sharing the cores, so the
 of a pipelined run are larger than the sequential run's; the figure the pipeline improves is the
 end-to-end rate, frames / wall time (``MappingPass.wall_s``).
 
+BLAS (numpy's OpenBLAS) runs with one thread during the loop (``threadpoolctl``): its threads
+busy-wait for cores the other stages hold, and a 307,200 x 3 by 3 x 3 product that takes 1 ms
+alone took 200 ms that way (the synthetic renderer's ray directions). One thread gives the same
+numbers (no reduction is split).
+
 A failure in a worker thread (a bad frame, a network error) is re-raised in the calling thread;
 leaving the loop early (an exception, Ctrl-C) stops both workers within one queue timeout.
 """
@@ -38,6 +43,9 @@ from evsmap.readers.skipping import SkippedFrames, read_frames
 DEPTH = 2
 """Frames each queue holds: enough to keep every stage busy, little memory (a 640x480 frame
 with its observation is about 4 MB)."""
+
+BLAS_THREADS = 1
+"""numpy's BLAS threads while the stages overlap."""
 
 _POLL_S = 0.05
 """How often a blocked worker looks at the stop flag."""
@@ -139,8 +147,11 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
             if not put((index, frame, observation)):
                 return
 
+    from threadpoolctl import threadpool_limits
+
     workers = [_Stage("evsmap-read", read, read_q, stop),
                _Stage("evsmap-segment", segment, seg_q, stop)]
+    blas = threadpool_limits(limits=BLAS_THREADS, user_api="blas")
     for w in workers:
         w.start()
     try:
@@ -158,6 +169,7 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
         stop.set()
         for w in workers:
             w.join(timeout=5.0)
+        blas.restore_original_limits()
 
 
 def stage_threads(segmenter: Segmenter | None) -> dict[str, Any]:
@@ -169,7 +181,8 @@ def stage_threads(segmenter: Segmenter | None) -> dict[str, Any]:
     segment: dict[str, Any] = {"torch": torch.get_num_threads()}
     if segmenter is not None and getattr(segmenter, "backend", None) == "onnxruntime":
         segment["onnxruntime"] = torch.get_num_threads()
-    return {"read": 1, "segment": segment, "update": update_threads()}
+    return {"read": 1, "segment": segment, "update": update_threads(),
+            "blas_when_pipelined": BLAS_THREADS}
 
 
 def update_threads() -> dict[str, Any]:
