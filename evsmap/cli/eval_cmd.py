@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import key_value, positive_int, refuse_random_weights
+from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.datasets.lookup import dataset_classes, open_dataset
 from evsmap.errors import EvsmapError
@@ -49,6 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--option", type=key_value, action="append", default=[],
                    metavar="KEY=VALUE",
                    help="a segmenter option, repeatable (e.g. -o num_classes=37, -o accuracy=0.9)")
+    add_precision_options(p, target="the frames scored")
     add_sequence_options(p)
     p.add_argument("--json", action="store_true", help="print the record as JSON")
     p.set_defaults(run=run)
@@ -64,8 +66,9 @@ def run(args: argparse.Namespace) -> int:
     config: dict[str, Any] = dict(args.option)
     if args.weights is not None:
         config["weights"] = str(args.weights)
-    if args.backend is not None:
-        config["backend"] = args.backend
+    backend = backend_for(args)
+    if backend is not None:
+        config["backend"] = backend
     segmenter = SEGMENTERS.create(args.model, **config)
     weights = segmenter.weights
     random_weights = refuse_random_weights(segmenter, args.model, allow=args.allow_random,
@@ -90,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
     if total == 0:
         raise EvsmapError(f"{sequence.name!r} ({source['reader']}, split "
                           f"{source['split']}) has no frames")
+    precision = apply_precision(args, segmenter, sequence, count=total, what="eval")
     scored = run_segmentation(
         sequence, segmenter, frames=total, skip_bad=args.skip_bad,
         progress=lambda it: progress(it, total=total, desc=f"evaluating {args.model}"),
@@ -101,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     record = {
         "model": args.model, "options": {k: v for k, v in config.items() if k != "weights"},
         "weights": weights, "random_weights": random_weights,
-        "backend": segmenter.backend,
+        "backend": segmenter.backend, **precision,
         "dataset": sequence.name, "reader": source["reader"], "split": source["split"],
         "frames": frames, "skipped": scored.skipped.as_dict() if args.skip_bad else None,
         "seconds_per_frame": seconds / frames if frames else None,
@@ -122,7 +126,8 @@ def format_eval(r: dict[str, Any]) -> str:
     split = f", split {r['split']}" if r["split"] else ""
     weights = r["weights"] or ("RANDOM (scores meaningless)" if r["random_weights"] else "none")
     lines = [
-        f"model            {r['model']}  (weights: {weights})",
+        f"model            {r['model']}  (weights: {weights}"
+        + (f"; int8 {r['int8_scheme']}" if r.get("precision") == "int8" else "") + ")",
         f"dataset          {r['dataset']}  ({r['reader']}{split}, {r['frames']} frames, "
         f"{r['pixels']:,} labelled pixels)",
         f"mIoU             {_pct(r['miou'])}  over {r['present_classes']} of "

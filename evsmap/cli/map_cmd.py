@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import key_value, positive_float, positive_int
+from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
 from evsmap.measure.pipelined import stage_threads
@@ -73,6 +74,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "(the same map; default on); --no-pipeline runs them one after the "
                         "other")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
+    add_precision_options(p, target="the frames mapped")
     add_sequence_options(p)
     p.set_defaults(run=run)
 
@@ -117,8 +119,9 @@ def run(args: argparse.Namespace) -> int:
         seg_config: dict[str, Any] = dict(args.segmenter_option)
         if args.weights is not None:
             seg_config["weights"] = args.weights
-        if args.backend is not None:
-            seg_config["backend"] = args.backend
+        backend = backend_for(args)
+        if backend is not None:
+            seg_config["backend"] = backend
         segmenter = SEGMENTERS.create(seg_name, **seg_config)
         if segmenter.module is not None and \
                 segmenter.weights is None and \
@@ -129,6 +132,11 @@ def run(args: argparse.Namespace) -> int:
     elif args.segmenter_option:
         raise EvsmapError(f"-s: updater {args.updater!r} uses no segmenter (pass --segmenter "
                           f"NAME to run one)")
+    if args.precision == "int8" and segmenter is None:
+        raise EvsmapError(f"--precision int8: updater {args.updater!r} runs no segmenter (pass "
+                          f"--segmenter NAME, a network)")
+    precision = {} if segmenter is None else apply_precision(
+        args, segmenter, sequence, count=args.frames, what="map")
     record = map_sequence(
         sequence, updater, updater_name=args.updater, segmenter=segmenter,
         segmenter_name=seg_name, frames=args.frames, out=args.out,
@@ -136,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
         skip_bad=args.skip_bad, file_format=args.file_format, pipeline=args.pipeline,
         threads=stage_threads(segmenter))
     result = record.as_dict()
+    result.update(precision)
     result["stage_ms_median"] = record.stage_medians()
     truth = _ground_truth(sequence, args.resolution)
     if truth is not None and updater.has_leaf_map:

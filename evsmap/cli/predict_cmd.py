@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import image_size, key_value, positive_int, refuse_random_weights
+from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
 
@@ -84,6 +85,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    metavar="KEY=VALUE",
                    help="a segmenter option, repeatable (e.g. -o dataset=cityscapes, "
                         "-o accuracy=0.9 for the oracle)")
+    add_precision_options(p, target="the frames predicted")
     add_sequence_options(p)
     p.add_argument("--json", action="store_true", help="print the summary record as JSON")
     p.set_defaults(run=run)
@@ -199,8 +201,9 @@ def run(args: argparse.Namespace) -> int:
     config: dict[str, Any] = dict(args.option)
     if args.weights is not None:
         config["weights"] = str(args.weights)
-    if args.backend is not None:
-        config["backend"] = args.backend
+    backend = backend_for(args)
+    if backend is not None:
+        config["backend"] = backend
     takes_size = "input_size" in SEGMENTERS.get(args.model).parameters()
     if "input_size" in config:
         raise EvsmapError("-o input_size: pass the network input size as --size HxW")
@@ -227,12 +230,13 @@ def run(args: argparse.Namespace) -> int:
     if random_weights:
         sys.stderr.write(f"evsmap predict: warning: {args.model} runs with RANDOM weights "
                          f"(no --weights): its labels are noise\n")
+    precision = apply_precision(args, segmenter, sequence, count=total, what="predict")
     header = {
         "model": args.model,
         "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in config.items()
                     if k not in ("weights", "input_size")},
         "weights": weights, "random_weights": random_weights,
-        "backend": segmenter.backend,
+        "backend": segmenter.backend, **precision,
         "input_size": list(args.size) if args.size is not None else
         ("frame" if network else None)}
     record = predict_sequence(
@@ -355,7 +359,8 @@ def format_record(r: dict[str, Any]) -> str:
     written = ["labels"] + [k + "s" if k == "overlay" else k for k in ("overlay", "topk")
                             if k in r["files"][0]]
     lines = [
-        f"model      {r['model']}  (weights: {weights})",
+        f"model      {r['model']}  (weights: {weights}"
+        + (f"; int8 {r['int8_scheme']}" if r.get("precision") == "int8" else "") + ")",
         f"sequence   {r['sequence']}  ({r['frames']} frames, named by {naming})",
         f"time       {r['ms_per_frame_median']:.1f} ms per frame (median{size})",
         f"classes    {classes or 'none'}",

@@ -9,6 +9,7 @@ from typing import Any
 
 from evsmap.cli.complexity_cmd import add_model_options, build_network
 from evsmap.cli.options import nonnegative_int, positive_int
+from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 
 # evsmap.measure.speed.BACKENDS, spelled out so that building the parser does not import torch
 BACKENDS = ("onnxruntime", "torch")
@@ -21,9 +22,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "and report the median FPS with its inter-quartile range, next to an fp32 "
                     "matmul roofline measured in the same call.")
     add_model_options(p)
-    p.add_argument("--backend", choices=BACKENDS, default="torch",
+    p.add_argument("--backend", choices=BACKENDS,
                    help="torch (eager, inference mode) or onnxruntime (CPU, cached ONNX export); "
-                        "default torch")
+                        "default torch (onnxruntime with --precision int8)")
     p.add_argument("--runs", type=positive_int, default=20, metavar="N",
                    help="timed forward passes (default 20)")
     p.add_argument("--warmup", type=nonnegative_int, default=3, metavar="N",
@@ -33,11 +34,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cache-dir", type=Path, metavar="DIR",
                    help="ONNX export cache (default $EVSMAP_CACHE_DIR/onnx or "
                         "~/.cache/evsmap/onnx)")
+    add_precision_options(p, target="the built-in synthetic scene (this command has no "
+                                     "sequence)", calibrate_on=False)
     p.add_argument("--json", action="store_true", help="print the record as JSON")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    backend = backend_for(args) or "torch"
     segmenter, height, width = build_network(args)
     if segmenter.weights is None:
         import sys
@@ -50,12 +54,18 @@ def run(args: argparse.Namespace) -> int:
 
     inputs = segmenter.example_inputs(height, width)
     macs = measure_complexity(segmenter.module, inputs).flops
+    int8_path = None
+    if args.precision == "int8":
+        segmenter.backend, segmenter.input_size = backend, (height, width)
+    precision = apply_precision(args, segmenter, None, what="speed")
+    if args.precision == "int8":
+        int8_path = segmenter.quantization.path
     record = measure_speed(
-        segmenter.module, inputs, backend=args.backend, runs=args.runs, warmup=args.warmup,
+        segmenter.module, inputs, backend=backend, runs=args.runs, warmup=args.warmup,
         threads=args.threads, macs=macs, input_names=segmenter.input_names, key=args.model,
-        cache_dir=args.cache_dir)
+        cache_dir=args.cache_dir, onnx_path=int8_path)
     result = {"model": args.model, "num_classes": segmenter.num_classes,
-              "inputs": list(segmenter.input_names), **record.as_dict()}
+              "inputs": list(segmenter.input_names), **precision, **record.as_dict()}
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -67,7 +77,7 @@ def format_speed(r: dict[str, Any]) -> str:
     versions = ", ".join(f"{k} {v}" for k, v in r["versions"].items())
     return "\n".join([
         f"model     {r['model']}  ({r['width']}x{r['height']}, backend {r['backend']}, "
-        f"{r['threads']} thread{'s' if r['threads'] != 1 else ''})",
+        f"{_precision_text(r)}, {r['threads']} thread{'s' if r['threads'] != 1 else ''})",
         f"fps       {r['fps_median']:.2f}  (IQR {r['fps_iqr']:.2f})",
         f"latency   {r['ms_median']:.2f} ms median  (IQR {r['ms_iqr']:.2f} ms; {r['runs']} runs "
         f"after {r['warmup']} warm-up)",
@@ -77,3 +87,9 @@ def format_speed(r: dict[str, Any]) -> str:
         f"cpu       {r['cpu']}",
         f"versions  {versions}",
     ])
+
+
+def _precision_text(r: dict[str, Any]) -> str:
+    if r.get("precision") != "int8":
+        return "fp32"
+    return f"int8 {r['int8_scheme']}, {r['int8']['fp32_nodes']} nodes kept fp32"

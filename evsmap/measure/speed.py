@@ -175,6 +175,7 @@ def measure_speed(
     max_rounds: int = 1,
     stable_rel_iqr: float | None = None,
     calibration_log: Any = None,
+    onnx_path: str | os.PathLike[str] | None = None,
 ) -> SpeedRecord:
     """Time ``runs`` forward passes of ``module(*inputs)`` after ``warmup`` untimed ones.
 
@@ -198,6 +199,8 @@ def measure_speed(
             round, else the steadiest one and ``stable=False``.
         calibration_log: a :class:`~evsmap.measure.contention.CalibrationLog` holding the
             run's best calibration (default: this call's own).
+        onnx_path: with onnxruntime, time this ONNX file (e.g. the module's int8
+            quantisation) instead of the module's cached fp32 export.
 
     Each sample is one forward pass timed with ``time.perf_counter``.
 
@@ -234,7 +237,7 @@ def measure_speed(
                 return _time_torch(module, inputs, runs, n_warm)
         else:
             forward = _onnxruntime_forward(module, inputs, input_names, used_threads,
-                                           key or type(module).__name__, cache_dir)
+                                           key or type(module).__name__, cache_dir, onnx_path)
 
             def timed(n_warm: int) -> list[float]:
                 return _time_calls(forward, runs, n_warm)
@@ -309,12 +312,13 @@ def _time_torch(module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], runs:
 def _onnxruntime_forward(
     module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], input_names: Sequence[str],
     threads: int, key: str, cache_dir: str | os.PathLike[str] | None,
+    onnx_path: str | os.PathLike[str] | None = None,
 ) -> Callable[[], object]:
     import onnxruntime as ort
 
     from evsmap.models.onnx_export import cached_onnx
 
-    path = cached_onnx(module, inputs, input_names, key=key, cache_dir=cache_dir)
+    path = onnx_path or cached_onnx(module, inputs, input_names, key=key, cache_dir=cache_dir)
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL

@@ -19,8 +19,10 @@ function imports torch.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import logging
 import os
 import re
 import tempfile
@@ -261,14 +263,13 @@ def rank_tensors(*, fp32_path: str | os.PathLike[str], qdq_path: str | os.PathLi
         reader: an :class:`InputsReader` of the calibration inputs.
         workdir: folder for the two augmented models.
     """
+    import onnx
     from onnxruntime.quantization.qdq_loss_debug import (
         collect_activations,
         compute_activation_error,
         create_activation_matching,
         modify_model_output_intermediate_tensors,
     )
-
-    import onnx
 
     relu_outputs = {o for n in onnx.load(str(fp32_path)).graph.node if n.op_type == "Relu"
                     for o in n.output}
@@ -376,7 +377,7 @@ def quantize_model(
         return QuantizedModel.from_sidecar(path)
     Path(cache_dir).mkdir(parents=True, exist_ok=True)
     reader = InputsReader(calibration, keep=graph_inputs)
-    with tempfile.TemporaryDirectory(prefix="evsmap-int8-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="evsmap-int8-") as tmp, _quiet():
         work = Path(tmp)
         pre = work / "pre.onnx"
         quant_pre_process(str(fp32_path), str(pre))
@@ -408,6 +409,17 @@ def quantize_model(
         with atomic_path(path, suffix=".onnx") as tmp_onnx:
             os.replace(first, tmp_onnx)
     return record
+
+
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """Silence the quantiser's logging warnings (one per rank-1 weight it cannot quantise per
+    channel, and quantised per tensor instead)."""
+    logging.disable(logging.WARNING)
+    try:
+        yield
+    finally:
+        logging.disable(logging.NOTSET)
 
 
 def float_nodes(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str, bool]:

@@ -1,0 +1,121 @@
+"""``--precision fp32|int8`` and its options, shared by ``speed``, ``map``, ``eval`` and
+``predict`` (issue 20, int8 inference).
+
+int8 runs on ONNX Runtime only: with ``--precision int8`` the backend defaults to onnxruntime,
+and an explicit ``--backend torch`` is refused (exit 2). The network is calibrated on
+``--calibration-frames`` frames evenly spaced over the frames the command processes - the
+target-data calibration the issue asks for - or, with ``--calibrate-on NAME-or-PATH``, over
+another dataset or sequence (held out from what is scored; ``synthetic`` is the built-in
+scene). ``speed`` has no sequence and calibrates on the built-in synthetic scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from evsmap.cli.options import nonnegative_int, positive_int
+from evsmap.errors import EvsmapError
+
+PRECISIONS = ("fp32", "int8")
+SCHEMES = ("u8s8", "s8s8")
+"""evsmap.segmenters.quantize.SCHEMES, spelled out so that building the parser imports
+nothing heavy."""
+DEFAULT_CALIBRATION_FRAMES = 16
+
+
+def add_precision_options(p: argparse.ArgumentParser, *, target: str = "the frames processed",
+                          calibrate_on: bool = True) -> None:
+    """``--precision``, ``--int8-scheme``, ``--calibration-frames``, ``--int8-auto-exclude``
+    and (with ``calibrate_on``) ``--calibrate-on``.
+
+    Args:
+        p: the command's parser.
+        target: what the calibration frames are taken from by default (for the help).
+        calibrate_on: offer ``--calibrate-on`` (a command without a sequence does not).
+    """
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32",
+                   help="fp32 (default) or int8: ONNX Runtime static QDQ quantisation, "
+                        "calibrated first (implies --backend onnxruntime; docs/int8.md)")
+    p.add_argument("--int8-scheme", choices=SCHEMES, default="u8s8",
+                   help="int8 types: u8s8 (uint8 activations, int8 weights; default, the "
+                        "fast one on x86 with VNNI) or s8s8 (both int8)")
+    p.add_argument("--calibration-frames", type=positive_int,
+                   default=DEFAULT_CALIBRATION_FRAMES, metavar="N",
+                   help=f"int8: calibrate on N frames evenly spaced over {target} (default "
+                        f"{DEFAULT_CALIBRATION_FRAMES})")
+    p.add_argument("--int8-auto-exclude", type=nonnegative_int, default=0, metavar="N",
+                   help="int8: also keep in fp32 the nodes around the N tensors with the worst "
+                        "quantisation SQNR on the calibration frames (default 0: only the "
+                        "rules - final classifier, sigmoid gates, softmax)")
+    if calibrate_on:
+        p.add_argument("--calibrate-on", metavar="NAME-or-PATH",
+                       help="int8: calibrate on this dataset or sequence instead (held-out "
+                            "calibration; e.g. 'synthetic', a prepared dataset's name or a "
+                            "folder)")
+
+
+def backend_for(args: argparse.Namespace) -> str | None:
+    """The backend to create the segmenter with: ``args.backend``, or onnxruntime for int8.
+
+    Raises:
+        EvsmapError: ``--precision int8`` with ``--backend torch``.
+    """
+    if args.precision != "int8":
+        return args.backend
+    if args.backend == "torch":
+        raise EvsmapError("--precision int8 runs on ONNX Runtime: pass --backend onnxruntime "
+                          "or leave --backend out")
+    return "onnxruntime"
+
+
+def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
+                    count: int | None = None, what: str = "") -> dict[str, Any]:
+    """Calibrate ``segmenter`` to int8 when ``--precision int8``; return the record fields
+    (``precision``, and for int8 ``int8_scheme`` and ``int8``: how it was calibrated).
+
+    Args:
+        args: the parsed command line (:func:`add_precision_options`'s options).
+        segmenter: the segmenter, created with :func:`backend_for`'s backend.
+        sequence: the sequence processed (calibration frames come from its first ``count``
+            frames), or None where there is none (``--calibrate-on`` or the synthetic scene).
+        count: how many of its frames are processed (default all).
+        what: the command name for the note on stderr.
+
+    Raises:
+        EvsmapError: int8 for a segmenter that is not a network, or no calibration frame.
+    """
+    if args.precision != "int8":
+        return {"precision": "fp32"} if segmenter.module is not None else {}
+    if segmenter.module is None:
+        raise EvsmapError(f"--precision int8: {type(segmenter).__name__} is not a network")
+    from evsmap.progress import progress
+    from evsmap.segmenters.quantize import evenly_spaced
+
+    source_name = getattr(args, "calibrate_on", None)
+    if source_name is not None or sequence is None:
+        sequence, count, label = _calibration_sequence(source_name or "synthetic")
+        if source_name is None:
+            label = "the built-in synthetic scene (no sequence to calibrate on)"
+    else:
+        label = f"{getattr(sequence, 'name', 'the sequence')} (the frames processed)"
+        count = len(sequence) if count is None else min(count, len(sequence))
+    indices = evenly_spaced(count, args.calibration_frames)
+    frames = [sequence.frame(i) for i in progress(indices, desc="int8 calibration frames")]
+    if what:
+        sys.stderr.write(f"evsmap {what}: int8 ({args.int8_scheme}) calibrated on "
+                         f"{len(frames)} frames of {label}\n")
+    segmenter.calibrate(frames, scheme=args.int8_scheme, auto_exclude=args.int8_auto_exclude,
+                        cache_dir=getattr(args, "cache_dir", None),
+                        source=f"{label}: frames {', '.join(map(str, indices))}")
+    return segmenter.precision_record()
+
+
+def _calibration_sequence(name: str) -> tuple[Any, int, str]:
+    from evsmap.datasets.lookup import open_dataset
+
+    sequence, _ = open_dataset(name, reader=None, split=None, limit=None, options=[])
+    if len(sequence) == 0:
+        raise EvsmapError(f"--calibrate-on {name}: no frames")
+    return sequence, len(sequence), f"{sequence.name} (held out)"
