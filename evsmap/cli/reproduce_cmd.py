@@ -104,6 +104,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "feagnet-v1,feagnet-v2,fchardnet-70)")
     p.add_argument("--proxy-recipe", default=None, metavar="NAME",
                    help="with --train: training recipe (default synth-proxy)")
+    p.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
+                   help="int8: also measure every network with a speed cell in int8 beside "
+                        "fp32 (ONNX Runtime static QDQ u8s8: speed-up, top-1 agreement, mIoU "
+                        "where weights and data are here), in an 'int8 beside fp32' section of "
+                        "Tables I-III and int8.csv; the paper's cells stay fp32 (default fp32)")
     p.set_defaults(run=run)
 
 
@@ -214,6 +219,11 @@ def run(args: argparse.Namespace) -> int:
         fields["train"] = {"models": models, "recipe": recipe}
         records += run_proxy(ctx, models, recipe, tables=args.tables, resume=args.resume,
                              force=args.force)
+    if args.precision == "int8":
+        from evsmap.runner.int8 import run_int8
+
+        fields["precision"] = "int8"
+        records += run_int8(ctx, the_plan.specs, resume=args.resume, force=args.force)
     fields["finished"] = datetime.now(UTC).isoformat(timespec="seconds")
     write_run_file(ctx, the_plan, out / "run.json", **fields)
     written = build_report(out)

@@ -186,9 +186,10 @@ def stage_threads(segmenter: Segmenter | None) -> dict[str, Any]:
 
 
 def update_threads() -> dict[str, Any]:
-    """The update kernels' threads and numba threading layer."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return {"numba": None}
-    return {"numba": numba.get_num_threads(), "layer": numba.config.THREADING_LAYER}
+    """The update kernels' threads and numba threading layer
+    (:func:`evsmap.mapping.threads.threading_info`)."""
+    from evsmap.mapping.threads import threading_info
+
+    info = dict(threading_info())
+    info["numba"] = info.pop("threads")
+    return info

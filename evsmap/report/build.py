@@ -23,6 +23,8 @@ from evsmap.errors import DataFormatError
 from evsmap.fileio import atomic_write_text
 from evsmap.report import plots
 from evsmap.report.claims import claims_markdown, relative_markdown
+from evsmap.report.int8 import PREFIX as INT8_PREFIX
+from evsmap.report.int8 import int8_frame, int8_markdown, int8_records
 from evsmap.report.tables import (
     STATUSES,
     extra_frame,
@@ -133,7 +135,8 @@ def build_report(run_dir: str | Path) -> list[Path]:
     table_ids += sorted({r.table for r in records if r.table in tables} - set(table_ids))
     if not table_ids:
         table_ids = sorted(tables)
-    extras = extra_records(records)
+    # the int8 records have their own section and CSV (evsmap.report.int8)
+    extras = [r for r in extra_records(records) if not r.key.startswith(INT8_PREFIX)]
     skipped = {str(pair[0]): str(pair[1]) for pair in run.get("skipped") or []
                if isinstance(pair, (list, tuple)) and len(pair) == 2}
 
@@ -152,8 +155,16 @@ def build_report(run_dir: str | Path) -> list[Path]:
             proxy = proxy_accuracy_markdown(extras)
             if proxy:
                 md = md + "\n" + "\n".join(proxy).rstrip() + "\n"
+        int8 = int8_markdown(records, tid)  # reproduce --precision int8, beside the table
+        if int8:
+            md = md + "\n" + "\n".join(int8).rstrip() + "\n"
         written.append(_write(run_dir / f"{tid}.md", md))
         written.append(_write_csv(run_dir / f"{tid}.csv", frame))
+    int8_path = run_dir / "int8.csv"
+    if int8_records(records):
+        written.append(_write_csv(int8_path, int8_frame(records)))
+    else:
+        int8_path.unlink(missing_ok=True)
     extra_path = run_dir / "extra.csv"
     if extras:
         written.append(_write_csv(extra_path, extra_frame(extras)))
