@@ -26,8 +26,13 @@ except ImportError:  # pragma: no cover
     numba = None
     prange = range
 
-_VOXEL_BLOCK = 512
+_VOXEL_BLOCK = 128
 """Local voxels per parallel block (each block allocates its scratch buffers once)."""
+_SORT_CHUNKS = 8
+_SORT_CHUNK_MIN = 1 << 14
+_SORT_CELLS = 1 << 22
+"""The counting sort of a frame's points by voxel: at most 8 chunks of at least 16384 points,
+and at most 4M per-chunk counters (chunks x voxels)."""
 
 _LOGE2 = math.log(2.0)
 
@@ -203,32 +208,52 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
             occupancy[f] = _occupancy(classes, lodds, others, f)
 
     # ---- local map (build_local): per voxel, its points in their original order (a stable
-    # counting sort), summed slot by slot as numpy's per-slot bincount does
+    # counting sort, by chunks of points: chunk b's points of a voxel follow chunk b - 1's),
+    # summed slot by slot as numpy's per-slot bincount does. The sort moves the points'
+    # classes and probabilities (read in pixel order, written grouped by voxel), so the voxel
+    # pass reads them in sequence.
     n = voxels.shape[0]
+    k = obs_cls.shape[1]
     n_points = local_index.shape[0]
+    chunks = max(1, min(_SORT_CHUNKS, n_points // _SORT_CHUNK_MIN, _SORT_CELLS // max(n, 1)))
+    per = (n_points + chunks - 1) // chunks
+    fill = np.zeros((chunks, n), dtype=np.int64)
+    for b in prange(chunks):
+        for p in range(b * per, min(n_points, (b + 1) * per)):
+            fill[b, local_index[p]] += 1
     counts = np.zeros(n, dtype=np.int64)
-    for p in range(n_points):
-        counts[local_index[p]] += 1
     start = np.zeros(n + 1, dtype=np.int64)
     for m in range(n):
-        start[m + 1] = start[m] + counts[m]
-    fill = start[:n].copy()
-    members = np.empty(n_points, dtype=np.int64)
-    for p in range(n_points):
-        members[fill[local_index[p]]] = p
-        fill[local_index[p]] += 1
+        at = start[m]
+        for b in range(chunks):
+            c = fill[b, m]
+            fill[b, m] = at
+            at += c
+        counts[m] = at - start[m]
+        start[m + 1] = at
+    cls_sorted = np.empty((n_points, k), dtype=obs_cls.dtype)
+    p_sorted = np.empty((n_points, k), dtype=obs_p.dtype)
+    for b in prange(chunks):
+        for p in range(b * per, min(n_points, (b + 1) * per)):
+            m = local_index[p]
+            t = fill[b, m]
+            fill[b, m] = t + 1
+            q = pixels[p]
+            for j in range(k):
+                cls_sorted[t, j] = obs_cls[q, j]
+                p_sorted[t, j] = obs_p[q, j]
     # the voxels in blocks, in parallel (each leaf is one voxel's: disjoint writes)
     for b in prange(_blocks(n, _VOXEL_BLOCK)):
-        _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, members, pixels,
-                      obs_cls, obs_p, span, psi, phi, theta, min_lo, max_lo, prob_min, bayes,
+        _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, cls_sorted,
+                      p_sorted, span, psi, phi, theta, min_lo, max_lo, prob_min, bayes,
                       printed, semantic, b * _VOXEL_BLOCK, min(n, (b + 1) * _VOXEL_BLOCK))
 
-
-def _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, members, pixels,
-                  obs_cls, obs_p, span, psi, phi, theta, min_lo, max_lo, prob_min, bayes,
-                  printed, semantic, first, last):
-    """The local node and leaf update of local voxels ``first`` to ``last`` (their points:
-    ``members[start[m]:start[m + 1]]``), with their own scratch buffers."""
+def _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, obs_cls, obs_p, span,
+                  psi, phi, theta, min_lo, max_lo, prob_min, bayes, printed, semantic, first,
+                  last):
+    """The local node and leaf update of local voxels ``first`` to ``last`` (their points'
+    classes and probabilities: rows ``start[m]`` to ``start[m + 1]`` of ``obs_cls`` and
+    ``obs_p``), with their own scratch buffers."""
     k = obs_cls.shape[1]
     part = np.zeros((k, span))
     used = np.zeros(span, dtype=np.bool_)
@@ -249,10 +274,9 @@ def _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, memb
         n_touched = 0
         # each (slot, class) sum runs over the voxel's points in their order, as bincount's
         for t in range(start[m], start[m + 1]):
-            p = pixels[members[t]]
             for j in range(k):
-                c = obs_cls[p, j]
-                w = np.float64(obs_p[p, j])
+                c = obs_cls[t, j]
+                w = np.float64(obs_p[t, j])
                 if c >= 0 and w > 0:
                     part[j, c] += w
                     if not used[c]:
