@@ -101,10 +101,17 @@ CHUNK = 8
 
 def _denominator(flat: torch.Tensor, top: torch.Tensor) -> torch.Tensor:
     """``sum_c exp(l_c - max)`` per pixel, shifted by the max so that large logits lose no
-    precision, a few channels at a time (vectorised exp, no (C, N) temporary)."""
-    total = torch.zeros(flat.shape[1], dtype=torch.float32)
-    for start in range(0, flat.shape[0], CHUNK):
-        total += torch.exp(flat[start:start + CHUNK] - top).sum(0)
+    precision, a few channels at a time (vectorised exp, no (C, N) temporary). One chunk buffer
+    is reused in place: allocating a fresh 8 x N temporary per operation and chunk (the kernel
+    zero-fills every new page) cost three times the arithmetic."""
+    c_count, n = flat.shape
+    total = torch.zeros(n, dtype=torch.float32)
+    buf = torch.empty((min(CHUNK, c_count), n), dtype=torch.float32)
+    for start in range(0, c_count, CHUNK):
+        chunk = buf[:min(CHUNK, c_count - start)]
+        torch.sub(flat[start:start + CHUNK], top, out=chunk)
+        chunk.exp_()
+        total += chunk.sum(0)
     return total
 
 
