@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     config: dict[str, Any] = dict(args.option)
     if args.weights is not None:
         config["weights"] = str(args.weights)
-    backend = backend_for(args)
+    backend = backend_for(args, args.model)
     if backend is not None:
         config["backend"] = backend
     segmenter = SEGMENTERS.create(args.model, **config)

@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         seg_config: dict[str, Any] = dict(args.segmenter_option)
         if args.weights is not None:
             seg_config["weights"] = args.weights
-        backend = backend_for(args)
+        backend = backend_for(args, seg_name)
         if backend is not None:
             seg_config["backend"] = backend
         segmenter = SEGMENTERS.create(seg_name, **seg_config)

@@ -56,17 +56,24 @@ def add_precision_options(p: argparse.ArgumentParser, *, target: str = "the fram
                             "folder)")
 
 
-def backend_for(args: argparse.Namespace) -> str | None:
-    """The backend to create the segmenter with: ``args.backend``, or onnxruntime for int8.
+def backend_for(args: argparse.Namespace, model: str | None = None) -> str | None:
+    """The backend to create the segmenter ``model`` with: ``args.backend``, or onnxruntime
+    for int8.
 
     Raises:
-        EvsmapError: ``--precision int8`` with ``--backend torch``.
+        EvsmapError: ``--precision int8`` with ``--backend torch``, or for a registered
+            segmenter that has no backend (not a network: the oracle).
     """
     if args.precision != "int8":
         return args.backend
     if args.backend == "torch":
         raise EvsmapError("--precision int8 runs on ONNX Runtime: pass --backend onnxruntime "
                           "or leave --backend out")
+    if model is not None:
+        from evsmap.registry import SEGMENTERS
+
+        if "backend" not in SEGMENTERS.get(model).parameters():
+            raise EvsmapError(f"--precision int8: segmenter {model!r} is not a network")
     return "onnxruntime"
 
 

@@ -38,11 +38,12 @@ class GatedNet(nn.Module):
 
 
 def tiny_segmenter(*, backend: str = "torch", weights=None, input_size=SIZE,
-                   precision: str = "fp32", seed: int = 0) -> NetworkSegmenter:
+                   precision: str = "fp32", seed: int = 0,
+                   num_classes: int = CLASSES) -> NetworkSegmenter:
     """The tiny network with seeded weights (BatchNorm at its initial statistics)."""
     torch.manual_seed(seed)
     return NetworkSegmenter(
-        name=NAME, module=GatedNet(), num_classes=CLASSES,
-        class_names=tuple(f"c{i}" for i in range(CLASSES)), uses_depth=True,
+        name=NAME, module=GatedNet(num_classes), num_classes=num_classes,
+        class_names=tuple(f"c{i}" for i in range(num_classes)), uses_depth=True,
         default_size=SIZE, backend=backend, weights=weights, input_size=input_size,
         precision=precision)

@@ -1,0 +1,104 @@
+"""``--precision int8`` and its options on ``evsmap speed``, ``eval``, ``predict`` and ``map``
+(a tiny gated network, small synthetic frames)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import evsmap.measure.speed as speed_module
+from evsmap.cli.main import main
+from evsmap.registry import SEGMENTERS
+from tests.segmenters.int8_net import NAME, tiny_segmenter
+
+SMALL_SYNTH = ["-r", "frames=4", "-r", "width=96", "-r", "height=64"]
+INT8 = ["--precision", "int8", "--calibration-frames", "2"]
+
+
+@pytest.fixture
+def tiny(monkeypatch, tmp_path):
+    SEGMENTERS.add(NAME, tiny_segmenter)
+    monkeypatch.setenv("EVSMAP_CACHE_DIR", str(tmp_path / "cache"))
+    real = speed_module.roofline_gmacs  # a small matmul keeps the test fast
+    monkeypatch.setattr(speed_module, "roofline_gmacs", lambda size=0, **kw: real(64, **kw))
+    yield NAME
+    SEGMENTERS.unregister(NAME)
+
+
+def run(capsys, *argv):
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse's own errors
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_line_error(code, err, *words):
+    assert code == 2, err
+    lines = [line for line in err.strip().splitlines() if ": warning: " not in line]
+    assert len(lines) == 1 and ": error: " in lines[0] and "Traceback" not in err, err
+    for w in words:
+        assert w in err, err
+
+
+def test_speed_int8_record(capsys, tiny):
+    code, out, err = run(capsys, "speed", tiny, *INT8, "--int8-scheme", "s8s8", "--runs", "2",
+                         "--warmup", "0", "--threads", "1", "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    assert (r["precision"], r["int8_scheme"], r["backend"]) == ("int8", "s8s8", "onnxruntime")
+    assert r["int8"]["calibration_frames"] == 2 and r["int8"]["fp32_nodes"] > 0
+    assert "synthetic" in r["int8"]["calibration_source"] and "synthetic" in err
+    code, out, _ = run(capsys, "speed", tiny, "--runs", "1", "--warmup", "0", "--json")
+    assert code == 0 and json.loads(out)["precision"] == "fp32"
+    assert json.loads(out)["backend"] == "torch"  # the fp32 default is unchanged
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--precision", "int8", "--backend", "torch"], ["int8", "ONNX Runtime"]),
+    (["--precision", "int4"], ["--precision"]),
+    (["--precision", "int8", "--int8-scheme", "u8u8"], ["--int8-scheme"]),
+    (["--precision", "int8", "--calibration-frames", "0"], ["--calibration-frames"]),
+])
+def test_speed_bad_values_exit_2(capsys, tiny, argv, words):
+    code, _, err = run(capsys, "speed", tiny, *argv)
+    assert code == 2 and "Traceback" not in err and all(w in err for w in words), err
+
+
+def test_eval_int8_calibrates_on_the_scored_frames(capsys, tiny):
+    code, out, err = run(capsys, "eval", tiny, "--dataset", "synthetic", *SMALL_SYNTH,
+                         "-o", "num_classes=40", "--allow-random", *INT8, "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    assert (r["precision"], r["int8_scheme"], r["backend"]) == ("int8", "u8s8", "onnxruntime")
+    assert r["int8"]["calibration_source"].endswith("frames 0, 3")
+    assert "the frames processed" in r["int8"]["calibration_source"]
+
+
+def test_predict_int8_held_out_calibration(capsys, tiny, tmp_path):
+    code, out, err = run(capsys, "predict", tiny, "synthetic", *SMALL_SYNTH, "--out",
+                         tmp_path / "pred", "--allow-random", "--frames", "2", *INT8,
+                         "--calibrate-on", "synthetic", "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    assert (r["precision"], r["int8_scheme"]) == ("int8", "u8s8")
+    assert "held out" in r["int8"]["calibration_source"]
+    saved = json.loads((tmp_path / "pred" / "predict.json").read_text())
+    assert saved["precision"] == "int8"
+
+
+def test_map_int8_and_its_errors(capsys, tiny):
+    code, out, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater",
+                         "multiclass-bayes", "--segmenter", tiny, "-s", "num_classes=40",
+                         "--frames", "2", *INT8, "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    assert (r["precision"], r["int8_scheme"]) == ("int8", "u8s8")
+    code, _, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater", "orgb",
+                       "--precision", "int8")
+    one_line_error(code, err, "--precision int8", "no segmenter")
+    code, _, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater",
+                       "multiclass-bayes", "--precision", "int8")
+    one_line_error(code, err, "--precision int8", "not a network")
