@@ -1,16 +1,17 @@
 """Compiled (numba) frame update of ``classic-semantic``'s ``classwise`` front end.
 
-One pass per hit voxel instead of numpy's whole-array passes, doing exactly what the numpy
-reference :func:`baselines.classic_semantic.fuse_frame` does with
-:func:`~baselines.classic_semantic.voxel_distributions` (the mean of the points' top-k
+It does exactly what the numpy reference :func:`baselines.classic_semantic.fuse_frame` does
+with :func:`~baselines.classic_semantic.voxel_distributions` (the mean of the points' top-k
 distributions, through ``evsmap.mapping.fusion.build_local``), semantic_slam's rules
 :func:`baselines.semantic_slam_fusion.fuse_bayes` / :func:`~baselines.semantic_slam_fusion.fuse_max`
-and ``evsmap.mapping.fusion.average_frame_colours``: the same float64 operations in the same
-order (sums point by point and slot by slot as ``bincount`` adds them, row sums left to right as
-numpy reduces a C-ordered row), the same stable rankings (the mean's classes: ties to the
-smaller class id; the fused candidates: ties to the earlier one) and the same float32 results,
-so both paths store the same arrays; the tests compare them. Only the dense local map is
-compiled (voxels x classes up to ``fusion.DENSE_LIMIT``, the case ``build_local`` sums densely);
+and ``evsmap.mapping.fusion.average_frame_colours``, in passes over the frame's points in their
+order (counts, colour sums, then the class sums slot by slot, as ``bincount`` adds them) and
+one pass over the hit voxels, instead of numpy's many whole-array passes. Same float64
+operations in the same order (row sums left to right, as numpy reduces a C-ordered row), same
+stable rankings (the mean's classes: ties to the smaller class id; the fused candidates: ties
+to the earlier one), same float32 results: both paths store the same arrays, and the tests
+compare them. Only the dense local map is compiled (voxels x classes up to
+``fusion.DENSE_LIMIT``, the case ``build_local`` sums densely, with the same two tables);
 beyond it :func:`frame_update` changes nothing and says so, and the caller runs the reference.
 """
 
@@ -28,11 +29,11 @@ _WHITE = 255
 
 @njit(cache=True, nogil=True)
 def _insert_top3(best_c, best_v, filled, c, v):
-    """Insert class ``c`` with mean ``v`` into the descending top 3 (``filled`` entries so far;
-    equal means: the smaller class first, as a stable argsort of ``-mean`` over class ids);
-    returns the new count."""
+    """Insert class ``c`` with mean ``v`` into the descending top 3 (``filled`` entries so far);
+    classes come in ascending order, so an equal mean stays behind the smaller class, as in a
+    stable argsort of ``-mean``. Returns the new count."""
     pos = filled
-    while pos > 0 and (best_v[pos - 1] < v or (best_v[pos - 1] == v and best_c[pos - 1] > c)):
+    while pos > 0 and best_v[pos - 1] < v:
         pos -= 1
     if pos >= 3:
         return filled
@@ -171,70 +172,56 @@ def frame_update(sem_classes, sem_conf, rgb, voxels, local, pixels, obs_cls, obs
     n = voxels.shape[0]
     n_points = local.shape[0]
     k = obs_cls.shape[1]
+    # points, in their order: counts and colour sums per voxel (bincount's), largest class
+    count = np.zeros(n, np.int64)
+    colour_sum = np.zeros((n, 3))
     span = 0
     for p in range(n_points):
+        m = local[p]
+        px = pixels[p]
+        count[m] += 1
+        if use_rgb:
+            for ch in range(3):
+                colour_sum[m, ch] += np.float64(colours[px, ch])
         for j in range(k):
-            span = max(span, np.int64(obs_cls[pixels[p], j]) + 1)
+            span = max(span, np.int64(obs_cls[px, j]) + 1)
     if span > 0 and n * span > dense_limit:
         return False
-    # each voxel's points in their original order (a stable counting sort)
-    start = np.zeros(n + 1, np.int64)
-    for p in range(n_points):
-        start[local[p] + 1] += 1
-    for m in range(n):
-        start[m + 1] += start[m]
-    fill = start[:n].copy()
-    members = np.empty(n_points, np.int64)
-    for p in range(n_points):
-        members[fill[local[p]]] = p
-        fill[local[p]] += 1
+    # build_local's dense sums: slot by slot, a (voxel, class) table summed in point order and
+    # then added to the total
+    width = max(span, 1)
+    sums = np.zeros((n, width))
+    part = np.zeros((n, width))
+    for j in range(k):
+        for p in range(n_points):
+            px = pixels[p]
+            c = np.int64(obs_cls[px, j])
+            w = np.float64(obs_p[px, j])
+            if c >= 0 and w > 0:
+                part[local[p], c] += w
+        for m in range(n):
+            for c in range(width):
+                sums[m, c] += part[m, c]
+                part[m, c] = 0.0
 
-    part = np.zeros((k, max(span, 1)))
-    used = np.zeros(max(span, 1), np.bool_)
-    touched = np.empty(max(span, 1), np.int64)
     best_c = np.empty(3, np.int64)
     best_v = np.zeros(3)
     obs_c = np.empty(3, np.int64)
     obs_f = np.zeros(3, np.float32)
-    mean = np.empty(3, np.int64)
     scratch = _bayes_scratch()
     for m in range(n):
         g = voxels[m]
-        count = start[m + 1] - start[m]
+        points = np.float64(max(count[m], 1))
         if use_rgb:  # averageNodeColor with the floored mean colour of the points
-            for ch in range(3):
-                total = 0.0
-                for t in range(start[m], start[m + 1]):
-                    total += np.float64(colours[pixels[members[t]], ch])
-                mean[ch] = np.int64(math.floor(total / np.float64(max(count, 1))))
             is_set = rgb[g, 0] != _WHITE or rgb[g, 1] != _WHITE or rgb[g, 2] != _WHITE
             for ch in range(3):
-                if is_set:
-                    rgb[g, ch] = np.uint8((np.int64(rgb[g, ch]) + mean[ch]) // 2)
-                else:
-                    rgb[g, ch] = np.uint8(mean[ch])
-        # the mean distribution: per (slot, class) sums in point order, then over the slots
-        n_touched = 0
-        for t in range(start[m], start[m + 1]):
-            p = pixels[members[t]]
-            for j in range(k):
-                c = np.int64(obs_cls[p, j])
-                w = np.float64(obs_p[p, j])
-                if c >= 0 and w > 0:
-                    part[j, c] += w
-                    if not used[c]:
-                        used[c] = True
-                        touched[n_touched] = c
-                        n_touched += 1
+                mean = np.int64(math.floor(colour_sum[m, ch] / points))
+                rgb[g, ch] = np.uint8((np.int64(rgb[g, ch]) + mean) // 2 if is_set else mean)
+        # the top 3 classes of the mean (classes whose mean is 0 are never kept)
         filled = 0
-        for u in range(n_touched):
-            c = touched[u]
-            total = 0.0
-            for j in range(k):
-                total += part[j, c]
-                part[j, c] = 0.0
-            used[c] = False
-            filled = _insert_top3(best_c, best_v, filled, c, total / np.float64(max(count, 1)))
+        for c in range(width):
+            if sums[m, c] > 0:
+                filled = _insert_top3(best_c, best_v, filled, c, sums[m, c] / points)
         # the observation as build_local's node stores it: exp of the float32 log-probability
         for s in range(3):
             if s < filled and best_v[s] > 0:
