@@ -250,53 +250,66 @@ def _grow_rows(old, created, fill, out):
     return None
 
 
-def _grid_codes(grid, base0, base1, base2, stride0, stride1):
+def _grid_codes(grid, base0, base1, base2, shape1, shape2):
     """Packed codes ``(k0 << 32) | (k1 << 16) | k2`` of a dense grid's marked cells in index
-    order (cell ``((k0 - base0) * stride0 + (k1 - base1) * stride1 + (k2 - base2))``); blocks
-    counted, then written, in parallel."""
-    size = grid.shape[0]
-    nb = _blocks(size, _BLOCK)
+    order (cell ``((k0 - base0) * shape1 + (k1 - base1)) * shape2 + (k2 - base2)``): blocks of
+    rows (fixed ``k0``, ``k1``) counted, then written, in parallel."""
+    rows = grid.shape[0] // shape2
+    per = max(1, _BLOCK // shape2)
+    nb = _blocks(rows, per)
     marked = np.zeros(nb, dtype=np.int64)
     for b in prange(nb):
         m = 0
-        for c in range(b * _BLOCK, min(size, (b + 1) * _BLOCK)):
-            if grid[c]:
-                m += 1
+        for c in range(b * per * shape2, min(rows, (b + 1) * per) * shape2):
+            m += grid[c]
         marked[b] = m
     start = _prefix(marked)
     codes = np.empty(start[nb], dtype=np.int64)
     for b in prange(nb):
         u = start[b]
-        for c in range(b * _BLOCK, min(size, (b + 1) * _BLOCK)):
-            if grid[c]:
-                k0 = c // stride0
-                rem = c - k0 * stride0
-                k1 = rem // stride1
-                k2 = rem - k1 * stride1
-                codes[u] = ((k0 + base0) << 32) | ((k1 + base1) << 16) | (k2 + base2)
-                u += 1
+        for r in range(b * per, min(rows, (b + 1) * per)):
+            k0 = r // shape1
+            head = ((k0 + base0) << 32) | ((r - k0 * shape1 + base1) << 16)
+            for k2 in range(shape2):
+                if grid[r * shape2 + k2]:
+                    codes[u] = head | (k2 + base2)
+                    u += 1
     return codes
 
 
 def _sorted_index(sorted_codes, queries):
     """``np.searchsorted(sorted_codes, queries)`` (side ``left``) and the mask of the queries
-    found there, one binary search per query, in parallel."""
+    found there. The queries are split in blocks searched in parallel; within a block, a query
+    not below the previous one gallops on from the previous position (the queries are usually
+    sorted, and close together), any other starts a binary search over the whole array."""
     m = sorted_codes.shape[0]
     n = queries.shape[0]
     pos = np.empty(n, dtype=np.int64)
     found = np.zeros(n, dtype=np.bool_)
-    for i in prange(n):
-        q = queries[i]
+    nb = _blocks(n, _BLOCK // 8)
+    for b in prange(nb):
         lo = 0
-        hi = m
-        while lo < hi:
-            mid = (lo + hi) >> 1
-            if sorted_codes[mid] < q:
-                lo = mid + 1
-            else:
-                hi = mid
-        pos[i] = lo
-        found[i] = lo < m and sorted_codes[lo] == q
+        for i in range(b * (_BLOCK // 8), min(n, (b + 1) * (_BLOCK // 8))):
+            q = queries[i]
+            if i == b * (_BLOCK // 8) or q < queries[i - 1]:
+                lo = 0
+            # every code below lo is < q; gallop to a hi with hi == m or code[hi] >= q
+            hi = lo
+            step = 1
+            while hi < m and sorted_codes[hi] < q:
+                lo = hi + 1
+                hi += step
+                step *= 2
+            if hi > m:
+                hi = m
+            while lo < hi:
+                mid = (lo + hi) >> 1
+                if sorted_codes[mid] < q:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            pos[i] = lo
+            found[i] = lo < m and sorted_codes[lo] == q
     return pos, found
 
 

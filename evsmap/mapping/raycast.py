@@ -263,8 +263,8 @@ def _grid_codes(grid: np.ndarray, space: _Space, block: int = 1 << 22) -> np.nda
     """Sorted codes of the set cells of a dense grid, converted a block at a time (by the
     compiled :func:`~evsmap.mapping.kernels.grid_codes` with the kernel)."""
     if USE_KERNEL and grid_codes is not None:
-        return grid_codes(grid, *(int(b) for b in space.base), int(space.strides[0]),
-                          int(space.strides[1]))
+        return grid_codes(grid, *(int(b) for b in space.base), int(space.shape[1]),
+                          int(space.shape[2]))
     out = np.empty(np.count_nonzero(grid), dtype=np.int64)
     pos = 0
     for start in range(0, grid.size, block):
