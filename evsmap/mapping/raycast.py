@@ -124,7 +124,9 @@ def scan_keys(points: np.ndarray, origin: np.ndarray, resolution: float, *,
     dist = _norm(pts - org)
     inside = dist <= max_range if max_range >= 0 else np.ones(len(pts), dtype=bool)
     okeys, ok = octomap_keys(pts[inside], resolution)
-    occupied = np.unique(pack(okeys[ok]))
+    occupied = pack(okeys[ok])
+    if occupied.size > 1 and not np.all(occupied[1:] > occupied[:-1]):
+        occupied = np.unique(occupied)  # (discretized points come sorted and unique already)
 
     ends = pts.copy()
     if not np.all(inside):
