@@ -449,8 +449,8 @@ def iter_cached(cache_dir: str | os.PathLike[str]) -> Iterator[QuantizedModel]:
 
 def reestimate_batchnorm(module: Any, inputs: Sequence[Sequence[Any]]) -> None:
     """Replace the running statistics of every BatchNorm of ``module`` by those of ``inputs``
-    (each a tuple of batch-1 tensors; a cumulative average over them), leaving weights as they
-    are; the module is left in eval mode.
+    (each a tuple of batch-1 tensors, at least two; run in batches of up to 4, a cumulative
+    average over them), leaving weights as they are; the module is left in eval mode.
 
     A seeded untrained network keeps BatchNorm's initial statistics (mean 0, variance 1), so
     its activations drift in scale through the layers and its logits are dominated by biases
@@ -466,9 +466,13 @@ def reestimate_batchnorm(module: Any, inputs: Sequence[Sequence[Any]]) -> None:
         m.momentum = None
     module.train()
     try:
-        with torch.no_grad():
-            for item in inputs:
-                module(*item)
+        items = [tuple(item) for item in inputs]
+        with torch.no_grad():  # batches of 2-4: a BatchNorm after global pooling needs 2
+            for start in range(0, len(items), 4):
+                chunk = items[start:start + 4]
+                if len(chunk) == 1 and start:
+                    chunk = items[start - 1:start + 1]
+                module(*(torch.cat(parts) for parts in zip(*chunk, strict=True)))
     finally:
         for m, momentum in zip(norms, saved, strict=True):
             m.momentum = momentum
