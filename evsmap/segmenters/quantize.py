@@ -25,6 +25,7 @@ import json
 import logging
 import os
 import re
+import shutil
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -128,35 +129,31 @@ class QuantizedModel:
         return cls(**record)
 
 
-class InputsReader:
+def calibration_reader(inputs: Sequence[Mapping[str, np.ndarray]], *,
+                       keep: Sequence[str] | None = None) -> Any:
     """A :class:`~onnxruntime.quantization.CalibrationDataReader` over prepared inputs: each
-    item maps input names to float32 arrays (batch 1), fed in order; :meth:`rewind` starts
-    over. Inputs the graph dropped (an unused depth) are left out of the feed."""
+    item maps input names to float32 arrays (batch 1), fed in order; ``rewind()`` starts over.
+    Names not in ``keep`` (inputs the graph dropped, e.g. an unused depth) are left out of the
+    feed. (The class is made here so that importing this module does not import ORT.)"""
+    from onnxruntime.quantization import CalibrationDataReader
 
-    def __new__(cls, inputs: Sequence[Mapping[str, np.ndarray]], *,
-                keep: Sequence[str] | None = None):
-        from onnxruntime.quantization import CalibrationDataReader
+    class InputsReader(CalibrationDataReader):
+        def __init__(self) -> None:
+            self._items = [{k: np.ascontiguousarray(v, dtype=np.float32)
+                            for k, v in item.items() if keep is None or k in keep}
+                           for item in inputs]
+            self._at = 0
 
-        class _Reader(CalibrationDataReader):
-            def __init__(self) -> None:
-                self._items = [{k: np.ascontiguousarray(v, dtype=np.float32)
-                                for k, v in item.items() if keep is None or k in keep}
-                               for item in inputs]
-                self._at = 0
+        def get_next(self) -> dict[str, np.ndarray] | None:
+            if self._at >= len(self._items):
+                return None
+            self._at += 1
+            return self._items[self._at - 1]
 
-            def get_next(self) -> dict[str, np.ndarray] | None:
-                if self._at >= len(self._items):
-                    return None
-                self._at += 1
-                return self._items[self._at - 1]
+        def rewind(self) -> None:
+            self._at = 0
 
-            def rewind(self) -> None:
-                self._at = 0
-
-            def __len__(self) -> int:
-                return len(self._items)
-
-        return _Reader()
+    return InputsReader()
 
 
 def evenly_spaced(total: int, count: int) -> list[int]:
@@ -260,7 +257,7 @@ def rank_tensors(*, fp32_path: str | os.PathLike[str], qdq_path: str | os.PathLi
     Args:
         fp32_path: the pre-processed fp32 model.
         qdq_path: its QDQ quantisation.
-        reader: an :class:`InputsReader` of the calibration inputs.
+        reader: a :func:`calibration_reader` of the calibration inputs.
         workdir: folder for the two augmented models.
     """
     import onnx
@@ -282,7 +279,7 @@ def rank_tensors(*, fp32_path: str | os.PathLike[str], qdq_path: str | os.PathLi
     scores: dict[str, list[float]] = {}
     zeros: set[str] = set()
     for item in items:
-        one = InputsReader([item])
+        one = calibration_reader([item])
         float_acts = collect_activations(str(aug_fp32), one)
         one.rewind()
         qdq_acts = collect_activations(str(aug_qdq), one)
@@ -376,7 +373,7 @@ def quantize_model(
     if path.is_file() and path.with_suffix(SIDECAR_SUFFIX).is_file():
         return QuantizedModel.from_sidecar(path)
     Path(cache_dir).mkdir(parents=True, exist_ok=True)
-    reader = InputsReader(calibration, keep=graph_inputs)
+    reader = calibration_reader(calibration, keep=graph_inputs)
     with tempfile.TemporaryDirectory(prefix="evsmap-int8-") as tmp, _quiet():
         work = Path(tmp)
         pre = work / "pre.onnx"
@@ -407,7 +404,7 @@ def quantize_model(
         with atomic_path(path.with_suffix(SIDECAR_SUFFIX), suffix=".json") as tmp_json:
             tmp_json.write_text(json.dumps(sidecar, indent=2) + "\n")
         with atomic_path(path, suffix=".onnx") as tmp_onnx:
-            os.replace(first, tmp_onnx)
+            shutil.copyfile(first, tmp_onnx)  # the temporary folder may be another filesystem
     return record
 
 
@@ -438,13 +435,6 @@ def float_nodes(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str,
     nodes = {n.name: n for n in model.graph.node}
     return {name: name in nodes and not quantized.intersection(nodes[name].output)
             and not weights.intersection(nodes[name].input) for name in names}
-
-
-def iter_cached(cache_dir: str | os.PathLike[str]) -> Iterator[QuantizedModel]:
-    """The int8 models in a cache folder that have a sidecar."""
-    for path in sorted(Path(cache_dir).glob("*-int8-*.onnx")):
-        if path.with_suffix(SIDECAR_SUFFIX).is_file():
-            yield QuantizedModel.from_sidecar(path)
 
 
 def reestimate_batchnorm(module: Any, inputs: Sequence[Sequence[Any]]) -> None:
