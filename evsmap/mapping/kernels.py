@@ -47,7 +47,7 @@ _BLOCK = 1 << 16
 """Cells (or rows) per block of the block-numbered passes."""
 
 
-def _blocks(n, size):
+def blocks(n, size):
     """Number of blocks of ``size`` covering ``n`` items."""
     return (n + size - 1) // size
 
@@ -131,7 +131,7 @@ def _group_points(points, rf, offset, key_max, dense_limit):
     ok = np.zeros(n, dtype=np.bool_)
     # pass 1, per block of points: the range test and the keys' box (nothing else is stored: a
     # second pass recomputes the keys, cheaper than writing and reading them back)
-    nb = _blocks(n, _BLOCK)
+    nb = blocks(n, _BLOCK)
     box = np.empty((nb, 6), dtype=np.int64)
     for b in prange(nb):
         lo0 = lo1 = lo2 = key_max + 1
@@ -175,7 +175,7 @@ def _group_points(points, rf, offset, key_max, dense_limit):
             table[c] = 1
     # box order is packed-code order: number the marked cells (per block, then a prefix sum
     # over the blocks), decode each once
-    nc = _blocks(size, _BLOCK)
+    nc = blocks(size, _BLOCK)
     marked = np.zeros(nc, dtype=np.int64)
     for b in prange(nc):
         m = 0
@@ -256,7 +256,7 @@ def _grid_codes(grid, base0, base1, base2, shape1, shape2):
     rows (fixed ``k0``, ``k1``) counted, then written, in parallel."""
     rows = grid.shape[0] // shape2
     per = max(1, _BLOCK // shape2)
-    nb = _blocks(rows, per)
+    nb = blocks(rows, per)
     marked = np.zeros(nb, dtype=np.int64)
     for b in prange(nb):
         m = 0
@@ -286,7 +286,7 @@ def _sorted_index(sorted_codes, queries):
     n = queries.shape[0]
     pos = np.empty(n, dtype=np.int64)
     found = np.zeros(n, dtype=np.bool_)
-    nb = _blocks(n, _BLOCK // 8)
+    nb = blocks(n, _BLOCK // 8)
     for b in prange(nb):
         lo = 0
         for i in range(b * (_BLOCK // 8), min(n, (b + 1) * (_BLOCK // 8))):
@@ -316,7 +316,7 @@ def _sorted_index(sorted_codes, queries):
 if numba is not None:
     _serial = {"cache": True, "nogil": True}
     _parallel = {"cache": True, "nogil": True, "parallel": True}
-    _blocks = numba.njit(**_serial)(_blocks)
+    blocks = numba.njit(**_serial)(blocks)
     _prefix = numba.njit(**_serial)(_prefix)
     _walk = numba.njit(**_serial)(_walk)
     trace = numba.njit(**_parallel)(_trace)

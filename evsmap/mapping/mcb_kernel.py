@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from evsmap.mapping.kernels import _blocks
+from evsmap.mapping.kernels import blocks
 
 try:
     import numba
@@ -243,7 +243,7 @@ def _frame_update(classes, lodds, others, occupancy, free, voxels, local_index, 
                 cls_sorted[t, j] = obs_cls[q, j]
                 p_sorted[t, j] = obs_p[q, j]
     # the voxels in blocks, in parallel (each leaf is one voxel's: disjoint writes)
-    for b in prange(_blocks(n, _VOXEL_BLOCK)):
+    for b in prange(blocks(n, _VOXEL_BLOCK)):
         _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, cls_sorted,
                       p_sorted, span, psi, phi, theta, min_lo, max_lo, prob_min, bayes,
                       printed, semantic, b * _VOXEL_BLOCK, min(n, (b + 1) * _VOXEL_BLOCK))
