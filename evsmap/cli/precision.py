@@ -52,8 +52,8 @@ def add_precision_options(p: argparse.ArgumentParser, *, target: str = "the fram
     if calibrate_on:
         p.add_argument("--calibrate-on", metavar="NAME-or-PATH",
                        help="int8: calibrate on this dataset or sequence instead (held-out "
-                            "calibration; e.g. 'synthetic', a prepared dataset's name or a "
-                            "folder)")
+                            "calibration; its train split when it has splits; e.g. "
+                            "'synthetic', a prepared dataset's name or a folder)")
 
 
 def backend_for(args: argparse.Namespace, model: str | None = None) -> str | None:
@@ -120,9 +120,15 @@ def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
 
 
 def _calibration_sequence(name: str) -> tuple[Any, int, str]:
-    from evsmap.datasets.lookup import open_dataset
+    """The sequence ``--calibrate-on`` names: a dataset with splits gives its ``train`` split
+    (held out from the ``test`` split that ``eval`` scores by default)."""
+    from evsmap.datasets.lookup import find_dataset, open_dataset, reader_name
+    from evsmap.registry import READERS
 
-    sequence, _ = open_dataset(name, reader=None, split=None, limit=None, options=[])
+    text, reader = find_dataset(name, None)
+    split = "train" if "split" in READERS.get(reader_name(text, reader)).parameters() else None
+    sequence, _ = open_dataset(name, reader=None, split=split, limit=None, options=[])
     if len(sequence) == 0:
         raise EvsmapError(f"--calibrate-on {name}: no frames")
-    return sequence, len(sequence), f"{sequence.name} (held out)"
+    where = f", {split} split" if split else ""
+    return sequence, len(sequence), f"{sequence.name}{where} (held out)"
