@@ -4,8 +4,8 @@ Every registered network (FEAGNet variants, ESANet, FC-HarDNet) is a :class:`Net
 it normalises a :class:`~evsmap.data.Frame` the way the network was trained, resizes it to the
 network's input size, runs the network with torch (eval, inference mode) or ONNX Runtime (CPU,
 through a cached single-file export; ``precision="int8"``: its static QDQ quantisation, see
-:meth:`NetworkSegmenter.calibrate` and :mod:`evsmap.segmenters.quantize`), and returns the per-pixel top-k classes and probabilities
-at the frame's resolution.
+:meth:`NetworkSegmenter.calibrate` and :mod:`evsmap.segmenters.quantize`), and returns the
+per-pixel top-k classes and probabilities at the frame's resolution.
 """
 
 from __future__ import annotations
