@@ -12,7 +12,6 @@ from evsmap.cli.options import key_value, positive_float, positive_int
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
-from evsmap.measure.pipelined import stage_threads
 from evsmap.readers.detect import open_sequence
 from evsmap.readers.skipping import SkippedFrames
 
@@ -81,6 +80,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from evsmap.measure.mapping import map_sequence
+    from evsmap.measure.pipelined import stage_threads
     from evsmap.progress import progress
     from evsmap.registry import SEGMENTERS, UPDATERS
 
