@@ -134,7 +134,6 @@ def _tum():
 @pytest.mark.parametrize("name", ["feagnet-v1", "feagnet-v2"])
 def test_pipelined_over_sequential(benchmark, name, sequence_name, synthetic):
     from evsmap.measure.mapping import map_sequence
-    from evsmap.measure.pipelined import stage_threads
     from evsmap.registry import UPDATERS
 
     sequence = synthetic if sequence_name == "synthetic" else _tum()
@@ -146,7 +145,7 @@ def test_pipelined_over_sequential(benchmark, name, sequence_name, synthetic):
         rec = map_sequence(sequence, UPDATERS.create("multiclass-bayes", resolution=0.05,
                                                      max_range=5.0),
                            updater_name="multiclass-bayes", segmenter=seg, segmenter_name=name,
-                           pipeline=mode == "pipelined", threads=stage_threads(seg))
+                           pipeline=mode == "pipelined")
         records[mode].append(rec)
         return rec
 

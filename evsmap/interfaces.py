@@ -73,6 +73,13 @@ class Segmenter(abc.ABC):
         raise InvalidDataError(f"{type(self).__name__} is not a network: it has no inputs to "
                                f"measure")
 
+    def set_threads(self, threads: int | None = None, *, spinning: bool = True) -> dict:
+        """Threads of the segmenter's own runtime (a network's ONNX Runtime intra-op pool;
+        ``None``: its default) and whether its idle workers may busy-wait (``spinning``: good
+        alone, bad when other stages of a pipeline need the cores). Returns what it uses now
+        (``{}`` for a segmenter without such a runtime)."""
+        return {}
+
     def __call__(self, frame: Frame) -> SemanticObservation:
         return self.predict(frame)
 

@@ -72,6 +72,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="overlap reading, segmentation and the map update of consecutive frames "
                         "(the same map; default on); --no-pipeline runs them one after the "
                         "other")
+    p.add_argument("--stage-threads", type=key_value, action="append", default=[],
+                   metavar="KEY=N",
+                   help="a stage's threads, repeatable: segment (ONNX Runtime), torch (pre- and "
+                        "post-processing), update (the update kernels), blas (numpy); default: "
+                        "chosen for the loop (docs/realtime.md), recorded in the JSON")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
     add_precision_options(p, target="the frames mapped")
     add_sequence_options(p)
@@ -80,7 +85,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from evsmap.measure.mapping import map_sequence
-    from evsmap.measure.pipelined import stage_threads
+    from evsmap.measure.pipelined import stage_threads_option
     from evsmap.progress import progress
     from evsmap.registry import SEGMENTERS, UPDATERS
 
@@ -142,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         segmenter_name=seg_name, frames=args.frames, out=args.out,
         progress=lambda it: progress(it, total=len(it), desc=f"mapping {args.updater}"),
         skip_bad=args.skip_bad, file_format=args.file_format, pipeline=args.pipeline,
-        threads=stage_threads(segmenter))
+        threads=stage_threads_option(args.stage_threads, pipeline=args.pipeline))
     result = record.as_dict()
     result.update(precision)
     result["stage_ms_median"] = record.stage_medians()

@@ -213,6 +213,8 @@ class MappingPass:
         results: each map evaluator's ``evaluate(updater)``, by the evaluator's ``name``.
         segmenter_not_run: why the segmenter given was not run (the updater uses no
             semantics), else ``None``.
+        threads: the threads each stage ran with (:class:`~evsmap.measure.pipelined.
+            StageThreads`' record).
         wall_s: seconds from the first frame's read to the last frame's update (reading,
             segmentation and update, however they overlapped; not the warm-up nor the
             evaluators): ``frames / wall_s`` is the end-to-end rate.
@@ -230,6 +232,7 @@ class MappingPass:
     segmenter_not_run: str | None = None
     wall_s: float = float("nan")
     pipelined: bool = False
+    threads: dict[str, Any] = field(default_factory=dict)
 
     @property
     def frames(self) -> int:
@@ -275,7 +278,7 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
                 indices: Iterable[int] | None = None, frames: int | None = None,
                 skip_bad: bool = False, measure_memory: bool = True,
                 progress: Callable[[Any], Any] | None = None, pipeline: bool = False,
-                warmup: int = 0) -> MappingPass:
+                warmup: int = 0, threads: Any = None) -> MappingPass:
     """Integrate frames of ``sequence`` into a map, timing each stage.
 
     Args:
@@ -294,6 +297,9 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
             frames and observations in the same order, so the map is the same.
         warmup: segmentations of the first frame before the loop, not timed (a network's first
             call builds its session, quantises and tunes: not a per-frame cost).
+        threads: a :class:`~evsmap.measure.pipelined.StageThreads` set for the warm-up and
+            the loop, then restored (default: ``PIPELINED`` with ``pipeline``, else
+            ``SEQUENTIAL``: the libraries' defaults).
     """
     if not sequence.has_poses:
         raise EvsmapError(f"{sequence.name}: {sequence.meta.get('layout', 'this dataset')} has no "
@@ -318,40 +324,13 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
             not_run = f"the segmenter was not run: {type(the_map).__name__} uses no semantics"
             segmenter = None
         semantic = the_map.uses_semantics
-        if warmup and segmenter is not None and order:
-            first = sequence.frame(order[0])
-            for _ in range(int(warmup)):
-                segmenter.predict(first)
+        from evsmap.measure.pipelined import PIPELINED, SEQUENTIAL
 
-        def observation_at(position: int, index: int) -> SemanticObservation | None:
-            if observations is None or not semantic:
-                return None
-            return observations[order.index(index) if skipped.frames else position]
-
-        t_start = time.perf_counter()
-        if pipeline:
-            from evsmap.measure.pipelined import pipelined_frames
-
-            segment_times = StageTimes()
-            for position, index, frame, observation in pipelined_frames(
-                    sequence, order, segmenter=segmenter, read_times=times,
-                    segment_times=segment_times, timed_predict=timed_predict,
-                    skip_bad=skip_bad, skipped=skipped, progress=progress):
-                if segmenter is None:
-                    observation = observation_at(position, index)
-                timed_update(the_map, frame, observation, update_times)
-                done.append(index)
-            for stage, values in segment_times.stages.items():
-                times.stages[stage] = values
-        else:
-            for position, index, frame in _timed_frames(sequence, order, times,
-                                                        skip_bad=skip_bad, skipped=skipped,
-                                                        progress=progress):
-                observation = timed_predict(segmenter, frame, times) \
-                    if segmenter is not None else observation_at(position, index)
-                timed_update(the_map, frame, observation, update_times)
-                done.append(index)
-        wall_s = time.perf_counter() - t_start
+        settings = threads if threads is not None else PIPELINED if pipeline else SEQUENTIAL
+        with settings.applied(segmenter) as used:
+            wall_s = _loop(sequence, order, the_map, segmenter, observations, semantic, times,
+                           update_times, skipped, done, skip_bad=skip_bad, progress=progress,
+                           pipeline=pipeline, warmup=warmup)
         times.stages["update"] = update_times.get("update")
         results = {ev.name: ev.evaluate(the_map) for ev in evaluators}
     finally:
@@ -359,7 +338,50 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
             memory.__exit__(None, None, None)
     return MappingPass(sequence=sequence.name, updater=the_map, indices=done, times=times,
                        skipped=skipped, memory=memory, results=results,
-                       segmenter_not_run=not_run, wall_s=wall_s, pipelined=bool(pipeline))
+                       segmenter_not_run=not_run, wall_s=wall_s, pipelined=bool(pipeline),
+                       threads=used)
+
+
+def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
+          segmenter: Segmenter | None, observations: list[SemanticObservation] | None,
+          semantic: bool, times: StageTimes, update_times: StageTimes,
+          skipped: SkippedFrames, done: list[int], *, skip_bad: bool,
+          progress: Callable[[Any], Any] | None, pipeline: bool, warmup: int) -> float:
+    """:func:`run_mapping`'s warm-up and timed loop; returns the loop's wall seconds."""
+    if warmup and segmenter is not None and order:
+        first = sequence.frame(order[0])
+        for _ in range(int(warmup)):
+            segmenter.predict(first)
+
+    def observation_at(position: int, index: int) -> SemanticObservation | None:
+        if observations is None or not semantic:
+            return None
+        return observations[order.index(index) if skipped.frames else position]
+
+    t_start = time.perf_counter()
+    if pipeline:
+        from evsmap.measure.pipelined import pipelined_frames
+
+        segment_times = StageTimes()
+        for position, index, frame, observation in pipelined_frames(
+                sequence, order, segmenter=segmenter, read_times=times,
+                segment_times=segment_times, timed_predict=timed_predict,
+                skip_bad=skip_bad, skipped=skipped, progress=progress):
+            if segmenter is None:
+                observation = observation_at(position, index)
+            timed_update(the_map, frame, observation, update_times)
+            done.append(index)
+        for stage, values in segment_times.stages.items():
+            times.stages[stage] = values
+    else:
+        for position, index, frame in _timed_frames(sequence, order, times,
+                                                    skip_bad=skip_bad, skipped=skipped,
+                                                    progress=progress):
+            observation = timed_predict(segmenter, frame, times) \
+                if segmenter is not None else observation_at(position, index)
+            timed_update(the_map, frame, observation, update_times)
+            done.append(index)
+    return time.perf_counter() - t_start
 
 
 def in_memory(frames: list[Frame], name: str = "frames") -> Sequence:

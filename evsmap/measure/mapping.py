@@ -111,7 +111,7 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
                  frames: int | None = None, out: str | PathLike[str] | None = None,
                  progress: Callable[[Any], Any] | None = None,
                  skip_bad: bool = False, file_format: str = "full", pipeline: bool = False,
-                 threads: dict[str, Any] | None = None) -> MappingRecord:
+                 threads: Any = None) -> MappingRecord:
     """Integrate the first ``frames`` frames of ``sequence`` (all by default) into ``updater``
     (``evsmap map``; :func:`evsmap.measure.engine.run_mapping` times it).
 
@@ -119,15 +119,16 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
     timed. The map is written to ``out`` (or a temporary file) and its byte size recorded.
     With ``skip_bad`` a frame that cannot be read is left out and listed in
     ``extra["skipped"]``; otherwise its error stops the run. With ``pipeline`` the stages of
-    consecutive frames overlap (the same map); ``threads`` (each stage's threads, as the caller
-    set them) is recorded under ``pipeline``. A network segmenter is warmed up on the first
-    frame before the timed loop.
+    consecutive frames overlap (the same map); ``threads`` (a
+    :class:`~evsmap.measure.pipelined.StageThreads`; default: the loop's own) sets each stage's
+    threads, recorded under ``pipeline``. A network segmenter is warmed up on the first frame
+    before the timed loop.
     """
     if file_format not in FILE_FORMATS:
         raise InvalidDataError(f"file format must be full or published, got {file_format!r}")
     warm = int(segmenter is not None and not is_oracle(segmenter))
     run = run_mapping(sequence, updater, segmenter=segmenter, frames=frames, skip_bad=skip_bad,
-                      progress=progress, pipeline=pipeline, warmup=warm,
+                      progress=progress, pipeline=pipeline, warmup=warm, threads=threads,
                       evaluators=[MapStatistics(), MapFiles(out=out, file_format=file_format)])
     extra: dict[str, Any] = {}
     if run.segmenter_not_run is not None:
@@ -143,7 +144,7 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         frames=run.frames, resolution=float(updater.resolution),
         update_ms=list(run.update_ms), segment_ms=list(run.segment_ms),
         hz_median=hz, hz_end_to_end=run.hz_wall, hz_segment_update=hz_segment_update,
-        wall_s=run.wall_s, pipeline={"enabled": run.pipelined, **(threads or {})},
+        wall_s=run.wall_s, pipeline={"enabled": run.pipelined, **run.threads},
         map_bytes=int(files.written_bytes), map_file=files.file,
         octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,
         leaves=stats.leaves, file_format=file_format,

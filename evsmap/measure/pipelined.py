@@ -18,10 +18,12 @@ under contention a stage's time is its wall time while sharing the cores, so the
 of a pipelined run are larger than the sequential run's; the figure the pipeline improves is the
 end-to-end rate, frames / wall time (``MappingPass.wall_s``).
 
-BLAS (numpy's OpenBLAS) runs with one thread during the loop (``threadpoolctl``): its threads
-busy-wait for cores the other stages hold, and a 307,200 x 3 by 3 x 3 product that takes 1 ms
-alone took 200 ms that way (the synthetic renderer's ray directions). One thread gives the same
-numbers (no reduction is split).
+The threads of each stage are set for the loop (:class:`StageThreads`, :data:`PIPELINED`):
+thread pools that busy-wait for a core are the enemy of overlap. numpy's OpenBLAS threads turned
+the synthetic renderer's 307,200 x 3 by 3 x 3 ray product from 1 ms into 200 ms while the other
+stages held the cores, and torch's two intra-op threads made the top-k's softmax denominator 3x
+slower than one; both run on one thread in the pipeline (the same numbers: no reduction of
+theirs is split across threads).
 
 A failure in a worker thread (a bad frame, a network error) is re-raised in the calling thread;
 leaving the loop early (an exception, Ctrl-C) stops both workers within one queue timeout.
@@ -33,6 +35,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,9 +46,6 @@ from evsmap.readers.skipping import SkippedFrames, read_frames
 DEPTH = 2
 """Frames each queue holds: enough to keep every stage busy, little memory (a 640x480 frame
 with its observation is about 4 MB)."""
-
-BLAS_THREADS = 1
-"""numpy's BLAS threads while the stages overlap."""
 
 _POLL_S = 0.05
 """How often a blocked worker looks at the stop flag."""
@@ -147,11 +147,8 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
             if not put((index, frame, observation)):
                 return
 
-    from threadpoolctl import threadpool_limits
-
     workers = [_Stage("evsmap-read", read, read_q, stop),
                _Stage("evsmap-segment", segment, seg_q, stop)]
-    blas = threadpool_limits(limits=BLAS_THREADS, user_api="blas")
     for w in workers:
         w.start()
     try:
@@ -169,20 +166,100 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
         stop.set()
         for w in workers:
             w.join(timeout=5.0)
-        blas.restore_original_limits()
 
 
-def stage_threads(segmenter: Segmenter | None) -> dict[str, Any]:
-    """The threads each stage runs with, as set now (recorded beside a rate): the reader's
-    (one Python thread; a reader's library may add its own), the segmenter's (torch's intra-op
-    threads, and ONNX Runtime's when that is its backend) and the update kernels' (numba)."""
-    import torch
+@dataclass(frozen=True)
+class StageThreads:
+    """The threads each stage of a mapping loop runs with (recorded beside its rates).
 
-    segment: dict[str, Any] = {"torch": torch.get_num_threads()}
-    if segmenter is not None and getattr(segmenter, "backend", None) == "onnxruntime":
-        segment["onnxruntime"] = torch.get_num_threads()
-    return {"read": 1, "segment": segment, "update": update_threads(),
-            "blas_when_pipelined": BLAS_THREADS}
+    Attributes:
+        segment: ONNX Runtime's intra-op threads for a network segmenter (``None``: torch's
+            thread count, the sequential default).
+        spinning: whether ONNX Runtime's idle workers busy-wait between operators (fast alone;
+            in a pipeline they take the cores the reader and the update need).
+        torch: torch's intra-op threads while the loop runs (a network's pre- and
+            post-processing; ``None``: unchanged).
+        update: the update kernels' threads (:mod:`evsmap.mapping.threads`; ``None``: its
+            default, ``EVSMAP_UPDATE_THREADS`` or all).
+        blas: numpy's BLAS threads while the loop runs (``None``: unchanged).
+    """
+
+    segment: int | None = None
+    spinning: bool = True
+    torch: int | None = None
+    update: int | None = None
+    blas: int | None = None
+
+    @contextmanager
+    def applied(self, segmenter: Segmenter | None) -> Iterator[dict[str, Any]]:
+        """Set every stage's threads, yield what is in use (:meth:`record`), restore."""
+        import torch
+
+        from evsmap.mapping import threads as update_threads_mod
+
+        old_torch = torch.get_num_threads()
+        old_update = update_threads_mod.update_threads()
+        blas = None
+        try:
+            if self.torch is not None:
+                torch.set_num_threads(self.torch)
+            if self.update is not None:
+                update_threads_mod.set_update_threads(self.update)
+            if self.blas is not None:
+                from threadpoolctl import threadpool_limits
+
+                blas = threadpool_limits(limits=self.blas, user_api="blas")
+            runtime = segmenter.set_threads(self.segment, spinning=self.spinning) \
+                if segmenter is not None else {}
+            yield self._record(runtime)
+        finally:
+            if blas is not None:
+                blas.restore_original_limits()
+            torch.set_num_threads(old_torch)
+            if self.update is not None:
+                update_threads_mod.set_update_threads(old_update)
+
+    def _record(self, runtime: dict) -> dict[str, Any]:
+        import torch
+
+        return {"read": 1, "segment": {"torch": torch.get_num_threads(), **runtime},
+                "update": update_threads(), "blas": self.blas}
+
+
+SEQUENTIAL = StageThreads()
+"""The sequential loop: every library's defaults (each stage alone has all the cores)."""
+
+PIPELINED = StageThreads(segment=None, spinning=False, torch=1, update=None, blas=1)
+"""The pipelined loop's threads, chosen for 2 cores (docs/realtime.md): ONNX Runtime keeps its
+threads but does not spin, torch's pre/post-processing and numpy's BLAS run on one thread each
+(their pools busy-wait for cores the other stages hold)."""
+
+
+def stage_threads_option(pairs: list[tuple[str, Any]], *, pipeline: bool) -> StageThreads:
+    """The loop's default threads (:data:`PIPELINED` or :data:`SEQUENTIAL`) with ``KEY=N``
+    pairs from the command line applied (``segment``, ``torch``, ``update``, ``blas``).
+
+    Raises:
+        InvalidDataError: an unknown key or a value that is not a positive integer.
+    """
+    from dataclasses import replace
+
+    from evsmap.errors import InvalidDataError
+
+    keys = ("segment", "torch", "update", "blas")
+    changes: dict[str, int] = {}
+    for key, value in pairs:
+        if key not in keys:
+            raise InvalidDataError(f"--stage-threads {key}: unknown stage (known: "
+                                   f"{', '.join(keys)})")
+        try:
+            n = int(str(value))
+        except ValueError:
+            n = 0
+        if n < 1 or str(n) != str(value).strip():
+            raise InvalidDataError(f"--stage-threads {key}={value}: a positive integer, please")
+        changes[key] = n
+    return replace(PIPELINED if pipeline else SEQUENTIAL, **changes)
 
 
 def update_threads() -> dict[str, Any]:

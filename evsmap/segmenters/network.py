@@ -170,6 +170,8 @@ class NetworkSegmenter(Segmenter):
             load_weights(self._module, weights)
         self._session = None
         self._int8_size: tuple[int, ...] | None = None
+        self._ort_threads: int | None = None
+        self._ort_spinning = True
         self.last_timings: dict[str, float] = {}
         """Milliseconds of the last :meth:`predict`'s stages: ``preprocess`` (normalise,
         resize), ``network`` (the forward pass on the backend), ``postprocess`` (upsampling,
@@ -301,10 +303,27 @@ class NetworkSegmenter(Segmenter):
             path = self._model_path(inputs)
             options = ort.SessionOptions()
             options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-            options.intra_op_num_threads = torch.get_num_threads()
+            options.intra_op_num_threads = self._ort_threads or torch.get_num_threads()
+            options.add_session_config_entry("session.intra_op.allow_spinning",
+                                             "1" if self._ort_spinning else "0")
             self._session = ort.InferenceSession(str(path), options,
                                                  providers=["CPUExecutionProvider"])
         return self._session
+
+    def set_threads(self, threads: int | None = None, *, spinning: bool = True) -> dict:
+        """ONNX Runtime's intra-op threads (``None``: torch's thread count, as before) and
+        spinning (``session.intra_op.allow_spinning``); the session is rebuilt on the next
+        call when either changes. The torch backend uses torch's own threads (returns ``{}``)."""
+        if threads is not None and (isinstance(threads, bool) or int(threads) < 1):
+            raise InvalidDataError(f"{self.name}: threads must be a positive integer, got "
+                                   f"{threads!r}")
+        if (threads, spinning) != (self._ort_threads, self._ort_spinning):
+            self._ort_threads, self._ort_spinning = threads, bool(spinning)
+            self._session = None
+        if self.backend != "onnxruntime":
+            return {}
+        return {"onnxruntime": self._ort_threads or torch.get_num_threads(),
+                "spinning": self._ort_spinning}
 
     def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
         if not 1 <= k <= self.num_classes:

@@ -11,9 +11,11 @@ import torch
 
 from evsmap.data import FrameList
 from evsmap.errors import EvsmapError
+from evsmap.interfaces import Segmenter
 from evsmap.measure.engine import StageTimes, run_mapping
 from evsmap.measure.evaluators import MapFiles
 from evsmap.measure.mapping import map_sequence
+from evsmap.measure.pipelined import PIPELINED, StageThreads
 from evsmap.registry import READERS, SEGMENTERS, UPDATERS
 
 
@@ -91,11 +93,11 @@ def test_skip_bad_leaves_the_frame_out_in_both_loops(tmp_path, seq):
     assert runs[True].bytes == runs[False].bytes
 
 
-class _Boom:
+class _Boom(Segmenter):
     """A segmenter that fails on its third frame."""
 
-    uses_semantics = True
-    last_timings: dict = {}
+    name = "boom"
+    module = None
 
     def __init__(self):
         self.oracle = SEGMENTERS.create("oracle")
@@ -133,11 +135,45 @@ def test_leaving_the_loop_early_stops_the_workers(seq):
 
 
 def test_map_sequence_records_the_wall_rate_and_the_stage_threads(seq):
-    from evsmap.measure.pipelined import stage_threads
-
     rec = map_sequence(seq, UPDATERS.create("multiclass-bayes", resolution=0.2),
                        updater_name="multiclass-bayes", segmenter=SEGMENTERS.create("oracle"),
-                       segmenter_name="oracle", pipeline=True, threads=stage_threads(None))
+                       segmenter_name="oracle", pipeline=True)
     assert rec.pipeline["enabled"] is True and rec.pipeline["update"]["numba"] >= 1
+    assert rec.pipeline["segment"]["torch"] == PIPELINED.torch and rec.pipeline["blas"] == 1
     assert rec.hz_end_to_end == pytest.approx(rec.frames / rec.wall_s)
     assert np.isfinite(rec.hz_segment_update)
+
+
+def test_stage_threads_are_set_for_the_loop_and_restored(seq):
+    from evsmap.mapping.threads import update_threads
+
+    torch_before, update_before = torch.get_num_threads(), update_threads()
+    torch.manual_seed(0)
+    net = SEGMENTERS.create("feagnet-v1", input_size=(64, 96), backend="onnxruntime")
+    run = run_mapping(seq, UPDATERS.create("multiclass-bayes", resolution=0.2), segmenter=net,
+                      pipeline=True, measure_memory=False, frames=2,
+                      threads=StageThreads(segment=1, spinning=False, torch=1, update=1, blas=1))
+    assert run.threads["segment"] == {"torch": 1, "onnxruntime": 1, "spinning": False}
+    assert run.threads["update"]["numba"] == 1 and run.threads["blas"] == 1
+    assert torch.get_num_threads() == torch_before and update_threads() == update_before
+    # the session was built with them
+    assert net._session.get_session_options().intra_op_num_threads == 1
+
+
+@pytest.mark.parametrize("pairs, message", [
+    ([("gpu", 2)], "unknown stage"), ([("update", 0)], "positive integer"),
+    ([("torch", "two")], "positive integer"), ([("segment", True)], "positive integer")])
+def test_bad_stage_threads_are_one_clear_error(pairs, message):
+    from evsmap.errors import InvalidDataError
+    from evsmap.measure.pipelined import stage_threads_option
+
+    with pytest.raises(InvalidDataError, match=message):
+        stage_threads_option(pairs, pipeline=True)
+
+
+def test_stage_threads_option_starts_from_the_loop_default():
+    from evsmap.measure.pipelined import SEQUENTIAL, stage_threads_option
+
+    assert stage_threads_option([], pipeline=True) == PIPELINED
+    assert stage_threads_option([("update", 1)], pipeline=False) == \
+        StageThreads(update=1) and SEQUENTIAL.update is None
