@@ -104,7 +104,13 @@ def run(args: argparse.Namespace) -> int:
         from evsmap.updaters.export import check_color_by
 
         ply_color = check_color_by(updater, args.ply_color)
-    sequence = open_sequence(args.sequence, args.reader, args.reader_option)
+    reader_options = list(args.reader_option)
+    if args.sequence == "synthetic" and args.reader in (None, "synthetic") and \
+            "render" not in dict(reader_options):
+        # the synthetic room is read as a recorded sequence, as Table IV reads it (rendered
+        # once into the cache; -r render=live renders each frame inside the timed loop)
+        reader_options.append(("render", "cached"))
+    sequence = open_sequence(args.sequence, args.reader, reader_options)
     if not sequence.has_poses:
         hint = sequence.meta.get("no_poses_hint")  # e.g. synthrooms: pick one room
         raise EvsmapError(

@@ -209,7 +209,8 @@ class StageThreads:
                 from threadpoolctl import threadpool_limits
 
                 blas = threadpool_limits(limits=self.blas, user_api="blas")
-            runtime = segmenter.set_threads(self.segment, spinning=self.spinning) \
+            # None: the thread count torch had before the loop (the sequential default)
+            runtime = segmenter.set_threads(self.segment or old_torch, spinning=self.spinning) \
                 if segmenter is not None else {}
             yield self._record(runtime)
         finally:

@@ -84,23 +84,14 @@ def mapping_runs(sequences: list[str], voxel_size: float,
 def open_mapping_sequence(ctx: RunContext, name: str):
     from evsmap.registry import READERS
     from evsmap.runner.context import MAPPING_SEQUENCES
-    from evsmap.synth.sequence import SyntheticSequence
 
     if name == "synthetic":
-        # rendered once per run into the cache (TUM layout, read back bit-identical), so the
-        # mapping runs, the segmentation cache and the timings all read the same frames cheaply
-        from evsmap.cache import cache_dir, source_digest
-        from evsmap.readers.tum import METADATA_FILE
-        from evsmap.synth.write import write_synthetic
+        # rendered once into the cache shared across runs (TUM layout, read back
+        # bit-identical, keyed by the options and the renderer's source), so the mapping runs,
+        # the segmentation cache and the timings all read the same frames cheaply
+        from evsmap.synth.cached import rendered_folder
 
-        o = ctx.synthetic
-        # the cache shared across runs, keyed by the options and the renderer's source
-        folder = cache_dir("sequences") / (
-            f"synthetic-{o['scene']}-s{o['seed']}-{o['width']}x{o['height']}-{o['frames']}f"
-            + ("-noise" if o.get("noise") else "") + f"-{source_digest('evsmap.synth')}")
-        if not (folder / METADATA_FILE).is_file():
-            write_synthetic(SyntheticSequence(**o), folder, overwrite=True)
-        return READERS.create("tum", path=str(folder))
+        return READERS.create("tum", path=str(rendered_folder(dict(ctx.synthetic))))
     path = ctx.dataset_path(name)
     if path is None:
         raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")

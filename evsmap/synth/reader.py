@@ -2,14 +2,28 @@
 
 from __future__ import annotations
 
+from evsmap.errors import EvsmapError
 from evsmap.registry import READERS
 from evsmap.synth.scene import DEFAULT_SCENE
 from evsmap.synth.sequence import SyntheticSequence
 
+RENDERS = ("live", "cached")
+
 
 @READERS.register("synthetic")
 def open_synthetic(*, scene: str = DEFAULT_SCENE, seed: int = 0, frames: int = 60,
-                   width: int = 640, height: int = 480, noise: bool = False) -> SyntheticSequence:
-    """Built-in procedural indoor room (NYUv2-40 labels) rendered with Open3D ray casting."""
-    return SyntheticSequence(scene=scene, seed=seed, frames=frames, width=width, height=height,
-                             noise=noise)
+                   width: int = 640, height: int = 480, noise: bool = False,
+                   render: str = "live"):
+    """Built-in procedural indoor room (NYUv2-40 labels) rendered with Open3D ray casting;
+    ``render=cached`` renders it once into the cache and reads the frames back like a recorded
+    sequence (bit-identical; what ``evsmap map`` and Table IV time)."""
+    options = dict(scene=scene, seed=seed, frames=frames, width=width, height=height,
+                   noise=noise)
+    if render not in RENDERS:
+        raise EvsmapError(f"synthetic option render must be one of {', '.join(RENDERS)}, got "
+                          f"{render!r}")
+    if render == "cached":
+        from evsmap.synth.cached import CachedSynthetic
+
+        return CachedSynthetic(**options)
+    return SyntheticSequence(**options)

@@ -1,0 +1,45 @@
+"""The cached rendering of the synthetic room reads back the frames rendered live, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evsmap.errors import EvsmapError
+from evsmap.registry import READERS
+from evsmap.synth.cached import CachedSynthetic, cache_folder
+
+
+@pytest.fixture()
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("EVSMAP_CACHE_DIR", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def test_cached_frames_are_the_live_frames(cache):
+    options = dict(frames=3, width=80, height=60)
+    live = READERS.create("synthetic", **options)
+    cached = READERS.create("synthetic", render="cached", **options)
+    assert isinstance(cached, CachedSynthetic) and cached.folder == cache_folder(options)
+    assert cached.folder.is_relative_to(cache)
+    assert cached.name == live.name and len(cached) == len(live) == 3
+    assert cached.class_names == live.class_names and cached.intrinsics == live.intrinsics
+    for i in range(3):
+        a, b = live.frame(i), cached.frame(i)
+        assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.labels, b.labels)
+        assert np.array_equal(a.depth, b.depth) and np.array_equal(a.pose, b.pose)
+    truth_live, truth_cached = live.ground_truth(0.2), cached.ground_truth(0.2)
+    assert np.array_equal(truth_live.keys, truth_cached.keys)
+
+
+def test_the_rendering_is_reused(cache):
+    first = CachedSynthetic(frames=2, width=80, height=60)
+    stamp = (first.folder / "rgb.txt").stat().st_mtime_ns
+    second = CachedSynthetic(frames=2, width=80, height=60)
+    assert second.folder == first.folder
+    assert (second.folder / "rgb.txt").stat().st_mtime_ns == stamp
+
+
+def test_an_unknown_render_mode_is_one_clear_error(cache):
+    with pytest.raises(EvsmapError, match="render must be one of live, cached"):
+        READERS.create("synthetic", render="gpu")
