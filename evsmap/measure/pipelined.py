@@ -230,7 +230,7 @@ class StageThreads:
 SEQUENTIAL = StageThreads()
 """The sequential loop: every library's defaults (each stage alone has all the cores)."""
 
-PIPELINED = StageThreads(segment=None, spinning=False, torch=1, update=None, blas=1)
+PIPELINED = StageThreads(segment=None, spinning=False, torch=1, update=1, blas=1)
 """The pipelined loop's threads, chosen for 2 cores (docs/realtime.md): ONNX Runtime keeps its
 threads but does not spin, torch's pre/post-processing and numpy's BLAS run on one thread each
 (their pools busy-wait for cores the other stages hold)."""
