@@ -8,8 +8,9 @@ size, ``extra/int8/<segmenter>@<WxH>``), in one process, on ONNX Runtime with th
   speed-up int8 / fp32. The int8 model is calibrated on 16 evenly spaced frames of the synthetic
   room (the built-in target data; no dataset is needed for a speed figure);
 * **top-1 agreement** of int8 with fp32 on held-out frames (another synthetic room): the share of
-  pixels whose class does not change. With untrained (seeded) weights this is a floor, not the
-  trained network's figure;
+  pixels whose class does not change. Untrained (seeded) networks get BatchNorm statistics of the
+  calibration frames first (with the initial ones every pixel has the same class and agreement
+  is a meaningless 100 %); their agreement is a floor, not a trained network's figure;
 * **mIoU fp32 and int8** wherever the run can score the network: its accuracy cells whose dataset
   and weights are here (int8 calibrated on 16 evenly spaced frames of the dataset's ``train``
   split, never the scored split), and proxy weights on synthrooms (``reproduce --train``).
@@ -67,11 +68,15 @@ def _synthetic(ctx: RunContext, *, scene: str, seed: int, frames: int):
 def _pair(spec: CellSpec, calibration, source: str, weights: str | None = None):
     """fp32 and int8 segmenters of ``spec``'s network (the same seeded or loaded weights)."""
     from evsmap.runner.network_cells import build_segmenter
+    from evsmap.segmenters.quantize import reestimate_batchnorm
 
     fp32 = build_segmenter(spec.segmenter, input_size=spec.input_size, backend="onnxruntime",
                            weights=weights)
+    if weights is None:  # untrained: BatchNorm statistics of real frames, or one class everywhere
+        reestimate_batchnorm(fp32.module, [fp32.preprocess(f) for f in calibration])
     int8 = build_segmenter(spec.segmenter, input_size=spec.input_size, backend="onnxruntime",
                            weights=weights)
+    int8.module.load_state_dict(fp32.module.state_dict())
     int8.calibrate(calibration, scheme=SCHEME, source=source)
     return fp32, int8
 
