@@ -106,16 +106,9 @@ def test_int8_over_fp32(benchmark, name, synthetic, held_out):
             t0 = time.perf_counter()
             sides[key].logits(inputs)
             times[key].append((time.perf_counter() - t0) * 1e3)
-    agreement = {}
-    for scheme, seg in int8.items():
-        same = total = 0
-        for f in held_out:
-            x = fp32.preprocess(f)
-            a = fp32.logits(x).argmax(1)
-            b = seg.logits(x).argmax(1)
-            same += int((a == b).sum())
-            total += a.numel()
-        agreement[scheme] = same / total
+    from evsmap.segmenters.quantize import top1_agreement
+
+    agreement = {scheme: top1_agreement(fp32, seg, held_out) for scheme, seg in int8.items()}
     benchmark.group = "int8 / fp32 (network, onnxruntime)"
     benchmark.pedantic(lambda: int8["u8s8"].logits(inputs), rounds=5, iterations=1,
                        warmup_rounds=1)

@@ -366,7 +366,7 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
         for position, index, frame, observation in pipelined_frames(
                 sequence, order, segmenter=segmenter, read_times=times,
                 segment_times=segment_times, timed_predict=timed_predict,
-                skip_bad=skip_bad, skipped=skipped, progress=progress):
+                timed_frames=_timed_frames, skip_bad=skip_bad, skipped=skipped, progress=progress):
             if segmenter is None:
                 observation = observation_at(position, index)
             timed_update(the_map, frame, observation, update_times)

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import queue
 import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -41,7 +40,7 @@ from typing import Any
 
 from evsmap.data import Frame, SemanticObservation, Sequence
 from evsmap.interfaces import Segmenter
-from evsmap.readers.skipping import SkippedFrames, read_frames
+from evsmap.readers.skipping import SkippedFrames
 
 DEPTH = 2
 """Frames each queue holds: enough to keep every stage busy, little memory (a 640x480 frame
@@ -98,6 +97,7 @@ def _get(q: queue.Queue, stop: threading.Event) -> Any:
 def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segmenter | None,
                      read_times: Any, segment_times: Any,
                      timed_predict: Callable[[Segmenter, Frame, Any], SemanticObservation],
+                     timed_frames: Callable[..., Iterator[tuple[int, int, Frame]]],
                      skip_bad: bool, skipped: SkippedFrames,
                      progress: Callable[[Any], Any] | None = None, depth: int = DEPTH
                      ) -> Iterator[tuple[int, int, Frame, SemanticObservation | None]]:
@@ -111,7 +111,8 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
         read_times, segment_times: :class:`~evsmap.measure.engine.StageTimes` the reader
             (``read``) and the segmentation thread (``timed_predict``'s stages) add to; each is
             written by one thread only.
-        timed_predict: the engine's timed prediction.
+        timed_predict, timed_frames: the engine's timed prediction and timed reading (passed
+            in: the engine imports this module).
         skip_bad, skipped: as for :func:`~evsmap.readers.skipping.read_frames` (``skipped`` is
             only written by the reader thread).
         progress: wraps the list of indices (it advances as frames are read).
@@ -122,15 +123,8 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
     seg_q: queue.Queue = queue.Queue(maxsize=depth)
 
     def read(put) -> None:
-        indices = order if progress is None else progress(order)
-        frames = iter(read_frames(sequence, indices, skip_bad=skip_bad, skipped=skipped))
-        while True:
-            t0 = time.perf_counter()
-            try:
-                index, frame = next(frames)
-            except StopIteration:
-                return
-            read_times.add("read", (time.perf_counter() - t0) * 1000.0)
+        for _, index, frame in timed_frames(sequence, order, read_times, skip_bad=skip_bad,
+                                            skipped=skipped, progress=progress):
             if not put((index, frame)):
                 return
 

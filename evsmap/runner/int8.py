@@ -101,17 +101,6 @@ def _speed(fp32, int8, frame, runs: int) -> dict[str, Any]:
     return out
 
 
-def _agreement(fp32, int8, frames) -> float:
-    same = total = 0
-    for f in frames:
-        x = fp32.preprocess(f)
-        a = fp32.logits(x).argmax(1)
-        b = int8.logits(x).argmax(1)
-        same += int((a == b).sum())
-        total += int(a.numel())
-    return same / total if total else float("nan")
-
-
 def _accuracy_specs(specs: list[CellSpec], speed: CellSpec) -> list[CellSpec]:
     return [s for s in specs if s.kind == "accuracy" and s.runnable and s.segmenter is not None
             and s.segmenter.spec == speed.segmenter.spec]
@@ -144,7 +133,7 @@ def _miou_pair(ctx: RunContext, spec: CellSpec) -> dict[str, Any]:
 
 def int8_record(ctx: RunContext, spec: CellSpec, specs: list[CellSpec]) -> CellRecord:
     """The int8 figures of ``spec``'s network (see the module docstring)."""
-    from evsmap.segmenters.quantize import evenly_spaced
+    from evsmap.segmenters.quantize import evenly_spaced, top1_agreement
 
     started, t0 = now(), time.perf_counter()
     base = dict(key=int8_key(spec), table="extra", row=spec.row, label=spec.label,
@@ -160,7 +149,7 @@ def int8_record(ctx: RunContext, spec: CellSpec, specs: list[CellSpec]) -> CellR
         fp32, int8 = _pair(spec, calibration, "synthetic living_room s0")
         values = _speed(fp32, int8, held_out[0], 3 if ctx.quick else ctx.speed_runs)
         values["speedup"] = values["fp32_ms"] / values["int8_ms"]
-        values["agreement"] = _agreement(fp32, int8, held_out)
+        values["agreement"] = top1_agreement(fp32, int8, held_out)
         details: dict[str, Any] = {"quantization": int8.precision_record(), "accuracy": []}
         for acc in _accuracy_specs(specs, spec):
             try:

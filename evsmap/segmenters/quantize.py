@@ -467,3 +467,17 @@ def reestimate_batchnorm(module: Any, inputs: Sequence[Sequence[Any]]) -> None:
         for m, momentum in zip(norms, saved, strict=True):
             m.momentum = momentum
         module.eval()
+
+
+def top1_agreement(reference: Any, other: Any, frames: Sequence[Any]) -> float:
+    """The share of pixels of ``frames`` where ``other``'s top class is ``reference``'s (two
+    segmenters with the same preprocessing, e.g. a network in fp32 and in int8), from the raw
+    logits of each; ``nan`` without frames."""
+    same = total = 0
+    for frame in frames:
+        inputs = reference.preprocess(frame)
+        a = reference.logits(inputs).argmax(1)
+        b = other.logits(inputs).argmax(1)
+        same += int((a == b).sum())
+        total += int(a.numel())
+    return same / total if total else float("nan")

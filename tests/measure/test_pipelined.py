@@ -119,14 +119,15 @@ def test_a_segmenter_error_reaches_the_caller(seq):
 
 
 def test_leaving_the_loop_early_stops_the_workers(seq):
-    from evsmap.measure.engine import timed_predict
+    from evsmap.measure.engine import _timed_frames, timed_predict
     from evsmap.measure.pipelined import pipelined_frames
     from evsmap.readers.skipping import SkippedFrames
 
     before = threading.active_count()
     frames = pipelined_frames(seq, list(range(len(seq))), segmenter=SEGMENTERS.create("oracle"),
                               read_times=StageTimes(), segment_times=StageTimes(),
-                              timed_predict=timed_predict, skip_bad=False,
+                              timed_predict=timed_predict, timed_frames=_timed_frames,
+                              skip_bad=False,
                               skipped=SkippedFrames())
     position, index, frame, observation = next(frames)
     assert (position, index) == (0, 0) and observation is not None
