@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from evsmap.measure.int8 import spread
 from evsmap.paths import REPO_ROOT
 
 NETWORKS = ("feagnet-v1", "feagnet-v2", "esanet-r34-nbt1d", "fchardnet-70")
@@ -47,11 +48,6 @@ def _save(section: str, key: str, value: dict) -> None:
     _RESULTS.setdefault(section, {})[key] = value
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "realtime.json").write_text(json.dumps(_RESULTS, indent=2, default=float))
-
-
-def _spread(ms: list[float]) -> dict:
-    q1, med, q3 = np.percentile(ms, [25, 50, 75])
-    return {"ms_median": float(med), "ms_iqr": float(q3 - q1), "runs": len(ms)}
 
 
 @pytest.fixture(scope="module")
@@ -86,33 +82,19 @@ def _network(name: str, **options):
 
 @pytest.mark.parametrize("name", NETWORKS)
 def test_int8_over_fp32(benchmark, name, synthetic, held_out):
-    from evsmap.segmenters.quantize import reestimate_batchnorm
-
-    calibration = _calibration(synthetic)
-    fp32 = _network(name)
-    reestimate_batchnorm(fp32.module, [fp32.preprocess(f) for f in calibration])
-    int8 = {s: _network(name) for s in SCHEMES}
-    for scheme, seg in int8.items():
-        seg.module.load_state_dict(fp32.module.state_dict())
-        seg.calibrate(calibration, scheme=scheme, source="synthetic living_room s0")
-    frame = held_out[0]
-    inputs = fp32.preprocess(frame)
-    sides = {"fp32": fp32, **{f"int8-{s}": seg for s, seg in int8.items()}}
-    for seg in sides.values():  # sessions built, first runs out of the way
-        seg.logits(inputs)
-    times: dict[str, list[float]] = {k: [] for k in sides}
-    for r in range(RUNS):
-        for key in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-            t0 = time.perf_counter()
-            sides[key].logits(inputs)
-            times[key].append((time.perf_counter() - t0) * 1e3)
+    from evsmap.measure.int8 import alternating_ms, int8_pair
     from evsmap.segmenters.quantize import top1_agreement
 
+    fp32, int8 = int8_pair(lambda: _network(name), _calibration(synthetic), schemes=SCHEMES,
+                           source="synthetic living_room s0")
+    sides = {"fp32": fp32, **{f"int8-{s}": seg for s, seg in int8.items()}}
+    times = alternating_ms(sides, held_out[0], RUNS)
     agreement = {scheme: top1_agreement(fp32, seg, held_out) for scheme, seg in int8.items()}
+    inputs = fp32.preprocess(held_out[0])
     benchmark.group = "int8 / fp32 (network, onnxruntime)"
     benchmark.pedantic(lambda: int8["u8s8"].logits(inputs), rounds=5, iterations=1,
                        warmup_rounds=1)
-    record = {"input": list(fp32.input_size), **{k: _spread(v) for k, v in times.items()}}
+    record = {"input": list(fp32.input_size), **{k: spread(v) for k, v in times.items()}}
     for scheme in SCHEMES:
         record[f"speedup_{scheme}"] = (record["fp32"]["ms_median"]
                                        / record[f"int8-{scheme}"]["ms_median"])
@@ -206,7 +188,7 @@ def test_multiclass_bayes_over_octomap_2cm(benchmark):
     benchmark.pedantic(mcb, rounds=1, iterations=1)
     from evsmap.mapping.threads import threading_info
 
-    record = {k: _spread(v) for k, v in times.items()}
+    record = {k: spread(v) for k, v in times.items()}
     record["ratio"] = record["octomap-cpp"]["ms_median"] / \
         record["multiclass-bayes"]["ms_median"]
     record["threads"] = threading_info()

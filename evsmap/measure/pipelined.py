@@ -218,7 +218,7 @@ class StageThreads:
         import torch
 
         return {"read": 1, "segment": {"torch": torch.get_num_threads(), **runtime},
-                "update": update_threads(), "blas": self.blas}
+                "update": _update_record(), "blas": self.blas}
 
 
 SEQUENTIAL = StageThreads()
@@ -257,7 +257,7 @@ def stage_threads_option(pairs: list[tuple[str, Any]], *, pipeline: bool) -> Sta
     return replace(PIPELINED if pipeline else SEQUENTIAL, **changes)
 
 
-def update_threads() -> dict[str, Any]:
+def _update_record() -> dict[str, Any]:
     """The update kernels' threads and numba threading layer
     (:func:`evsmap.mapping.threads.threading_info`)."""
     from evsmap.mapping.threads import threading_info

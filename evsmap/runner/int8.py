@@ -26,8 +26,6 @@ import time
 import traceback
 from typing import Any
 
-import numpy as np
-
 from evsmap.errors import EvsmapError
 from evsmap.runner.cell_base import now
 from evsmap.runner.context import RunContext
@@ -66,38 +64,25 @@ def _synthetic(ctx: RunContext, *, scene: str, seed: int, frames: int):
 
 
 def _pair(spec: CellSpec, calibration, source: str, weights: str | None = None):
-    """fp32 and int8 segmenters of ``spec``'s network (the same seeded or loaded weights)."""
+    """fp32 and int8 (:data:`SCHEME`) segmenters of ``spec``'s network, the same weights."""
+    from evsmap.measure.int8 import int8_pair
     from evsmap.runner.network_cells import build_segmenter
-    from evsmap.segmenters.quantize import reestimate_batchnorm
 
-    fp32 = build_segmenter(spec.segmenter, input_size=spec.input_size, backend="onnxruntime",
-                           weights=weights)
-    if weights is None:  # untrained: BatchNorm statistics of real frames, or one class everywhere
-        reestimate_batchnorm(fp32.module, [fp32.preprocess(f) for f in calibration])
-    int8 = build_segmenter(spec.segmenter, input_size=spec.input_size, backend="onnxruntime",
-                           weights=weights)
-    int8.module.load_state_dict(fp32.module.state_dict())
-    int8.calibrate(calibration, scheme=SCHEME, source=source)
-    return fp32, int8
+    fp32, int8 = int8_pair(
+        lambda: build_segmenter(spec.segmenter, input_size=spec.input_size,
+                                backend="onnxruntime", weights=weights),
+        calibration, schemes=(SCHEME,), source=source, untrained=weights is None)
+    return fp32, int8[SCHEME]
 
 
 def _speed(fp32, int8, frame, runs: int) -> dict[str, Any]:
-    inputs = fp32.preprocess(frame)
-    fp32.logits(inputs)
-    int8.logits(inputs)
-    ms: dict[str, list[float]] = {"fp32": [], "int8": []}
-    for r in range(runs):
-        for name, seg in ((("fp32", fp32), ("int8", int8)) if r % 2 == 0
-                          else (("int8", int8), ("fp32", fp32))):
-            t0 = time.perf_counter()
-            seg.logits(inputs)
-            ms[name].append((time.perf_counter() - t0) * 1e3)
-    out = {}
+    from evsmap.measure.int8 import alternating_ms, spread
+
+    ms = alternating_ms({"fp32": fp32, "int8": int8}, frame, runs)
+    out: dict[str, Any] = {"runs": runs}
     for name, values in ms.items():
-        q1, med, q3 = np.percentile(values, [25, 50, 75])
-        out[f"{name}_ms"] = float(med)
-        out[f"{name}_ms_iqr"] = float(q3 - q1)
-    out["runs"] = runs
+        s = spread(values)
+        out[f"{name}_ms"], out[f"{name}_ms_iqr"] = s["ms_median"], s["ms_iqr"]
     return out
 
 
@@ -109,24 +94,21 @@ def _accuracy_specs(specs: list[CellSpec], speed: CellSpec) -> list[CellSpec]:
 def _miou_pair(ctx: RunContext, spec: CellSpec) -> dict[str, Any]:
     """mIoU of the accuracy cell ``spec`` in fp32 and int8 (int8 calibrated on the dataset's
     train split)."""
-    from evsmap.measure.engine import run_segmentation
-    from evsmap.measure.evaluators import ConfusionEvaluator
     from evsmap.registry import READERS
+    from evsmap.runner.network_cells import score_segmenter
     from evsmap.segmenters.quantize import evenly_spaced
 
     dataset = spec.datasets[0]
     path = ctx.dataset_path(dataset)
     choice = ctx.weights_choice(spec.segmenter.spec, dataset)
     split = spec.split or "test"
-    limit = {"limit": 10} if ctx.quick else {}
     train = READERS.create(dataset, path=str(path), split="train")
     calibration = [train.frame(i) for i in evenly_spaced(len(train), CALIBRATION_FRAMES)]
     fp32, int8 = _pair(spec, calibration, f"{dataset} train", weights=str(choice.path))
-    scored = READERS.create(dataset, path=str(path), split=split, **limit)
     out = {"dataset": dataset, "split": split, "weights": choice.file}
     for name, seg in (("fp32", fp32), ("int8", int8)):
-        result = run_segmentation(scored, seg, evaluators=[ConfusionEvaluator(
-            num_classes=seg.num_classes, source=scored.name)]).results["confusion"]
+        result, _ = score_segmenter(seg, dataset, path, split, input_size=spec.input_size,
+                                    limit=10 if ctx.quick else None, what=spec.segmenter.spec)
         out[f"miou_{name}"] = float(result.miou)
     return out
 

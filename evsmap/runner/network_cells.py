@@ -141,13 +141,20 @@ def dataset_miou(component: Component, dataset: str, path: str | os.PathLike[str
     """``(result, frames)``: one dataset-level confusion matrix of ``component`` with
     ``weights`` over ``dataset``'s ``split`` (:class:`~evsmap.metrics.ConfusionMatrix`'s
     result; its ``miou`` over the classes present in ground truth or prediction)."""
+    segmenter = build_segmenter(component, input_size=input_size, backend=backend,
+                                weights=str(weights))
+    return score_segmenter(segmenter, dataset, path, split, input_size=input_size,
+                           limit=limit, what=component.spec)
+
+
+def score_segmenter(segmenter, dataset: str, path: str | os.PathLike[str], split: str, *,
+                    input_size=None, limit: int | None = None, what: str | None = None):
+    """:func:`dataset_miou` for a segmenter already built (e.g. calibrated to int8)."""
     from evsmap.datasets.lookup import dataset_classes
     from evsmap.measure.engine import run_segmentation
     from evsmap.measure.evaluators import ConfusionEvaluator
     from evsmap.registry import READERS
 
-    segmenter = build_segmenter(component, input_size=input_size, backend=backend,
-                                weights=str(weights))
     config: dict[str, Any] = {"path": str(path), "split": split}
     if input_size and "resolution" in READERS.get(dataset).parameters():
         config["resolution"] = f"{input_size[1]}x{input_size[0]}"
@@ -156,7 +163,7 @@ def dataset_miou(component: Component, dataset: str, path: str | os.PathLike[str
     sequence = READERS.create(dataset, **config)
     n_data, names = dataset_classes(sequence)
     if n_data is not None and n_data != segmenter.num_classes:
-        raise EvsmapError(f"{component.spec} predicts {segmenter.num_classes} classes, "
+        raise EvsmapError(f"{what or segmenter.name} predicts {segmenter.num_classes} classes, "
                           f"{dataset} has {n_data}")
     scored = run_segmentation(sequence, segmenter, evaluators=[
         ConfusionEvaluator(num_classes=segmenter.num_classes, class_names=names,

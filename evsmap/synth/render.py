@@ -58,10 +58,9 @@ class RoomRenderer:
         self._albedo = np.array([p.albedo for p in room.parts] + [(0, 0, 0)], dtype=np.float32)
         self._lights = np.asarray(room.lights, dtype=np.float32).reshape(-1, 3)
         self._rays: tuple[Intrinsics, np.ndarray] | None = None
-        self.threads = 1
-        """Embree threads of the ray casting (0: all cores). One: a synthetic sequence is read
-        by one reader thread beside the segmentation and the update (``evsmap map
-        --pipeline``); more threads only contend with them."""
+        self.threads = 0
+        """Embree threads of the ray casting (0: all cores, Open3D's default; the image does
+        not depend on it)."""
 
     def _camera_rays(self, intrinsics: Intrinsics) -> np.ndarray:
         """Camera-frame direction of each pixel's ray, (H, W, 3), computed once per camera."""
