@@ -23,6 +23,7 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params, randomise_norms
 
 PARAMS = 116_628_168  # anheidelonghu/ACNet ACNet_models_V1.py, ACNet(num_class=40), counted
 SIDE_PARAMS = 40 * (256 + 128 + 64 + 64) + 4 * 40  # training-only side classifiers
@@ -56,21 +57,6 @@ def model() -> ACNet:
     return acnet_r50(num_classes=40).eval()
 
 
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
-
-def _randomise_norms(model: torch.nn.Module, seed: int = 0) -> None:
-    """Non-trivial BatchNorm statistics and affine terms, so eval differs from identity."""
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                n = m.num_features
-                m.running_mean.copy_(torch.rand(n, generator=gen) - 0.5)
-                m.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.bias.copy_(torch.rand(n, generator=gen) - 0.5)
 
 
 def _inputs(batch: int = 1, size: tuple[int, int] = SMALL) -> tuple[torch.Tensor, torch.Tensor]:
@@ -82,12 +68,12 @@ def _inputs(batch: int = 1, size: tuple[int, int] = SMALL) -> tuple[torch.Tensor
 def test_registered_segmenter_has_the_official_count() -> None:
     segmenter = SEGMENTERS.create("acnet-r50")
     assert isinstance(segmenter.module, ACNet)
-    assert _params(segmenter.module) == PARAMS
+    assert count_params(segmenter.module) == PARAMS
     assert segmenter.num_classes == 40 and segmenter.uses_depth
     assert tuple(segmenter.default_size) == (480, 640)
     sun = SEGMENTERS.create("acnet-r50", dataset="sunrgbd")
     assert sun.num_classes == 37
-    assert _params(sun.module) == PARAMS - 3 * (64 * 4 + 1 + 256 + 128 + 64 + 64 + 4)
+    assert count_params(sun.module) == PARAMS - 3 * (64 * 4 + 1 + 256 + 128 + 64 + 64 + 4)
 
 
 def test_cards_reference_table1() -> None:
@@ -116,19 +102,19 @@ def test_branches_are_torchvision_resnet50s(model: ACNet) -> None:
 def test_parts_count(model: ACNet) -> None:
     resnet50 = 25_557_032 - (2048 * 1000 + 1000)  # torchvision's, without fc
     stem = 64 * 3 * 49 + 2 * 64
-    assert _params(model.rgb) == resnet50
-    assert _params(model.depth) == resnet50 - 64 * 2 * 49
-    assert _params(model.merge) == resnet50 - stem
-    assert _params(channel_attention(256)) == 256 * 256 + 256
+    assert count_params(model.rgb) == resnet50
+    assert count_params(model.depth) == resnet50 - 64 * 2 * 49
+    assert count_params(model.merge) == resnet50 - stem
+    assert count_params(channel_attention(256)) == 256 * 256 + 256
     # decoder block: 3x3 in->in + BN, 3x3 (transposed) in->planes + BN, shortcut
-    assert _params(TransBasicBlock(inplanes=64, planes=64)) == 2 * (9 * 64 * 64 + 128)
+    assert count_params(TransBasicBlock(inplanes=64, planes=64)) == 2 * (9 * 64 * 64 + 128)
     up = trans_stage(128, 64, 3, stride=2)
-    assert _params(up) == 2 * 2 * (9 * 128 * 128 + 256) + (9 * 128 * 128 + 256) + (
+    assert count_params(up) == 2 * 2 * (9 * 128 * 128 + 256) + (9 * 128 * 128 + 256) + (
         9 * 128 * 64 + 128) + (4 * 128 * 64 + 128)
-    assert _params(ACDecoder(num_classes=40)) == PARAMS - (
-        _params(model.rgb) + _params(model.depth) + _params(model.merge)
-        + _params(model.atten_rgb) + _params(model.atten_depth))
-    assert _params(model.decoder.side) == SIDE_PARAMS
+    assert count_params(ACDecoder(num_classes=40)) == PARAMS - (
+        count_params(model.rgb) + count_params(model.depth) + count_params(model.merge)
+        + count_params(model.atten_rgb) + count_params(model.atten_depth))
+    assert count_params(model.decoder.side) == SIDE_PARAMS
 
 
 def test_eval_output_is_input_sized_logits(model: ACNet) -> None:
@@ -170,7 +156,7 @@ def test_onnx_runtime_matches_torch(tmp_path) -> None:
     ort = require_module("onnxruntime")
     torch.manual_seed(0)
     model = acnet_r50(num_classes=40)
-    _randomise_norms(model)
+    randomise_norms(model)
     rgb, depth = _inputs()
     with torch.no_grad():
         expected = model.eval()(rgb, depth).numpy()

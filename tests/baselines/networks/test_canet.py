@@ -22,6 +22,7 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params
 
 PARAMS = 127_306_954  # zhouhao94/CANet CANet_models.py, ResNet-50, pcca5=True, 40 classes
 PAPER_PARAMS_M = 87.1  # Table I (and the CANet paper): the released code is larger
@@ -35,9 +36,6 @@ def model() -> CANet:
     torch.manual_seed(0)
     return canet_r50(num_classes=40).eval()
 
-
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
 
 
 def _randomise(model: torch.nn.Module, seed: int = 0) -> None:
@@ -65,13 +63,13 @@ def _inputs(batch: int = 1, size: tuple[int, int] = SMALL) -> tuple[torch.Tensor
 def test_registered_segmenter_has_the_official_count() -> None:
     segmenter = SEGMENTERS.create("canet-r50")
     assert isinstance(segmenter.module, CANet)
-    assert _params(segmenter.module) == PARAMS
+    assert count_params(segmenter.module) == PARAMS
     assert PARAMS / 1e6 - PAPER_PARAMS_M > 40  # the recorded mismatch with the paper
     assert segmenter.num_classes == 40 and segmenter.uses_depth
     assert tuple(segmenter.default_size) == (480, 640)
     sun = SEGMENTERS.create("canet-r50", dataset="sunrgbd")
     assert sun.num_classes == 37
-    assert _params(sun.module) == PARAMS - 3 * (64 * 4 + 1 + 256 + 128 + 64 + 64 + 4)
+    assert count_params(sun.module) == PARAMS - 3 * (64 * 4 + 1 + 256 + 128 + 64 + 64 + 4)
 
 
 def test_cards_reference_table1() -> None:
@@ -90,9 +88,9 @@ def test_parts_count(model: CANet) -> None:
     position = 2 * (512 * 64 + 64) + 512 * 512 + 512 + 1
     proj = 512 * 1024 + 2 * 1024
     fusion = 2 * (1024 * 256 + 256 + 2 * 256 + 256 * 2048 + 2048)
-    assert _params(model.position) == position
-    assert _params(model.channel) == 1
-    assert _params(model.fusion) == fusion
+    assert count_params(model.position) == position
+    assert count_params(model.channel) == 1
+    assert count_params(model.fusion) == fusion
     # CANet = ACNet without its ten channel-attention convs, plus the stage-4 co-attention
     acnet_attention = 2 * sum(c * c + c for c in (64, 256, 512, 1024, 2048))
     assert PARAMS == ACNET_PARAMS - acnet_attention + 2 * reduce + position + 1 + 2 * proj + (

@@ -15,33 +15,19 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params, randomise_norms
 
 PARAMS = 756_643  # Reagan1311/DABNet model/DABNet.py, DABNet(classes=19), counted
 ONNX_ATOL = 1e-4  # logits of order 1 (BN statistics randomised below)
 SMALL = (64, 128)
 
 
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
-
-def _randomise_norms(model: torch.nn.Module, seed: int = 0) -> None:
-    """Non-trivial BatchNorm statistics and affine terms, so eval differs from identity."""
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                n = m.num_features
-                m.running_mean.copy_(torch.rand(n, generator=gen) - 0.5)
-                m.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.bias.copy_(torch.rand(n, generator=gen) - 0.5)
 
 
 def test_registered_segmenter_has_the_official_count() -> None:
     segmenter = SEGMENTERS.create("dabnet")
     assert isinstance(segmenter.module, DABNet)
-    assert _params(segmenter.module) == PARAMS
+    assert count_params(segmenter.module) == PARAMS
     assert segmenter.num_classes == 19
     assert not segmenter.uses_depth
     assert tuple(segmenter.default_size) == (1024, 2048)
@@ -59,14 +45,14 @@ def test_card_references_table2() -> None:
 def test_parts_count() -> None:
     # a DAB module of 64 channels: BN-PReLU 3*64, 3x3 64->32 + BN-PReLU 3*32, four depth-wise
     # 3-tap convs of 32 channels each with BN-PReLU, BN-PReLU 3*32, 1x1 32->64
-    assert _params(DABModule(channels=64, dilation=2)) == (
+    assert count_params(DABModule(channels=64, dilation=2)) == (
         3 * 64 + 9 * 64 * 32 + 3 * 32 + 4 * (3 * 32 + 3 * 32) + 3 * 32 + 32 * 64)
     # widening: conv makes 64 - 35 channels, max-pool passes 35
-    assert _params(DownsamplingBlock(in_channels=35, out_channels=64)) == 9 * 35 * 29 + 3 * 64
+    assert count_params(DownsamplingBlock(in_channels=35, out_channels=64)) == 9 * 35 * 29 + 3 * 64
     # not widening: conv makes all 128, no pooling
-    assert _params(DownsamplingBlock(in_channels=131, out_channels=128)) == (
+    assert count_params(DownsamplingBlock(in_channels=131, out_channels=128)) == (
         9 * 131 * 128 + 3 * 128)
-    assert _params(dabnet(num_classes=11)) == PARAMS - 8 * 259
+    assert count_params(dabnet(num_classes=11)) == PARAMS - 8 * 259
 
 
 def test_parameter_names_are_the_releases() -> None:
@@ -118,7 +104,7 @@ def test_onnx_runtime_matches_torch(tmp_path) -> None:
     ort = require_module("onnxruntime")
     torch.manual_seed(0)
     model = dabnet(num_classes=19)
-    _randomise_norms(model)
+    randomise_norms(model)
     rgb = torch.randn(1, 3, *SMALL, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         expected = model.eval()(rgb).numpy()

@@ -23,6 +23,7 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params, randomise_norms
 
 # ydhongHIT/DDRNet segmentation/DDRNet_23_slim.py, DualResNet_imagenet() (augment=False), counted
 PARAMS = 5_695_987
@@ -34,26 +35,12 @@ CONV_MACS_SMALL = 141_942_784
 UNCOUNTED = {"aten::add", "aten::avg_pool2d"}
 
 
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
-
-def _randomise_norms(model: torch.nn.Module, seed: int = 0) -> None:
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                n = m.num_features
-                m.running_mean.copy_(torch.rand(n, generator=gen) - 0.5)
-                m.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.bias.copy_(torch.rand(n, generator=gen) - 0.5)
 
 
 def test_registered_segmenter_has_the_official_count() -> None:
     segmenter = SEGMENTERS.create("ddrnet-23-slim")
     assert isinstance(segmenter.module, DualResNet)
-    assert _params(segmenter.module) == PARAMS
+    assert count_params(segmenter.module) == PARAMS
     assert round(PARAMS / 1e6, 1) == 5.7  # Table II prints 5.7 M: the inference model
     assert segmenter.num_classes == 19 and not segmenter.uses_depth
     assert tuple(segmenter.default_size) == (1024, 2048)
@@ -69,17 +56,17 @@ def test_card_references_table2() -> None:
 
 def test_parts_count() -> None:
     # the auxiliary head the inference model leaves out: BN(64), 3x3 64->64, BN(64), 1x1 +bias
-    assert _params(SegHead(in_channels=64, channels=64, num_classes=19)) == AUX_HEAD
-    assert _params(BasicBlock(in_channels=32, channels=64, stride=2)) == (
+    assert count_params(SegHead(in_channels=64, channels=64, num_classes=19)) == AUX_HEAD
+    assert count_params(BasicBlock(in_channels=32, channels=64, stride=2)) == (
         9 * 32 * 64 + 9 * 64 * 64 + 2 * 2 * 64 + 32 * 64 + 2 * 64)
-    assert _params(Bottleneck(in_channels=64, channels=64)) == (
+    assert count_params(Bottleneck(in_channels=64, channels=64)) == (
         64 * 64 + 9 * 64 * 64 + 64 * 128 + 2 * (64 + 64 + 128) + 64 * 128 + 2 * 128)
     # scale0 + 4 scales (BN 512, 1x1 512->128), 4 processes (BN 128, 3x3), compression
     # (BN 640, 1x1 640->128), shortcut (BN 512, 1x1 512->128)
-    assert _params(DAPPM(in_channels=512, branch=128, out_channels=128)) == (
+    assert count_params(DAPPM(in_channels=512, branch=128, out_channels=128)) == (
         5 * (2 * 512 + 512 * 128) + 4 * (2 * 128 + 9 * 128 * 128)
         + 2 * 640 + 640 * 128 + 2 * 512 + 512 * 128)
-    assert _params(ddrnet_23_slim(num_classes=11)) == PARAMS - 8 * 65
+    assert count_params(ddrnet_23_slim(num_classes=11)) == PARAMS - 8 * 65
 
 
 def test_parameter_names_are_the_releases() -> None:
@@ -127,7 +114,7 @@ def test_onnx_runtime_matches_torch(tmp_path) -> None:
     ort = require_module("onnxruntime")
     torch.manual_seed(0)
     model = ddrnet_23_slim(num_classes=19)
-    _randomise_norms(model)
+    randomise_norms(model)
     rgb = torch.randn(1, 3, *SMALL, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         expected = model.eval()(rgb).numpy()

@@ -24,6 +24,7 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params, randomise_norms
 
 # ivankreso/LDN models/ldn_semseg.py build(depth=121, ...), 19 classes, aux_loss=0, counted:
 PARAMS = 10_314_515  # pretrained=1 (eval.py's default; the released weights; Table II 10.3 M)
@@ -36,20 +37,6 @@ SMALL = (64, 128)
 TABLE_1024 = (512, 1024)
 
 
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
-
-def _randomise_norms(model: torch.nn.Module, seed: int = 0) -> None:
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                n = m.num_features
-                m.running_mean.copy_(torch.rand(n, generator=gen) - 0.5)
-                m.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.bias.copy_(torch.rand(n, generator=gen) - 0.5)
 
 
 def _torchvision_densenet121_keys() -> list[str]:
@@ -72,16 +59,16 @@ def _torchvision_densenet121_keys() -> list[str]:
 def test_registered_segmenter_has_the_released_count() -> None:
     segmenter = SEGMENTERS.create("ldn121")
     assert isinstance(segmenter.module, LDN)
-    assert _params(segmenter.module) == PARAMS
+    assert count_params(segmenter.module) == PARAMS
     assert round(PARAMS / 1e6, 1) == 10.3  # Table II prints 10.3 M
-    assert _params(segmenter.module.backbone) == ENCODER
+    assert count_params(segmenter.module.backbone) == ENCODER
     assert segmenter.num_classes == 19 and not segmenter.uses_depth
     assert tuple(segmenter.default_size) == (1024, 2048)
 
 
 def test_from_scratch_configuration_count() -> None:
     model = ldn121_from_scratch()
-    assert _params(model) == PARAMS_FROM_SCRATCH
+    assert count_params(model) == PARAMS_FROM_SCRATCH
     # norm0 (BN 64) and the 1x1 bottlenecks of the layers fed 64, 96, 128 (block 1) and 128
     # (block 2) channels: norm1 + conv1 to 128, and norm2/conv2 over 128 instead of the input
     def saved(c: int) -> int:
@@ -109,16 +96,17 @@ def test_encoder_has_torchvision_names() -> None:
 
 def test_parts_count() -> None:
     # reduce BN(1024) + 1024x512, four levels BN(512) + 512x128, fuse BN(1024) + 1024x512
-    assert _params(SpatialPyramidPooling(in_channels=1024)) == (
+    assert count_params(SpatialPyramidPooling(in_channels=1024)) == (
         2 * 1024 + 1024 * 512 + 4 * (2 * 512 + 512 * 128) + 2 * 1024 + 1024 * 512)
     # skip 1024->512, blend 512->128 then 3x3 128->256, projection of the upsampled 512->256
-    assert _params(UpsampleResidual(in_channels=512, skip_channels=1024, out_channels=256)) == (
+    block = UpsampleResidual(in_channels=512, skip_channels=1024, out_channels=256)
+    assert count_params(block) == (
         2 * 1024 + 1024 * 512 + 2 * 512 + 512 * 128 + 2 * 128 + 9 * 128 * 256
         + 2 * 512 + 512 * 256)
     # the finest step: 128 wide, no bottleneck before the 3x3, no projection
-    assert _params(UpsampleResidual(in_channels=128, skip_channels=256, out_channels=128)) == (
+    assert count_params(UpsampleResidual(in_channels=128, skip_channels=256, out_channels=128)) == (
         2 * 256 + 256 * 128 + 2 * 128 + 9 * 128 * 128)
-    assert _params(ldn121(num_classes=11)) == PARAMS - 8 * 129
+    assert count_params(ldn121(num_classes=11)) == PARAMS - 8 * 129
 
 
 def test_output_is_input_sized_logits() -> None:
@@ -147,7 +135,7 @@ def test_onnx_runtime_matches_torch(tmp_path) -> None:
     ort = require_module("onnxruntime")
     torch.manual_seed(0)
     model = ldn121()
-    _randomise_norms(model)
+    randomise_norms(model)
     rgb = torch.randn(1, 3, *TABLE_1024, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         expected = model.eval()(rgb).numpy()

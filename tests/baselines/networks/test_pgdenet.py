@@ -24,6 +24,7 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params, randomise_norms
 
 # EnquanYang2022/PGDENet toolbox/models/BBSnetmodel/BBSnet.py, BBSNet(n_class=41): 107,402,898
 # in all, of which the eval forward pass uses 100,691,630
@@ -36,27 +37,12 @@ CONV_MACS_SMALL = 4_337_594_368
 FLOPS_SMALL = 4_350_186_496
 
 
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
 
 def _inputs(height: int, width: int, batch: int = 1, seed: int = 1):
     gen = torch.Generator().manual_seed(seed)
     return (torch.randn(batch, 3, height, width, generator=gen),
             torch.randn(batch, 1, height, width, generator=gen))
 
-
-def _randomise_norms(model: torch.nn.Module, seed: int = 0) -> None:
-    """Non-trivial BatchNorm statistics and affine terms, so eval differs from identity."""
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                n = m.num_features
-                m.running_mean.copy_(torch.rand(n, generator=gen) - 0.5)
-                m.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.bias.copy_(torch.rand(n, generator=gen) - 0.5)
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +61,7 @@ def test_registered_segmenter_has_the_official_count(dataset: str, classes: int)
     segmenter = SEGMENTERS.create("pgdenet-r34", dataset=dataset)
     assert isinstance(segmenter.module, PGDENet)
     # the 1x1 classifier has 64 weights and a bias per class
-    assert _params(segmenter.module) == PARAMS - (41 - classes) * 65
+    assert count_params(segmenter.module) == PARAMS - (41 - classes) * 65
     assert segmenter.num_classes == classes and segmenter.uses_depth
     assert segmenter.class_names[0] == "void" and len(segmenter.class_names) == classes
 
@@ -102,18 +88,18 @@ def test_parts_count() -> None:
     c = 64
     bcr = 2 * c  # a conv-BN-ReLU's BN
     # DA: ER (three 3x3 CxC + BN, 3x3 3C -> C, 1x1), 3x3 conv with bias, gate C -> C/16 -> C
-    assert _params(DepthEnhancement(c)) == (
+    assert count_params(DepthEnhancement(c)) == (
         3 * (9 * c * c + bcr) + 27 * c * c + bcr + c * c + bcr + 9 * c * c + c
         + c * 4 + 4 + 4 * c + c)
     # GCM: 1x1; 1x1 + 3x3; 1x1 + 5x5; 1x1; 3x3 4C -> C (all conv-BN-ReLU)
     gcm = 4 * c * c + 9 * c * c + 25 * c * c + 36 * c * c + 7 * bcr
-    assert _params(GlobalContext(c)) == gcm
+    assert count_params(GlobalContext(c)) == gcm
     cross = 4 * (3 * c * c + bcr) + 9 * c + 1
-    assert _params(TopFusion(c)) == cross + 2 * c * c + c + gcm
+    assert count_params(TopFusion(c)) == cross + 2 * c * c + c + gcm
     # guided: + 1x1 aux (2C -> C), two 3x3 gates, 3x3 projection of the 128-channel guide
-    assert _params(GuidedFusion(128, c)) == (
+    assert count_params(GuidedFusion(128, c)) == (
         cross + 2 * (2 * c * c + c) + 2 * (9 * c * c + c) + 9 * 128 * c + c + gcm)
-    assert _params(DecoderStep(128, 64)) == 9 * 128 * 128 + 2 * 128 + 128 * 64 + 2 * 64
+    assert count_params(DecoderStep(128, 64)) == 9 * 128 * 128 + 2 * 128 + 128 * 64 + 2 * 64
 
 
 def test_encoders_have_torchvision_resnet34_names(model: PGDENet) -> None:
@@ -178,7 +164,7 @@ def test_onnx_runtime_matches_torch(tmp_path) -> None:
     ort = require_module("onnxruntime")
     torch.manual_seed(0)
     net = pgdenet_r34(num_classes=41)
-    _randomise_norms(net)
+    randomise_norms(net)
     rgb, depth = _inputs(*SMALL)
     with torch.no_grad():
         expected = net.eval()(rgb, depth).numpy()

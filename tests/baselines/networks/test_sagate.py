@@ -24,6 +24,7 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params, randomise_norms
 
 # charlesCXK/RGBD_Semantic_Segmentation_PyTorch model/SA-Gate.nyu/network.py, DeepLab(40, ...)
 PARAMS = 110_875_160
@@ -42,21 +43,6 @@ def model() -> SAGateNet:
     return sagate_r101(num_classes=40).eval()
 
 
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
-
-def _randomise_norms(model: torch.nn.Module, seed: int = 0) -> None:
-    """Non-trivial BatchNorm statistics and affine terms, so eval differs from identity."""
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                n = m.num_features
-                m.running_mean.copy_(torch.rand(n, generator=gen) - 0.5)
-                m.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.bias.copy_(torch.rand(n, generator=gen) - 0.5)
 
 
 def _inputs(batch: int = 1, size: tuple[int, int] = SMALL) -> tuple[torch.Tensor, torch.Tensor]:
@@ -68,7 +54,7 @@ def _inputs(batch: int = 1, size: tuple[int, int] = SMALL) -> tuple[torch.Tensor
 def test_registered_segmenter_has_the_official_count() -> None:
     segmenter = SEGMENTERS.create("sagate-r101")
     assert isinstance(segmenter.module, SAGateNet)
-    assert _params(segmenter.module) == PARAMS
+    assert count_params(segmenter.module) == PARAMS
     assert segmenter.num_classes == 40 and segmenter.uses_depth
     assert tuple(segmenter.input_names) == ("rgb", "hha")
     assert tuple(segmenter.default_size) == (480, 640)
@@ -85,12 +71,12 @@ def test_card_references_table1() -> None:
 
 
 def test_encoders_share_their_shortcuts(model: SAGateNet) -> None:
-    assert _params(model.rgb) == RESNET101_DEEP
+    assert count_params(model.rgb) == RESNET101_DEEP
     shortcuts = 0
     for stage in ("layer1", "layer2", "layer3", "layer4"):
         rgb_block, hha_block = getattr(model.rgb, stage)[0], getattr(model.hha, stage)[0]
         assert hha_block.downsample is rgb_block.downsample
-        shortcuts += _params(rgb_block.downsample)
+        shortcuts += count_params(rgb_block.downsample)
     assert shortcuts == 2 * (256 + 512 + 1024 + 2048) + (
         128 * 256 + 256 * 512 + 512 * 1024 + 1024 * 2048)
     both = {id(p) for p in model.rgb.parameters()} | {id(p) for p in model.hha.parameters()}
@@ -114,19 +100,19 @@ def test_layer4_keeps_stride_16_with_rates_2_4_8(model: SAGateNet) -> None:
 def test_parts_count(model: SAGateNet) -> None:
     # the gate of 256 channels: two filters Linear(512, 16) + Linear(16, 256), two 1x1 gates
     gate = 2 * (512 * 16 + 16 + 16 * 256 + 256) + 2 * (512 + 1)
-    assert _params(SAGate(channels=256)) == gate
-    assert _params(FeatureSeparation(channels=2048)) == 4096 * 128 + 128 + 128 * 2048 + 2048
+    assert count_params(SAGate(channels=256)) == gate
+    assert count_params(FeatureSeparation(channels=2048)) == 4096 * 128 + 128 + 128 * 2048 + 2048
     aspp = 2048 * 256 * (1 + 3 * 9) + 2 * 1024 + 2048 * 256 + 2 * 256 + 1024 * 256 + (
         256 * 256) + 2 * 256
-    assert _params(ASPP(in_channels=2048, out_channels=256)) == aspp
+    assert count_params(ASPP(in_channels=2048, out_channels=256)) == aspp
     head = aspp + (256 * 48 + 96) + (9 * 304 * 256 + 512 + 9 * 256 * 256 + 512) + (
         256 * 40 + 40) + (9 * 2048 * 512 + 1024 + 512 * 40 + 40)
-    assert _params(DeepLabV3PlusHead(num_classes=40)) == head
-    assert _params(model.head) == head
-    assert PARAMS == _params(model.rgb) + _params(model.hha) - sum(
-        _params(getattr(model.rgb, s)[0].downsample) for s in ("layer1", "layer2", "layer3",
+    assert count_params(DeepLabV3PlusHead(num_classes=40)) == head
+    assert count_params(model.head) == head
+    assert PARAMS == count_params(model.rgb) + count_params(model.hha) - sum(
+        count_params(getattr(model.rgb, s)[0].downsample) for s in ("layer1", "layer2", "layer3",
                                                                "layer4")
-    ) + _params(model.gates) + head
+    ) + count_params(model.gates) + head
 
 
 def test_gate_fuses_by_a_per_pixel_softmax() -> None:
@@ -180,7 +166,7 @@ def test_onnx_runtime_matches_torch(tmp_path) -> None:
     ort = require_module("onnxruntime")
     torch.manual_seed(0)
     model = sagate_r101(num_classes=40)
-    _randomise_norms(model)
+    randomise_norms(model)
     rgb, hha = _inputs()
     with torch.no_grad():
         expected = model.eval()(rgb, hha).numpy()

@@ -26,6 +26,7 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params, randomise_norms
 
 # CyunXiong/SGACNet src/models/model.py, ResNet-34 NBt1D encoders restored, counted
 PARAMS_NYUV2 = 35_650_321
@@ -40,27 +41,12 @@ CONV_MACS_SMALL = 997_570_176
 FLOPS_SMALL = 1_004_628_736
 
 
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
 
 def _inputs(height: int, width: int, batch: int = 1, seed: int = 1):
     gen = torch.Generator().manual_seed(seed)
     return (torch.randn(batch, 3, height, width, generator=gen),
             torch.randn(batch, 1, height, width, generator=gen))
 
-
-def _randomise_norms(model: torch.nn.Module, seed: int = 0) -> None:
-    """Non-trivial BatchNorm statistics and affine terms, so eval differs from identity."""
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                n = m.num_features
-                m.running_mean.copy_(torch.rand(n, generator=gen) - 0.5)
-                m.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.bias.copy_(torch.rand(n, generator=gen) - 0.5)
 
 
 # --------------------------------------------------------------------------------------------
@@ -78,7 +64,7 @@ def test_registered_segmenter_has_the_official_count(dataset, classes, expected,
     segmenter = SEGMENTERS.create("sgacnet-r34", dataset=dataset)
     module = segmenter.module
     assert isinstance(module, SGACNet)
-    assert _params(module) == expected
+    assert count_params(module) == expected
     assert segmenter.num_classes == classes and segmenter.uses_depth
     # the context module of the dataset's official training script
     assert module.context.bins == bins and module.context.train_size == train_map
@@ -110,17 +96,17 @@ def test_unknown_dataset_is_a_user_error() -> None:
 
 def test_parts_count() -> None:
     # SPA of 64 channels: 3 level weights, 1x1 64->4 and 4->64 without bias, BN(4)
-    assert _params(SpatialPyramidAttention(64)) == 3 + 64 * 4 + 2 * 4 + 4 * 64
+    assert count_params(SpatialPyramidAttention(64)) == 3 + 64 * 4 + 2 * 4 + 4 * 64
     # fusion: the SE of the RGB branch (1x1 convs with bias) and the SPA of the depth branch
-    assert _params(SGACFusion(64)) == (64 * 4 + 4 + 4 * 64 + 64) + (3 + 2 * 64 * 4 + 8)
+    assert count_params(SGACFusion(64)) == (64 * 4 + 4 + 4 * 64 + 64) + (3 + 2 * 64 * 4 + 8)
     # BRU of 128 channels: BN-PReLU(128), 1x1 128->64 + BN-PReLU(64), two branches of four
     # depthwise 3-tap convs with BN-PReLU(64) and a 9-tap ECA, BN-PReLU(64), 1x1 64->128
-    assert _params(BRUBlock(128)) == (
+    assert count_params(BRUBlock(128)) == (
         3 * 128 + 128 * 64 + 3 * 64 + 2 * (4 * (3 * 64 + 3 * 64) + 9) + 3 * 64 + 64 * 128)
     # the encoders are ESANet's ResNet-34 NBt1D ones
     model = sgacnet_r34(num_classes=40)
     assert isinstance(model.encoder_rgb, ResNet34NBt1DEncoder)
-    assert _params(model.encoder_depth) == _params(model.encoder_rgb) - 7 * 7 * 2 * 64
+    assert count_params(model.encoder_depth) == count_params(model.encoder_rgb) - 7 * 7 * 2 * 64
 
 
 # --------------------------------------------------------------------------------------------
@@ -198,7 +184,7 @@ def test_onnx_runtime_matches_torch(tmp_path) -> None:
     ort = require_module("onnxruntime")
     torch.manual_seed(0)
     model = sgacnet_r34(num_classes=40)
-    _randomise_norms(model)
+    randomise_norms(model)
     rgb, depth = _inputs(*SMALL)
     with torch.no_grad():
         expected = model.eval()(rgb, depth).numpy()

@@ -22,6 +22,7 @@ from evsmap.measure import export_onnx
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS
 from evsmap.testing import require_module
+from tests.baselines.networks.helpers import count_params, randomise_norms
 
 # orsic/swiftnet configs/rn18_single_scale.py: SemsegModel(resnet18(efficient=False), 19), counted
 PARAMS = 11_797_071
@@ -33,20 +34,6 @@ SMALL = (64, 128)
 POOLABLE = (256, 512)
 
 
-def _params(module: torch.nn.Module) -> int:
-    return sum(p.numel() for p in module.parameters())
-
-
-def _randomise_norms(model: torch.nn.Module, seed: int = 0) -> None:
-    gen = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for m in model.modules():
-            if isinstance(m, torch.nn.BatchNorm2d):
-                n = m.num_features
-                m.running_mean.copy_(torch.rand(n, generator=gen) - 0.5)
-                m.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.weight.copy_(torch.rand(n, generator=gen) + 0.5)
-                m.bias.copy_(torch.rand(n, generator=gen) - 0.5)
 
 
 def _torchvision_resnet18_keys() -> list[str]:
@@ -67,8 +54,8 @@ def _torchvision_resnet18_keys() -> list[str]:
 def test_registered_segmenter_has_the_official_count() -> None:
     segmenter = SEGMENTERS.create("swiftnet-rn18")
     assert isinstance(segmenter.module, SwiftNet)
-    assert _params(segmenter.module) == PARAMS
-    assert _params(segmenter.module.backbone) == ENCODER
+    assert count_params(segmenter.module) == PARAMS
+    assert count_params(segmenter.module.backbone) == ENCODER
     assert segmenter.num_classes == 19 and not segmenter.uses_depth
     assert tuple(segmenter.default_size) == (1024, 2048)
 
@@ -90,13 +77,13 @@ def test_encoder_has_torchvision_names() -> None:
 
 def test_parts_count() -> None:
     # reduce BN(512) + 512x128, three levels BN(128) + 128x42, fuse BN(254) + 254x128
-    assert _params(SpatialPyramidPooling(in_channels=512)) == (
+    assert count_params(SpatialPyramidPooling(in_channels=512)) == (
         2 * 512 + 512 * 128 + 3 * (2 * 128 + 128 * 42) + 2 * 254 + 254 * 128)
     # skip BN(c) + cx128, blend BN(128) + 3x3 128x128
-    assert _params(UpsampleBlend(skip_channels=64)) == 2 * 64 + 64 * 128 + 256 + 9 * 128 * 128
+    assert count_params(UpsampleBlend(skip_channels=64)) == 2 * 64 + 64 * 128 + 256 + 9 * 128 * 128
     # classifier BN(128) + 128 x classes + bias
-    assert _params(swiftnet_rn18(num_classes=11)) == PARAMS - 8 * 129
-    assert _params(SwiftNet(num_classes=19, backbone=resnet18())) == PARAMS
+    assert count_params(swiftnet_rn18(num_classes=11)) == PARAMS - 8 * 129
+    assert count_params(SwiftNet(num_classes=19, backbone=resnet18())) == PARAMS
 
 
 def test_output_is_input_sized_logits() -> None:
@@ -123,7 +110,7 @@ def test_onnx_runtime_matches_torch(tmp_path) -> None:
     ort = require_module("onnxruntime")
     torch.manual_seed(0)
     model = swiftnet_rn18(num_classes=19)
-    _randomise_norms(model)
+    randomise_norms(model)
     rgb = torch.randn(1, 3, *POOLABLE, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         expected = model.eval()(rgb).numpy()
