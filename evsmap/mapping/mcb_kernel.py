@@ -329,8 +329,10 @@ def _local_voxels(classes, lodds, others, occupancy, voxels, start, counts, obs_
                 loc_lo[s] = np.float32(_clip(lo, min_lo, max_lo))
             else:
                 loc_lo[s] = np.float32(0.0)
-        # numpy's sum along a row: the first element plus the (sequential) sum of the others
-        total = kept[0] + ((0.0 + kept[1]) + kept[2])
+        # numpy's sum along a row of 3, as the reference takes it (local_map: out_p.sum(axis=1)):
+        # left to right (numpy 2.4 here; tests/baselines/test_classic_semantic_kernels.py checks
+        # that order). The earlier kept[0] + (kept[1] + kept[2]) differed in 17 % of rows.
+        total = (kept[0] + kept[1]) + kept[2]
         rest = max(1.0 - total, prob_min)
         loc_ot = np.float32(_clip(psi + math.log(rest), min_lo, max_lo))
 
