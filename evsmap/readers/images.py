@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
+from PIL import Image
 
 from evsmap.errors import DataFormatError
 
@@ -43,15 +45,46 @@ def check_rgbd_shapes(raw: np.ndarray, rgb: np.ndarray, intrinsics, *, depth_fil
             f"({intrinsics_source}) are for {intrinsics.width}x{intrinsics.height}")
 
 
+MAX_PIXELS = 1 << 26
+"""Largest image (width x height) the readers decode, about 67 megapixels (8192 x 8192): far
+above any RGB-D camera's, far below what a corrupt or hostile header can claim, so such a header
+is refused before anything is allocated."""
+
+# what a corrupt file makes PIL raise, besides OSError (UnidentifiedImageError, truncated data,
+# decoder errors): parsers raise SyntaxError, ValueError, struct.error, EOFError, IndexError,
+# KeyError or TypeError on malformed chunks, DecompressionBombError on a huge size
+_PIL_ERRORS = (OSError, SyntaxError, ValueError, EOFError, IndexError, KeyError, TypeError,
+               struct.error, zlib.error, Image.DecompressionBombError)
+
+
 def _open(path: Path) -> Image.Image:
+    """The decoded image at ``path``; a missing, corrupt or oversized file is a one-line
+    :class:`DataFormatError` naming it."""
     if not path.is_file():
         raise DataFormatError(f"{path}: file not found")
     try:
         img = Image.open(path)
+    except Image.DecompressionBombError:
+        raise DataFormatError(f"{path}: image header claims a size above {MAX_PIXELS} pixels "
+                              f"(corrupt file?)") from None
+    except _PIL_ERRORS as exc:
+        raise DataFormatError(f"{path}: unreadable or corrupt image ({_one_line(exc)})") from None
+    width, height = img.size
+    if width <= 0 or height <= 0 or width * height > MAX_PIXELS:
+        img.close()
+        raise DataFormatError(f"{path}: image header claims {width}x{height} pixels (at most "
+                              f"{MAX_PIXELS} read; corrupt file?)")
+    try:
         img.load()
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        raise DataFormatError(f"{path}: unreadable or corrupt image ({exc})") from None
+    except _PIL_ERRORS as exc:
+        img.close()
+        raise DataFormatError(f"{path}: unreadable or corrupt image ({_one_line(exc)})") from None
     return img
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text[:200] or type(exc).__name__
 
 
 def read_rgb(path: Path) -> np.ndarray:

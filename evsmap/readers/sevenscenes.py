@@ -55,6 +55,9 @@ FRAME_RATE = 30.0
 #: Largest ``|R R^T - I|`` of a pose file's rotation block that is made orthonormal rather than
 #: refused (see :func:`read_pose`).
 ROTATION_TOLERANCE = 1e-2
+#: Largest frame number accepted in a file name (frame numbers become int64 and, divided by the
+#: frame rate, exact float64 time stamps).
+MAX_FRAME_NUMBER = 2**53
 
 _FRAME_FILE = re.compile(r"^frame-(\d+)\.(color\.png|color\.jpg|depth\.png|pose\.txt)$")
 _SEQ_DIR = re.compile(r"^seq-(\d+)$")
@@ -74,7 +77,11 @@ def _scan(folder: Path) -> dict[int, dict[str, str]]:
     for name in names:
         m = _FRAME_FILE.match(name)
         if m:
-            frames.setdefault(int(m.group(1)), {})[m.group(2)] = name
+            number = int(m.group(1))  # a file name is at most 255 characters
+            if number > MAX_FRAME_NUMBER:
+                raise DataFormatError(f"{folder / name}: frame number out of range (at most "
+                                      f"{MAX_FRAME_NUMBER})")
+            frames.setdefault(number, {})[m.group(2)] = name
     return frames
 
 
@@ -304,7 +311,8 @@ class SevenScenesSequence(Sequence):
             try:
                 with Image.open(f) as img:
                     width, height = img.size
-            except (OSError, ValueError):
+            except (OSError, ValueError, SyntaxError, EOFError, IndexError, KeyError, TypeError,
+                    Image.DecompressionBombError):
                 pass  # frame() reports the bad image itself
         try:
             return read_intrinsics_file(k_file, width, height), INTRINSICS_FILE

@@ -93,6 +93,49 @@ def _pose_rows(path: Path, rows: list[list[str]]) -> np.ndarray:
     return out
 
 
+def _interpolate(path: Path, gt: np.ndarray, ts: np.ndarray) -> np.ndarray:
+    """The ground-truth poses (sorted N x 8 rows of ``path``) at the times ``ts``; values so large
+    that interpolating them overflows are an error naming ``path``."""
+    if not len(ts):
+        return np.zeros((0, 4, 4))
+    with np.errstate(all="ignore"):
+        try:
+            poses = interpolate_poses(gt[:, 0], gt[:, 1:4], gt[:, 4:8], ts)
+        except (EvsmapError, ValueError) as exc:
+            raise DataFormatError(f"{path}: cannot interpolate the poses ({exc})") from None
+    bad = ~np.isfinite(poses).all(axis=(1, 2))
+    if bad.any():
+        raise DataFormatError(f"{path}: the pose interpolated at time {ts[bad][0]!r} is not "
+                              f"finite (values too large)")
+    return poses
+
+
+def _read_metadata(path: Path) -> dict:
+    """``evsmap.json`` as a dict; unreadable, not JSON or not an object is an error naming it."""
+    try:
+        info = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:  # ValueError: JSONDecodeError, UnicodeDecodeError
+        raise DataFormatError(f"{path}: not valid JSON ({_one_line(exc)})") from None
+    except RecursionError:
+        raise DataFormatError(f"{path}: not valid JSON (nested too deeply)") from None
+    if not isinstance(info, dict):
+        raise DataFormatError(f"{path}: expected a JSON object, got {type(info).__name__}")
+    return info
+
+
+def _class_names(path: Path, names: object) -> tuple[str, ...]:
+    """``evsmap.json``'s ``classes``: a list of strings (or absent)."""
+    if names is None:
+        return ()
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise DataFormatError(f"{path}: 'classes' must be a list of class names")
+    return tuple(names)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:200]
+
+
 def _candidates(a: np.ndarray, b: np.ndarray, max_difference: float):
     """For each a_i, the indices j of b (into the sorted order) with |a_i - b_j| < tolerance."""
     order_b = np.argsort(b, kind="stable")
@@ -201,14 +244,10 @@ class TumSequence(Sequence):
         meta: dict = {"layout": "tum", "path": str(root)}
         meta_file = root / METADATA_FILE
         if meta_file.is_file():
-            try:
-                info = json.loads(meta_file.read_text())
-            except (OSError, json.JSONDecodeError) as exc:
-                raise DataFormatError(f"{meta_file}: not valid JSON ({exc})") from None
+            info = _read_metadata(meta_file)
             if info.get("format") == "evsmap-synthetic":
                 meta.update(layout="synthetic", synthetic=info)
-                names = info.get("classes") or ()
-                self.class_names = tuple(str(n) for n in names)
+                self.class_names = _class_names(meta_file, info.get("classes"))
                 self.num_classes = len(self.class_names) or None
         intr, source = self._intrinsics(root, camera, intrinsics)
         meta["intrinsics_source"] = source
@@ -244,8 +283,7 @@ class TumSequence(Sequence):
         dropped["no_pose"] = int((~ok).sum())
         pairs = [p for p, keep in zip(pairs, ok, strict=True) if keep]
         ts = ts[ok]
-        self.poses = interpolate_poses(gt_t, gt_arr[:, 1:4], gt_arr[:, 4:8], ts) if len(ts) else \
-            np.zeros((0, 4, 4))
+        self.poses = _interpolate(gt_path, gt_arr, ts)
         self.timestamps = ts
         self.depth_files = [root / depth[i][1] for i, _ in pairs]
         self.rgb_files = [root / rgb[j][1] for _, j in pairs]
