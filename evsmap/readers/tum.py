@@ -243,15 +243,18 @@ class TumSequence(Sequence):
         self.depth_scale = float(depth_scale)
         meta: dict = {"layout": "tum", "path": str(root)}
         meta_file = root / METADATA_FILE
+        classes: tuple[str, ...] = ()
         if meta_file.is_file():
             info = _read_metadata(meta_file)
             if info.get("format") == "evsmap-synthetic":
                 meta.update(layout="synthetic", synthetic=info)
-                self.class_names = _class_names(meta_file, info.get("classes"))
-                self.num_classes = len(self.class_names) or None
+                classes = _class_names(meta_file, info.get("classes"))
         intr, source = self._intrinsics(root, camera, intrinsics)
         meta["intrinsics_source"] = source
         super().__init__(root.resolve().name, intr, meta)
+        if classes:  # after __init__: an empty list reads meta, which __init__ sets
+            self.class_names = classes
+            self.num_classes = len(classes)
 
         rgb = read_list(root / "rgb.txt", 2)
         depth = read_list(root / "depth.txt", 2)
