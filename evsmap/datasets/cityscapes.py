@@ -186,10 +186,8 @@ class CityscapesSequence(SegmentationSequence):
         self.labels_missing: set[str] = set()
         for s in wanted:
             if self.prepared is not None:
-                rows = read_id_list(root / f"{s}.txt")
-                frames = sorted(tuple(r.split("/", 1)) for r in rows if "/" in r)
-                if len(frames) != len(rows):
-                    raise DataFormatError(f"{root / f'{s}.txt'}: expected '<city>/<stem>' lines")
+                rows = read_id_list(root / f"{s}.txt", parts=2)
+                frames = sorted(tuple(r.split("/", 1)) for r in rows)
                 require_dir(root / LABEL_DIR / s, f"prepared {LABEL_DIR}/{s}")
                 require_dir(source / RGB_DIR / s, f"Cityscapes {RGB_DIR}/{s}")
             else:
@@ -204,6 +202,12 @@ class CityscapesSequence(SegmentationSequence):
         self.entries = apply_limit(self.entries, limit)
         if not self.entries:
             raise DataFormatError(f"{root}: no frames in split {split!r}")
+        if self.prepared is not None:
+            for entry in self.entries:
+                if not self._path(RGB_DIR, entry, RGB_SUFFIX).is_file():
+                    raise DataFormatError(
+                        f"{root / f'{entry[0]}.txt'}: frame {entry[1]}/{entry[2]} has no image "
+                        f"{self._path(RGB_DIR, entry, RGB_SUFFIX)} in the Cityscapes tree")
         first = self.entries[0]
         try:
             _, camera = read_camera(self._path(CAMERA_DIR, first, CAMERA_SUFFIX))

@@ -84,8 +84,32 @@ def require_dir(path: Path, what: str) -> Path:
     return path
 
 
-def read_id_list(path: Path) -> list[str]:
-    """One id per line (blank lines and ``#`` comments skipped), in file order, no duplicates."""
+MAX_ID_PART = 200
+"""The longest part of a frame id (UTF-8 bytes): file names hold a suffix besides it, within
+the usual 255-byte limit."""
+
+
+def _utf8_len(text: str) -> int:
+    return len(text.encode("utf-8", "replace"))
+
+
+def check_frame_id(item: str, where: str, parts: int = 1) -> str:
+    """``item`` if it can name a frame's files: ``parts`` non-empty ``/``-separated parts, none of
+    them ``.`` or ``..``, no backslash or control character; else a one-line error."""
+    pieces = item.split("/")
+    bad_piece = any(p in ("", ".", "..") or _utf8_len(p) > MAX_ID_PART for p in pieces)
+    if len(pieces) != parts or bad_piece or "\\" in item \
+            or any(ord(c) < 32 or ord(c) == 127 for c in item):
+        shape = "one name" if parts == 1 else f"{parts} names joined by '/'"
+        raise DataFormatError(f"{where}: id {item!r} cannot name a frame's files (expected "
+                              f"{shape}, none empty, '.', '..' or over {MAX_ID_PART} "
+                              "bytes, without '\\' or control characters)")
+    return item
+
+
+def read_id_list(path: Path, parts: int = 1) -> list[str]:
+    """One id per line (blank lines and ``#`` comments skipped), in file order, no duplicates;
+    each id names files: ``parts`` parts separated by ``/`` (:func:`check_frame_id`)."""
     try:
         text = path.read_text()
     except FileNotFoundError:
@@ -100,13 +124,12 @@ def read_id_list(path: Path) -> list[str]:
             continue
         if len(item.split()) != 1:
             raise DataFormatError(f"{path}:{number}: expected one id per line, got {line!r}")
+        check_frame_id(item, f"{path}:{number}", parts)
         if item in seen:
             raise DataFormatError(f"{path}:{number}: id {item} listed twice")
         seen.add(item)
         ids.append(item)
     return ids
-
-
 
 
 def read_manifest(folder: Path) -> dict | None:
@@ -157,6 +180,63 @@ def is_hdf5(path: Path) -> bool:
         return False
 
 
+MAX_MAT_BYTES = 1 << 30
+"""The largest MATLAB variable (or HDF5 dataset) read whole, in bytes: more than any file of the
+official releases holds in one variable it reads whole (the NYUv2 images are read frame by
+frame), far less than what a damaged header can claim."""
+
+H5_ERRORS: tuple[type[Exception], ...] = (OSError, RuntimeError, KeyError, ValueError,
+                                          TypeError, AttributeError)
+"""What h5py raises on a damaged or unexpected HDF5 file (broken addresses, links, types)."""
+
+MAT_ERRORS: tuple[type[Exception], ...] = (ValueError, TypeError, OSError, NotImplementedError,
+                                           IndexError, KeyError, AttributeError, OverflowError,
+                                           EOFError)
+"""What scipy.io.loadmat raises on a damaged MATLAB v5 file (besides its MatReadError)."""
+
+
+def loadmat_checked(path: Path, **options: Any) -> dict:
+    """``scipy.io.loadmat(path, **options)``; a damaged file is a one-line error naming it."""
+    import zlib
+
+    import scipy.io
+    from scipy.io.matlab import MatReadError
+
+    try:
+        return scipy.io.loadmat(str(path), **options)
+    except (MatReadError, zlib.error, *MAT_ERRORS) as exc:
+        raise DataFormatError(f"{path}: not a readable MATLAB file ({_one_line(exc)})") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def check_h5_size(path: Path, obj: object, what: str) -> None:
+    """``obj`` (an HDF5 dataset) holds at most :data:`MAX_MAT_BYTES`; else a one-line error."""
+    shape = getattr(obj, "shape", None) or ()
+    itemsize = getattr(getattr(obj, "dtype", None), "itemsize", 1) or 1
+    total = itemsize
+    for n in shape:
+        total *= int(n)
+    if total > MAX_MAT_BYTES:
+        raise DataFormatError(f"{path}: {what} claims shape {tuple(shape)} "
+                              f"({total / 1024**3:.3g} GiB): not a variable of this dataset")
+
+
+def read_h5_array(path: Path, obj: object, what: str) -> np.ndarray:
+    """The whole of an HDF5 dataset ``obj`` as an array (size checked first)."""
+    import h5py
+
+    if not isinstance(obj, h5py.Dataset):
+        raise DataFormatError(f"{path}: {what} is not an array (an HDF5 {type(obj).__name__})")
+    check_h5_size(path, obj, what)
+    try:
+        return np.asarray(obj[()])
+    except H5_ERRORS as exc:
+        raise DataFormatError(f"{path}: cannot read {what} ({_one_line(exc)})") from None
+
+
 def load_mat(path: Path, keys: Iterable[str], what: str) -> dict[str, np.ndarray]:
     """``keys`` of a MATLAB file, v5/v7 (scipy) or v7.3 (HDF5; arrays transposed back to MATLAB's
     row/column order). Missing file, unreadable file and missing keys are one-line errors."""
@@ -171,16 +251,12 @@ def load_mat(path: Path, keys: Iterable[str], what: str) -> dict[str, np.ndarray
                 for key in keys:
                     if key not in f:
                         raise DataFormatError(f"{path}: has no variable {key!r} ({what})")
-                    out[key] = np.asarray(f[key][()]).T
+                    out[key] = read_h5_array(path, f[key], f"variable {key!r}").T
                 return out
-        except OSError as exc:
-            raise DataFormatError(f"{path}: unreadable MATLAB v7.3 file ({exc})") from None
-    import scipy.io
-
-    try:
-        data = scipy.io.loadmat(str(path), variable_names=keys)
-    except (ValueError, TypeError, OSError, NotImplementedError) as exc:
-        raise DataFormatError(f"{path}: not a readable MATLAB file ({exc})") from None
+        except H5_ERRORS as exc:
+            raise DataFormatError(f"{path}: unreadable MATLAB v7.3 file ({_one_line(exc)})") \
+                from None
+    data = loadmat_checked(path, variable_names=keys)
     for key in keys:
         if key not in data:
             raise DataFormatError(f"{path}: has no variable {key!r} ({what})")

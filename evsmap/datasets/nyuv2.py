@@ -29,6 +29,7 @@ import numpy as np
 from evsmap.classes import NYU40_CLASSES, palette
 from evsmap.data import VOID, Intrinsics
 from evsmap.datasets.common import (
+    H5_ERRORS,
     Progress,
     SegmentationSequence,
     apply_limit,
@@ -108,6 +109,8 @@ class NYUv2Sequence(SegmentationSequence):
                     f"{split_file}: split file not found (this folder has no NYUv2 splits: use "
                     f"split 'all', or prepare the dataset with `evsmap datasets prepare nyuv2`)")
             ids = _sort_ids(read_id_list(split_file))
+            if not ids:
+                raise DataFormatError(f"{split_file}: lists no frames")
         self.root = root
         super().__init__(
             root.resolve().name, NYUV2_INTRINSICS, layout=NAME, split=split,
@@ -181,15 +184,37 @@ def _split_indices(path: Path, count: int) -> dict[str, np.ndarray]:
 
 
 def _check_dataset(f, path: Path, key: str, shape: tuple) -> object:
-    if key not in f:
+    import h5py
+
+    try:
+        ds = f[key] if key in f else None
+    except H5_ERRORS as exc:
+        raise DataFormatError(f"{path}: unreadable HDF5 file ({exc})") from None
+    if ds is None:
         raise DataFormatError(f"{path}: has no dataset {key!r} (expected the labelled NYUv2 set)")
-    ds = f[key]
+    if not isinstance(ds, h5py.Dataset) or ds.dtype.kind not in "uif":
+        raise DataFormatError(f"{path}: {key!r} is not a numeric array (expected the labelled "
+                              "NYUv2 set)")
     if ds.ndim != len(shape) or any(e is not None and e != s for e, s in zip(shape, ds.shape,
                                                                               strict=True)):
         want = " x ".join("N" if e is None else str(e) for e in shape)
         raise DataFormatError(f"{path}: dataset {key!r} has shape {ds.shape}, expected {want} "
                               "(MATLAB v7.3 arrays appear transposed in HDF5)")
     return ds
+
+
+def _frame_labels(path: Path, index: int, labels: np.ndarray) -> np.ndarray:
+    """Frame ``index``'s source labels as ``int64`` 0..894, checked."""
+    if not labels.size:
+        return labels.astype(np.int64)
+    if not np.all(np.isfinite(labels)) or np.any(labels != np.round(labels)):
+        raise DataFormatError(f"{path}: labels of frame {index} hold non-integer values "
+                              f"(expected 0..{NUM_SOURCE_CLASSES})")
+    if labels.min() < 0 or labels.max() > NUM_SOURCE_CLASSES:
+        value = labels.min() if labels.min() < 0 else labels.max()
+        raise DataFormatError(f"{path}: labels of frame {index} hold value {value} outside "
+                              f"0..{NUM_SOURCE_CLASSES}")
+    return labels.astype(np.int64)
 
 
 def prepare_nyuv2(source_dir: str | Path, out_dir: str | Path, *, limit: int | None = None,
@@ -216,7 +241,7 @@ def prepare_nyuv2(source_dir: str | Path, out_dir: str | Path, *, limit: int | N
     out = Path(out_dir)
     try:
         f = h5py.File(labelled, "r")
-    except OSError as exc:
+    except H5_ERRORS as exc:
         raise DataFormatError(f"{labelled}: unreadable HDF5 file ({exc})") from None
     with f, staging_folder(out, source=src, overwrite=overwrite) as stage:
         images = _check_dataset(f, labelled, "images", (None, 3, WIDTH, HEIGHT))
@@ -235,14 +260,9 @@ def prepare_nyuv2(source_dir: str | Path, out_dir: str | Path, *, limit: int | N
             try:
                 rgb = np.ascontiguousarray(np.asarray(images[k], dtype=np.uint8).transpose(2, 1, 0))
                 metres = np.asarray(depths[k], dtype=np.float64).T
-                source_labels = np.asarray(labels[k]).T
-            except OSError as exc:
+                source_labels = _frame_labels(labelled, index, np.asarray(labels[k]).T)
+            except H5_ERRORS as exc:
                 raise DataFormatError(f"{labelled}: cannot read frame {index} ({exc})") from None
-            if source_labels.size and (source_labels.min() < 0
-                                       or source_labels.max() > NUM_SOURCE_CLASSES):
-                raise DataFormatError(
-                    f"{labelled}: labels of frame {index} hold value {source_labels.max()} "
-                    f"outside 0..{NUM_SOURCE_CLASSES}")
             ok = np.isfinite(metres) & (metres > 0)
             q = np.where(ok, np.round(np.where(ok, metres, 0.0) * DEPTH_SCALE), 0.0)
             high = q > 65535
@@ -250,7 +270,7 @@ def prepare_nyuv2(source_dir: str | Path, out_dir: str | Path, *, limit: int | N
             depth = np.where(high, 0, q).astype(np.uint16)
             write_png(stage / RGB_DIR / f"{fid}.png", rgb)
             write_png(stage / DEPTH_DIR / f"{fid}.png", depth)
-            write_png(stage / LABEL_DIR / f"{fid}.png", lut[source_labels.astype(np.int64)])
+            write_png(stage / LABEL_DIR / f"{fid}.png", lut[source_labels])
         for s in SPLITS:
             atomic_write_text(stage / f"{s}.txt", "".join(f"{i:06d}\n" for i in chosen[s]))
         manifest = make_manifest(

@@ -35,16 +35,20 @@ import numpy as np
 from evsmap.classes import SUNRGBD37_CLASSES, palette
 from evsmap.data import VOID, Intrinsics
 from evsmap.datasets.common import (
+    H5_ERRORS,
     Progress,
     SegmentationSequence,
     apply_limit,
+    check_frame_id,
     check_limit,
     check_shape,
     check_split,
     is_hdf5,
     load_mat,
+    loadmat_checked,
     make_manifest,
     mat_strings,
+    read_h5_array,
     read_label_png,
     read_manifest,
     require_dir,
@@ -95,6 +99,7 @@ def _read_frames_file(path: Path) -> list[tuple[str, Intrinsics, str]]:
             intr = Intrinsics(*(float(v) for v in parts[1:5]), int(parts[5]), int(parts[6]))
         except (ValueError, EvsmapError) as exc:
             raise DataFormatError(f"{path}:{number}: bad intrinsics ({exc})") from None
+        check_frame_id(parts[0], f"{path}:{number}")
         rows.append((parts[0], intr, parts[7] if len(parts) > 7 else ""))
     return rows
 
@@ -192,14 +197,9 @@ class _MetaEntry:
 
 
 def _load_meta(path: Path) -> list[_MetaEntry]:
-    import scipy.io
-
     require_file(path, "SUN RGB-D frame metadata (SUNRGBDMeta.mat)")
-    try:
-        data = scipy.io.loadmat(str(path), variable_names=["SUNRGBDMeta"], squeeze_me=True,
-                                struct_as_record=False)
-    except (ValueError, TypeError, OSError, NotImplementedError) as exc:
-        raise DataFormatError(f"{path}: not a readable MATLAB file ({exc})") from None
+    data = loadmat_checked(path, variable_names=["SUNRGBDMeta"], squeeze_me=True,
+                           struct_as_record=False)
     if "SUNRGBDMeta" not in data:
         raise DataFormatError(f"{path}: has no variable 'SUNRGBDMeta'")
     entries = []
@@ -264,22 +264,43 @@ def _read_seglabel(f, refs: np.ndarray, entry: _MetaEntry, seg_path: Path) -> np
     import h5py
 
     ref = refs[entry.index]
-    where = f"{seg_path}: SUNRGBD2Dseg({entry.index + 1}).seglabel"
+    where = f"SUNRGBD2Dseg({entry.index + 1}).seglabel"
     try:
         obj = f[ref]
-    except (ValueError, KeyError, OSError, TypeError) as exc:
-        raise DataFormatError(f"{where}: broken reference ({exc})") from None
+    except H5_ERRORS as exc:
+        raise DataFormatError(f"{seg_path}: {where}: broken reference ({exc})") from None
     if not isinstance(obj, h5py.Dataset) or obj.ndim != 2:
-        raise DataFormatError(f"{where}: expected a 2-D label image")
-    arr = np.asarray(obj[()]).T  # MATLAB H x W stored column-major
-    if not np.issubdtype(arr.dtype, np.number):
-        raise DataFormatError(f"{where}: expected numeric labels, got {arr.dtype}")
+        raise DataFormatError(f"{seg_path}: {where}: expected a 2-D label image")
+    arr = read_h5_array(seg_path, obj, where).T  # MATLAB H x W stored column-major
+    if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
+        raise DataFormatError(f"{seg_path}: {where}: expected numeric labels, got {arr.dtype}")
     if arr.size and (not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr))
                      or arr.min() < 0 or arr.max() > NUM_CLASSES):
-        raise DataFormatError(f"{where}: labels must be integers in 0..{NUM_CLASSES} (0 void), "
-                              f"got {arr.min()}..{arr.max()}")
+        raise DataFormatError(f"{seg_path}: {where}: labels must be integers in "
+                              f"0..{NUM_CLASSES} (0 void), got {arr.min()}..{arr.max()}")
     lut = np.concatenate([[VOID], np.arange(NUM_CLASSES)]).astype(np.uint8)
     return lut[arr.astype(np.int64)]
+
+
+def _seglabel_refs(f, seg_path: Path, frames: int) -> np.ndarray:
+    """The object references of ``SUNRGBD2Dseg.seglabel``, one per frame of the metadata."""
+    import h5py
+
+    try:
+        if "SUNRGBD2Dseg" not in f or not isinstance(f["SUNRGBD2Dseg"], h5py.Group) \
+                or "seglabel" not in f["SUNRGBD2Dseg"]:
+            raise DataFormatError(f"{seg_path}: has no SUNRGBD2Dseg.seglabel")
+        refs = read_h5_array(seg_path, f["SUNRGBD2Dseg"]["seglabel"],
+                             "SUNRGBD2Dseg.seglabel").ravel()
+    except H5_ERRORS as exc:
+        raise DataFormatError(f"{seg_path}: unreadable HDF5 file ({exc})") from None
+    if refs.dtype != h5py.ref_dtype and refs.dtype != object:
+        raise DataFormatError(f"{seg_path}: SUNRGBD2Dseg.seglabel must hold object "
+                              f"references, got {refs.dtype}")
+    if len(refs) != frames:
+        raise DataFormatError(f"{seg_path}: {len(refs)} label images but "
+                              f"{META_MAT.name} lists {frames} frames")
+    return refs
 
 
 def prepare_sunrgbd(source_dir: str | Path, out_dir: str | Path, *, limit: int | None = None,
@@ -317,18 +338,10 @@ def prepare_sunrgbd(source_dir: str | Path, out_dir: str | Path, *, limit: int |
     depth_dir = "depth" if raw_depth else "depth_bfx"
     try:
         f = h5py.File(seg_path, "r")
-    except OSError as exc:
+    except H5_ERRORS as exc:
         raise DataFormatError(f"{seg_path}: unreadable HDF5 file ({exc})") from None
     with f, staging_folder(Path(out_dir), source=src, overwrite=overwrite) as stage:
-        if "SUNRGBD2Dseg" not in f or "seglabel" not in f["SUNRGBD2Dseg"]:
-            raise DataFormatError(f"{seg_path}: has no SUNRGBD2Dseg.seglabel")
-        refs = np.asarray(f["SUNRGBD2Dseg"]["seglabel"][()]).ravel()
-        if refs.dtype != h5py.ref_dtype and refs.dtype != object:
-            raise DataFormatError(f"{seg_path}: SUNRGBD2Dseg.seglabel must hold object "
-                                  f"references, got {refs.dtype}")
-        if len(refs) != len(meta):
-            raise DataFormatError(f"{seg_path}: {len(refs)} label images but "
-                                  f"{META_MAT.name} lists {len(meta)} frames")
+        refs = _seglabel_refs(f, seg_path, len(meta))
         rows: dict[str, list[str]] = {s: [] for s in SPLITS}
         for s in SPLITS:
             for sub in (RGB_DIR, DEPTH_DIR, LABEL_DIR):

@@ -51,6 +51,7 @@ from evsmap.datasets.common import (
     Progress,
     SegmentationSequence,
     apply_limit,
+    check_frame_id,
     check_limit,
     check_shape,
     check_split,
@@ -277,6 +278,7 @@ def _read_poses(path: Path) -> dict[str, tuple[int, float, np.ndarray, np.ndarra
         except ValueError:
             raise DataFormatError(f"{path}:{number}: expected 'id room timestamp tx ty tz qx qy "
                                   f"qz qw', got {line!r}") from None
+        check_frame_id(fields[0], f"{path}:{number}")
         if fields[0] in out:
             raise DataFormatError(f"{path}:{number}: frame {fields[0]} listed twice")
         out[fields[0]] = (room, float(values[0]), values[1:4], values[4:8])
@@ -328,6 +330,8 @@ class SynthRoomsSequence(SegmentationSequence):
             ids = sorted(poses)
         else:
             ids = sorted(read_id_list(root / f"{split}.txt"))
+            if not ids:
+                raise DataFormatError(f"{root / f'{split}.txt'}: lists no frames")
             missing = [i for i in ids if i not in poses]
             if missing:
                 raise DataFormatError(f"{root / f'{split}.txt'}: frame {missing[0]} has no pose "
