@@ -46,8 +46,11 @@ def read_baseline(path: str | os.PathLike[str]) -> dict[str, Any]:
     except FileNotFoundError:
         raise DataFormatError(f"{path}: no such baseline file (make one with "
                               f"`evsmap gate --update --baseline {path}`)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise DataFormatError(f"{path}: not a readable JSON baseline ({exc})") from None
+    except RecursionError:
+        raise DataFormatError(f"{path}: not a readable JSON baseline (nested too deeply)") \
+            from None
     workloads = data.get("workloads") if isinstance(data, dict) else None
     if not isinstance(workloads, dict):
         raise DataFormatError(f"{path}: no top-level \"workloads\" object")

@@ -66,6 +66,8 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise DataFormatError(f"{path}: unreadable run description ({exc})") from None
+    except RecursionError:
+        raise DataFormatError(f"{path}: unreadable run description (nested too deeply)") from None
     if not isinstance(data, dict):
         raise DataFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
     for key, kind in (("tables", list), ("available", list), ("cells", list),
@@ -91,6 +93,8 @@ def read_records(run_dir: str | Path) -> list[CellRecord]:
             data = json.loads(path.read_text())
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             raise DataFormatError(f"{path}: unreadable record ({exc})") from None
+        except RecursionError:
+            raise DataFormatError(f"{path}: unreadable record (nested too deeply)") from None
         if not isinstance(data, dict):
             raise DataFormatError(f"{path}: not a cell record (a JSON {type(data).__name__})")
         rec = CellRecord.from_dict(data, source=str(path))

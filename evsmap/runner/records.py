@@ -139,6 +139,8 @@ class RecordStore:
             data = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
             raise DataFormatError(f"{path}: unreadable record ({exc})") from None
+        except RecursionError:
+            raise DataFormatError(f"{path}: unreadable record (nested too deeply)") from None
         return CellRecord.from_dict(data, source=str(path))
 
     def __iter__(self) -> Iterator[CellRecord]:

@@ -143,15 +143,6 @@ class WeightsFile:
                 "card": card}
 
 
-def _short(text: str) -> str:
-    """torch's reader messages without their advice paragraphs."""
-    text = " ".join(text.split())
-    for cut in (". This is an internal", ". Check the documentation", ". If you"):
-        if cut in text:
-            text = text.split(cut)[0]
-    return text
-
-
 def load_lazily(path: str | os.PathLike[str]) -> object:
     """The object in a weights file with its tensors memory-mapped, not read:
     ``torch.load(weights_only=True, mmap=True)`` with the numpy allow-list of
@@ -161,9 +152,7 @@ def load_lazily(path: str | os.PathLike[str]) -> object:
     Raises:
         DataFormatError: missing, empty or unreadable (one line).
     """
-    import torch
-
-    from evsmap.segmenters.weights import _reason, numpy_allowlist
+    from evsmap.segmenters.weights import one_line_reason, torch_load
 
     path = Path(path)
     if not path.is_file():
@@ -171,18 +160,11 @@ def load_lazily(path: str | os.PathLike[str]) -> object:
     if path.stat().st_size == 0:
         raise DataFormatError(f"{path}: empty file")
     try:
-        with torch.serialization.safe_globals(numpy_allowlist()):
-            try:
-                return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-            except RuntimeError as exc:
-                if "mmap can only be used" not in str(exc):
-                    raise
-            return torch.load(path, map_location="cpu", weights_only=True)
+        return torch_load(path, mmap=True)
+    except MemoryError:
+        raise
     except Exception as exc:  # any file may be given: every failure is one line, no traceback
-        reason = _short(_reason(exc))
-        if " " not in reason:  # a bare KeyError / EOFError out of the legacy reader
-            reason = f"{type(exc).__name__}: {reason}" if reason != type(exc).__name__ else reason
-        raise DataFormatError(f"{path}: cannot read weights ({reason})") from None
+        raise DataFormatError(f"{path}: cannot read weights ({one_line_reason(exc)})") from None
 
 
 def open_weights(path: str | os.PathLike[str]) -> tuple[WeightsFile, dict[str, Any]]:

@@ -17,7 +17,7 @@ FC-HarDNet) are recognised by their keys and renamed to evsmap's modules by
 from __future__ import annotations
 
 import hashlib
-import pickle
+import io
 import re
 from collections.abc import Mapping
 from os import PathLike
@@ -63,7 +63,7 @@ def _reason(exc: BaseException) -> str:
     """One line out of torch's multi-paragraph weights-only message."""
     text = _ANSI.sub("", str(exc)).strip()
     allowed = "evsmap reads tensors, plain containers and numpy float64 scalars only"
-    refused = re.search(r"Unsupported global: GLOBAL (\S+)", text)
+    refused = re.search(r"(?:Unsupported global: GLOBAL|unsupported GLOBAL) (\S+)", text)
     if refused:
         return f"it refers to {refused.group(1)}, which a weights file may not hold: {allowed}"
     built = re.search(r"but got <class '([^']+)'>", text)
@@ -74,6 +74,11 @@ def _reason(exc: BaseException) -> str:
         detail = " ".join(detail.split("Check the documentation")[0].split())
         return f"refused by the weights-only reader: {detail}" if detail else \
             "refused by the weights-only reader"
+    if text.startswith("Weights only load failed"):  # the advice, then the reason
+        paragraphs = [p for p in re.split(r"\n\s*\n", text)[1:]
+                      if p.strip() and not p.lstrip().startswith("Check the documentation")]
+        if paragraphs:
+            return f"refused by the weights-only reader: {' '.join(paragraphs[0].split())}"
     return text.splitlines()[0] if text else type(exc).__name__
 
 
@@ -87,10 +92,41 @@ def read_checkpoint(path: str | PathLike[str]) -> object:
     if not path.is_file():
         raise DataFormatError(f"{path}: weights file not found")
     try:
-        with torch.serialization.safe_globals(numpy_allowlist()):
-            return torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, OSError, ValueError) as exc:
-        raise DataFormatError(f"{path}: cannot read weights ({_reason(exc)})") from None
+        return torch_load(path)
+    except MemoryError:
+        raise
+    except Exception as exc:  # any file may be given: every failure is one line, no traceback
+        raise DataFormatError(f"{path}: cannot read weights ({one_line_reason(exc)})") from None
+
+
+def torch_load(path: Path, *, mmap: bool = False) -> object:
+    """``torch.load(weights_only=True)`` with the numpy allow-list.
+
+    A file in the legacy (non-zip) format is read into memory first: the pickle's claimed
+    string and byte lengths are then bounded by the file's size (reading a file object
+    allocates a claimed length before it finds the file shorter). ``mmap`` maps a zip file's
+    tensors instead of reading them.
+    """
+    with torch.serialization.safe_globals(numpy_allowlist()):
+        with path.open("rb") as fh:
+            zipped = fh.read(4) == b"PK\x03\x04"
+        if not zipped:
+            return torch.load(io.BytesIO(path.read_bytes()), map_location="cpu",
+                              weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
+
+
+def one_line_reason(exc: BaseException) -> str:
+    """Why torch's reader refused a file, in one line: :func:`_reason` without torch's advice
+    paragraphs, with the exception's type where its message alone says nothing (a bare
+    ``KeyError`` or ``IndexError`` out of a corrupt pickle)."""
+    text = " ".join(_reason(exc).split())
+    for cut in (". This is an internal", ". Check the documentation", ". If you"):
+        text = text.split(cut)[0]
+    name = type(exc).__name__
+    if " " not in text:
+        return f"{name}: {text}" if text and text != name else f"{name} (corrupt file)"
+    return text
 
 
 def _unwrap(obj: object, path: Path) -> dict[str, torch.Tensor]:
@@ -120,7 +156,23 @@ def read_weights(path: str | PathLike[str]) -> Converted:
     obj = read_checkpoint(path)
     state = _unwrap(obj, path)
     card = obj.get("card") if isinstance(obj, dict) else None
-    return convert_state(state, source=str(path), card=card if isinstance(card, dict) else None)
+    card = card if isinstance(card, dict) else None
+    _check_card(card, path)
+    return convert_state(state, source=str(path), card=card)
+
+
+def _check_card(card: dict | None, path: Path) -> None:
+    """The card fields the loader acts on (``model``, ``options``) must have their types."""
+    if card is None:
+        return
+    model, options = card.get("model"), card.get("options")
+    if model is not None and not isinstance(model, str):
+        raise DataFormatError(f"{path}: the card's 'model' must be a segmenter name (a string), "
+                              f"not a {type(model).__name__}")
+    if options is not None and not (isinstance(options, dict)
+                                    and all(isinstance(k, str) for k in options)):
+        raise DataFormatError(f"{path}: the card's 'options' must be a table of option names "
+                              f"to values, not a {type(options).__name__}")
 
 
 def _listing(names: list[str]) -> str:

@@ -54,6 +54,8 @@ def load_file(path: str | PathLike[str] | None = None) -> PaperTables:
             data = tomllib.load(f)
     except OSError as exc:
         raise TableSchemaError(f"{where}: cannot read ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise TableSchemaError(f"{where}: not UTF-8 text ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise TableSchemaError(f"{where}: not valid TOML ({exc})") from None
     return parse_tables(data, source=str(where))

@@ -310,7 +310,10 @@ def load_recipe(name_or_path: str | Path = "paper", *, _seen: tuple[str, ...] = 
             src = Path(str(name_or_path))
             if src.exists() and not Path(base).is_absolute():
                 base = str(src.parent / base)
-        merged = load_recipe(base, _seen=(*_seen, where)).as_dict()
+        try:
+            merged = load_recipe(base, _seen=(*_seen, where)).as_dict()
+        except RecipeError as exc:  # the user gave this file: name it, then the base's problem
+            raise RecipeError(f"{where}: base {base!r}: {exc}") from None
         merged.update(data)
         data = merged
     for key, value in data.items():

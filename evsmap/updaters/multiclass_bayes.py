@@ -229,10 +229,16 @@ class MultiClassBayesMap(OctreeUpdater):
 def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBayesMap:
     """A :class:`MultiClassBayesMap` restored from its ``.ot`` file (mapping can continue);
     ``kwargs`` are the map's options."""
+    from evsmap.errors import DataFormatError, InvalidDataError
     from evsmap.mapping.octree_io import read_ot
 
     resolution = read_ot(path, payload_format={TREE_TYPE: PAYLOAD_FORMAT}).resolution
-    return MultiClassBayesMap(resolution=resolution, **kwargs).restore(path)
+    try:
+        return MultiClassBayesMap(resolution=resolution, **kwargs).restore(path)
+    except DataFormatError:
+        raise
+    except InvalidDataError as exc:  # a well-formed file whose map cannot be rebuilt
+        raise DataFormatError(f"{path}: not a map this updater can restore ({exc})") from None
 
 
 @UPDATERS.register("multiclass-bayes",
