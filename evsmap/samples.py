@@ -232,12 +232,23 @@ def array_digest(array) -> str:
     return hashlib.sha256(head + a.tobytes()).hexdigest()
 
 
+def _open_image(path: Path):
+    """``path`` opened and decoded with PIL; an unreadable image is a :class:`FetchError`."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        im = Image.open(path)
+        im.load()
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, EOFError,
+            Image.DecompressionBombError) as exc:
+        raise FetchError(f"{path}: unreadable image ({' '.join(str(exc).split())})") from None
+    return im
+
+
 def _decode(path: Path):
     import numpy as np
-    from PIL import Image
 
-    with Image.open(path) as im:
-        im.load()
+    with _open_image(path) as im:
         if im.mode.startswith("I"):
             return np.asarray(im).astype("<u2")
         if im.mode not in ("RGB", "L"):
@@ -246,18 +257,16 @@ def _decode(path: Path):
 
 
 def compute_check(kind: str, path: Path) -> Any:
-    """The value of check ``kind`` for the file ``path`` (see the module docstring)."""
+    """The value of check ``kind`` for the file ``path`` (see the module docstring); an image
+    that cannot be decoded is a :class:`FetchError` naming it."""
     import numpy as np
-
 
     if kind == "sha256":
         return sha256_file(path)
     if kind == "pixels":
         return array_digest(_decode(path))
     if kind == "mean-rgb-2x2":
-        from PIL import Image
-
-        with Image.open(path) as im:
+        with _open_image(path) as im:
             a = np.asarray(im.convert("RGB"), dtype=np.float64)
         h, w = a.shape[0] // 2, a.shape[1] // 2
         quarters = (a[:h, :w], a[:h, w:], a[h:, :w], a[h:, w:])
@@ -315,7 +324,11 @@ def verify_sample(sample: Sample, folder: Path, *, display: Path | None = None) 
             record["check"] = "none"
         else:
             rule = sample.rule_for(rel)
-            value = digest if rule.kind == "sha256" else compute_check(rule.kind, path)
+            try:
+                value = digest if rule.kind == "sha256" else compute_check(rule.kind, path)
+            except FetchError as exc:
+                raise FetchError(str(exc).replace(str(path), str(shown / rel), 1) +
+                                 f" ({rule.kind} check); nothing was written") from None
             if not check_matches(rule, expected[rel], value):
                 raise FetchError(f"{shown / rel}: {rule.kind} check failed (got {_show(value)}, "
                                  f"expected {_show(expected[rel])}); nothing was written")
@@ -363,6 +376,127 @@ def write_expected_module(root: Path, out: Path) -> None:
 
 
 # -- extraction ---------------------------------------------------------------------------------
+MAX_MEMBER_BYTES = 256 * 1024**2
+"""The largest archive member (or tar header record) read into memory: far above any file a
+sample takes from its archive (images, lists, poses), far below what a damaged header can
+claim."""
+
+
+def check_member_name(path: Path, name: str) -> str:
+    """``name`` if it is a relative path that stays inside the folder an archive is unpacked to;
+    an absolute name (``/x``, ``\\x``, ``C:x``) or one with a ``..`` component is refused: no
+    evsmap code path may write or read outside its work folder because of an archive."""
+    parts = name.replace("\\", "/").split("/")
+    if name.startswith(("/", "\\")) or (len(name) > 1 and name[1] == ":") or ".." in parts \
+            or "\0" in name:
+        raise CorruptArchiveError(f"{path}: member {name!r} has an absolute path or a '..' "
+                                  "component (refused: it would reach outside the extraction "
+                                  "folder)", path)
+    return name
+
+
+def _zip_errors() -> tuple[type[BaseException], ...]:
+    """What zipfile raises on a damaged archive: a bad directory or header, a truncated or
+    corrupt member (zlib, lzma, CRC), an unknown compression method or encryption
+    (NotImplementedError, RuntimeError), a name that does not decode (ValueError)."""
+    import lzma
+    import struct
+    import zipfile
+    import zlib
+
+    return (zipfile.BadZipFile, zlib.error, lzma.LZMAError, struct.error, EOFError,
+            NotImplementedError, RuntimeError, ValueError, OverflowError, KeyError)
+
+
+class _ClaimTooLarge(Exception):
+    """A tar header or member claims more than :data:`MAX_MEMBER_BYTES`."""
+
+
+class _BoundedReads:
+    """A file object whose ``read(n)`` refuses ``n`` above :data:`MAX_MEMBER_BYTES`: tarfile
+    reads a header record or a member in one call of the size its header claims, and the
+    decompressor allocates that size before reading."""
+
+    def __init__(self, fileobj: Any) -> None:
+        self._fileobj = fileobj
+
+    def read(self, size: int | None = -1) -> bytes:
+        if size is None or size < 0 or size > MAX_MEMBER_BYTES:
+            raise _ClaimTooLarge(f"a header or member claims {size} bytes (more than "
+                                 f"{format_size(MAX_MEMBER_BYTES)})")
+        return self._fileobj.read(size)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._fileobj, name)
+
+
+def _tar_kind(member: Any) -> str:
+    if member.issym():
+        return "a symbolic link"
+    if member.islnk():
+        return "a hard link"
+    if member.isdir():
+        return "a folder"
+    if member.ischr() or member.isblk():
+        return "a device"
+    if member.isfifo():
+        return "a FIFO"
+    return "a special file"
+
+
+def _read_tar_member(tf: Any, member: Any, path: Path) -> bytes:
+    """The bytes of a regular-file member (links, devices and oversized members refused)."""
+    if not member.isfile():
+        raise CorruptArchiveError(f"{path}: member {member.name} is {_tar_kind(member)}, not a "
+                                  "regular file", path)
+    if member.size > MAX_MEMBER_BYTES:
+        raise CorruptArchiveError(f"{path}: member {member.name} claims {member.size} bytes "
+                                  f"(more than {format_size(MAX_MEMBER_BYTES)})", path)
+    return tf.extractfile(member).read()
+
+
+def _zip_kind(info: Any) -> str | None:
+    """What a zip member is when it is not a regular file (Unix mode bits), else None."""
+    import stat
+
+    if info.is_dir():
+        return "a folder"
+    mode = info.external_attr >> 16
+    if info.create_system != 3 or stat.S_IFMT(mode) in (0, stat.S_IFREG):
+        return None  # no Unix file type recorded (as zipfile.writestr writes), or a file
+    if stat.S_ISLNK(mode):
+        return "a symbolic link"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    return "a special file"
+
+
+def _check_zip_member(zf: Any, name: str, path: Path, where: str, *,
+                      in_memory: bool = True) -> Any:
+    """``zf``'s member ``name`` checked before it is read: a regular file whose claimed sizes
+    are plausible (stored size within the archive, unpacked size within
+    :data:`MAX_MEMBER_BYTES` when read into memory)."""
+    info = zf.getinfo(name)
+    kind = _zip_kind(info)
+    if kind is not None:
+        raise CorruptArchiveError(f"{path}: member {where} is {kind}, not a regular file", path)
+    limit = Path(zf.filename).stat().st_size if zf.filename else None
+    if limit is not None and info.compress_size > limit:
+        raise CorruptArchiveError(f"{path}: member {where} claims {info.compress_size} stored "
+                                  f"bytes, more than the archive holds", path)
+    if in_memory and info.file_size > MAX_MEMBER_BYTES:
+        raise CorruptArchiveError(f"{path}: member {where} claims {info.file_size} bytes (more "
+                                  f"than {format_size(MAX_MEMBER_BYTES)})", path)
+    return info
+
+
+def _check_zip_names(zf: Any, path: Path) -> list[str]:
+    names = zf.namelist()
+    for name in names:
+        check_member_name(path, name)
+    return names
+
+
 def extract_sample(sample: Sample, archives: Mapping[str, Path], out: Path, work: Path, *,
                    log: Log | None = None) -> None:
     """Run ``sample``'s extractor: read the downloaded ``archives`` (by source file name), write
@@ -407,11 +541,13 @@ def _cut_list(raw: bytes, count: int, where: str) -> tuple[bytes, list[str]]:
 def extract_tum(sample: Sample, archives: Mapping[str, Path], out: Path, work: Path,
                 log: Log) -> None:
     """TUM RGB-D: the first ``frames`` RGB and depth images of ``sequence`` with ``rgb.txt`` and
-    ``depth.txt`` cut to them, and the whole ``groundtruth.txt``, all verbatim."""
+    ``depth.txt`` cut to them, and the whole ``groundtruth.txt``, all verbatim.
+
+    Every member name is checked (:func:`check_member_name`); the members taken must be regular
+    files of plausible size, the images listed as ``rgb/<file>`` or ``depth/<file>``."""
     import gzip
     import tarfile
     import zlib
-
 
     path = _archive(sample, archives)
     prefix = f"{sample.options['sequence']}/"
@@ -419,13 +555,15 @@ def extract_tum(sample: Sample, archives: Mapping[str, Path], out: Path, work: P
     texts: dict[str, bytes] = {}
     images: dict[str, tarfile.TarInfo] = {}
     try:
-        with tarfile.open(path, "r:gz") as tf:
+        with gzip.open(path, "rb") as gz, \
+                tarfile.open(fileobj=_BoundedReads(gz), mode="r:") as tf:  # type: ignore[call-overload]
             for member in tf:
-                if not member.isfile() or not member.name.startswith(prefix):
+                check_member_name(path, member.name)
+                if not member.name.startswith(prefix):
                     continue
                 rel = member.name[len(prefix):]
                 if rel in ("rgb.txt", "depth.txt", "groundtruth.txt"):
-                    texts[rel] = tf.extractfile(member).read()  # type: ignore[union-attr]
+                    texts[rel] = _read_tar_member(tf, member, path)
                 elif rel.startswith(("rgb/", "depth/")):
                     images[rel] = member
             for name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
@@ -435,6 +573,10 @@ def extract_tum(sample: Sample, archives: Mapping[str, Path], out: Path, work: P
             wanted: list[str] = []
             for name in ("rgb.txt", "depth.txt"):
                 cut, files = _cut_list(texts[name], count, f"{path}:{prefix}{name}")
+                for rel in files:
+                    if rel.count("/") != 1 or rel.split("/")[0] != name[:-4] or rel.endswith("/"):
+                        raise FetchError(f"{path}:{prefix}{name}: lists {rel!r}, expected "
+                                         f"{name[:-4]}/<file>")
                 (out / name).write_bytes(cut)
                 wanted += files
             (out / "groundtruth.txt").write_bytes(texts["groundtruth.txt"])
@@ -446,9 +588,8 @@ def extract_tum(sample: Sample, archives: Mapping[str, Path], out: Path, work: P
             (out / "depth").mkdir()
             ordered = sorted(wanted, key=lambda r: images[r].offset_data)
             for rel in _frames(ordered, f"extracting {sample.name}"):
-                data = tf.extractfile(images[rel]).read()  # type: ignore[union-attr]
-                (out / rel).write_bytes(data)
-    except (tarfile.TarError, EOFError, zlib.error, gzip.BadGzipFile) as exc:
+                (out / rel).write_bytes(_read_tar_member(tf, images[rel], path))
+    except (tarfile.TarError, EOFError, zlib.error, gzip.BadGzipFile, _ClaimTooLarge) as exc:
         raise CorruptArchiveError(f"{path}: not a readable .tgz archive ({exc})", path) from None
 
 
@@ -461,13 +602,14 @@ def extract_sevenscenes(sample: Sample, archives: Mapping[str, Path], out: Path,
                         log: Log) -> None:
     """7-Scenes: frames ``0 .. frames-1`` of ``scene/sequence``: the colour PNG re-encoded as JPEG
     (``jpeg_quality``), the depth PNG verbatim, the pose re-written with numpy (``%.18e``), and
-    ``camera-intrinsics.txt`` (the published K)."""
+    ``camera-intrinsics.txt`` (the published K).
+
+    Every member name of both zips is checked (:func:`check_member_name`); the members taken
+    must be regular files whose claimed sizes are plausible."""
     import zipfile
-    import zlib
 
     import numpy as np
     from PIL import Image, UnidentifiedImageError
-
 
     path = _archive(sample, archives)
     scene, seq = sample.options["scene"], sample.options["sequence"]
@@ -477,16 +619,24 @@ def extract_sevenscenes(sample: Sample, archives: Mapping[str, Path], out: Path,
     inner_path = work / f"{seq}.zip"
     try:
         with zipfile.ZipFile(path) as outer:
-            names = [n for n in outer.namelist()
+            names = [n for n in _check_zip_names(outer, path)
                      if n in (f"{scene}/{seq}.zip", f"{seq}.zip") or n.endswith(f"/{seq}.zip")]
             if not names:
                 raise FetchError(f"{path}: has no member {scene}/{seq}.zip (expected the 7-Scenes "
                                  f"{scene} archive)")
+            _check_zip_member(outer, names[0], path, names[0], in_memory=False)
             log(f"  unpacking {names[0]}")
             with outer.open(names[0]) as src, open(inner_path, "wb") as dst:
                 shutil.copyfileobj(src, dst, CHUNK)
         with zipfile.ZipFile(inner_path) as inner:
+            _check_zip_names(inner, path)
             members = _zip_members(inner, "")
+
+            def read(stem: str, suffix: str) -> bytes:
+                name = members[stem + suffix]
+                _check_zip_member(inner, name, path, f"{seq}.zip:{name}")
+                return inner.read(name)
+
             for i in _frames(list(range(count)), f"extracting {sample.name}"):
                 stem = f"frame-{i:06d}"
                 for suffix in (".color.png", ".depth.png", ".pose.txt"):
@@ -495,22 +645,25 @@ def extract_sevenscenes(sample: Sample, archives: Mapping[str, Path], out: Path,
                                          f"{seq}/{stem}{suffix}")
                 where = f"{path}:{seq}/{stem}"
                 try:
-                    with Image.open(io.BytesIO(inner.read(members[stem + ".color.png"]))) as im:
+                    with Image.open(io.BytesIO(read(stem, ".color.png"))) as im:
                         rgb = im.convert("RGB")
                         rgb.save(out / f"{stem}.color.jpg", format="JPEG", quality=quality)
-                except (UnidentifiedImageError, OSError) as exc:
+                except (UnidentifiedImageError, OSError, SyntaxError, ValueError,
+                        Image.DecompressionBombError) as exc:
                     raise FetchError(f"{where}.color.png: unreadable image ({exc})") from None
-                (out / f"{stem}.depth.png").write_bytes(inner.read(members[stem + ".depth.png"]))
-                text = inner.read(members[stem + ".pose.txt"]).decode("utf-8", "replace")
+                (out / f"{stem}.depth.png").write_bytes(read(stem, ".depth.png"))
+                text = read(stem, ".pose.txt").decode("utf-8", "replace")
                 try:
                     pose = np.loadtxt(io.StringIO(text), dtype=np.float64)
                 except ValueError as exc:
-                    raise FetchError(f"{where}.pose.txt: not a 4x4 matrix ({exc})") from None
+                    raise FetchError(f"{where}.pose.txt: not a 4x4 matrix "
+                                     f"({' '.join(str(exc).split())})") from None
                 if pose.shape != (4, 4):
                     raise FetchError(f"{where}.pose.txt: not a 4x4 matrix (shape {pose.shape})")
                 np.savetxt(out / f"{stem}.pose.txt", pose)
-    except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
-        raise CorruptArchiveError(f"{path}: not a readable zip archive ({exc})", path) from None
+    except _zip_errors() as exc:
+        raise CorruptArchiveError(f"{path}: not a readable zip archive "
+                                  f"({type(exc).__name__}: {exc})", path) from None
     finally:
         inner_path.unlink(missing_ok=True)
     k = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])

@@ -191,8 +191,11 @@ H5_ERRORS: tuple[type[Exception], ...] = (OSError, RuntimeError, KeyError, Value
 
 MAT_ERRORS: tuple[type[Exception], ...] = (ValueError, TypeError, OSError, NotImplementedError,
                                            IndexError, KeyError, AttributeError, OverflowError,
-                                           EOFError)
-"""What scipy.io.loadmat raises on a damaged MATLAB v5 file (besides its MatReadError)."""
+                                           EOFError, UnboundLocalError, MemoryError)
+"""What scipy.io.loadmat raises on a damaged MATLAB v5 file (besides its MatReadError).
+MemoryError: scipy allocates what an element's tag claims (up to 4 GiB) or what a cell array's
+dimensions claim before reading it; a damaged tag's claim fails the allocation (a real file's
+variables are far smaller), and that is the file's fault, not a bug."""
 
 
 def loadmat_checked(path: Path, **options: Any) -> dict:
