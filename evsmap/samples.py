@@ -408,6 +408,14 @@ def _zip_errors() -> tuple[type[BaseException], ...]:
             NotImplementedError, RuntimeError, ValueError, OverflowError, KeyError)
 
 
+def _writing_failed(exc: OSError) -> bool:
+    """Whether an OSError met while unpacking is the output's (disk full, read-only, denied)
+    rather than the archive's."""
+    import errno
+
+    return exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM)
+
+
 class _ClaimTooLarge(Exception):
     """A tar header or member claims more than :data:`MAX_MEMBER_BYTES`."""
 
@@ -664,6 +672,10 @@ def extract_sevenscenes(sample: Sample, archives: Mapping[str, Path], out: Path,
     except _zip_errors() as exc:
         raise CorruptArchiveError(f"{path}: not a readable zip archive "
                                   f"({type(exc).__name__}: {exc})", path) from None
+    except OSError as exc:  # a seek or read the damaged directory sends astray
+        if _writing_failed(exc):
+            raise FetchError(f"{out}: cannot write the sample ({exc})") from None
+        raise CorruptArchiveError(f"{path}: not a readable zip archive ({exc})", path) from None
     finally:
         inner_path.unlink(missing_ok=True)
     k = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
