@@ -281,10 +281,17 @@ def convert(source: Path, out: Path, *, model: str | None = None,
     if reserved:
         raise EvsmapError(f"option {reserved[0]} cannot be set here (the file is the weights; "
                           f"backend and input size are chosen when the weights are used)")
-    segmenter = SEGMENTERS.create(name, **config)
+    # the name and options may come from the file's card: a refusal names the file
+    where = f"--model {name}" if model else f"{source}: the file is for {name}"
+    try:
+        segmenter = SEGMENTERS.create(name, **config)
+    except EvsmapError as exc:
+        raise EvsmapError(f"{where}: {exc}") from None
+    except (TypeError, ValueError) as exc:  # a factory refusing an option
+        raise EvsmapError(f"{where}: {' '.join(str(exc).split())}") from None
     module = segmenter.module
     if module is None:
-        raise EvsmapError(f"{name} is not a network segmenter: it takes no weights")
+        raise EvsmapError(f"{where}: {name} is not a network segmenter: it takes no weights")
     load_state(module, converted, source)
     state = {k: converted.state[k] for k in module.state_dict()}
     card = make_card(model=name, options=config, num_classes=int(segmenter.num_classes),

@@ -432,6 +432,8 @@ def generated_systems(draw: st.DrawFn) -> str:
     systems = draw(st.lists(system, max_size=3))
     lines = []
     for s in systems:
+        if draw(st.integers(0, 4)) == 0:  # a key of any text (newlines, quotes, control bytes)
+            s = {**s, draw(st.text(min_size=1, max_size=6)): draw(_SCALAR)}
         lines.append("[[systems]]")
         lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in s.items()]
     if draw(st.booleans()):
