@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import struct
+import warnings
 import zlib
 from pathlib import Path
 
@@ -59,11 +60,22 @@ _PIL_ERRORS = (OSError, SyntaxError, ValueError, EOFError, IndexError, KeyError,
 
 def _open(path: Path) -> Image.Image:
     """The decoded image at ``path``; a missing, corrupt or oversized file is a one-line
-    :class:`DataFormatError` naming it."""
+    :class:`DataFormatError` naming it. The file is closed on return, whatever happened (PIL
+    leaves a file it opened itself open when its size check refuses the header)."""
     if not path.is_file():
         raise DataFormatError(f"{path}: file not found")
     try:
-        img = Image.open(path)
+        with open(path, "rb") as fh:
+            return _decode(path, fh)
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read ({_one_line(exc)})") from None
+
+
+def _decode(path: Path, fh) -> Image.Image:
+    try:
+        with warnings.catch_warnings():  # sizes PIL only warns about are refused below
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(fh)
     except Image.DecompressionBombError:
         raise DataFormatError(f"{path}: image header claims a size above {MAX_PIXELS} pixels "
                               f"(corrupt file?)") from None
@@ -71,13 +83,11 @@ def _open(path: Path) -> Image.Image:
         raise DataFormatError(f"{path}: unreadable or corrupt image ({_one_line(exc)})") from None
     width, height = img.size
     if width <= 0 or height <= 0 or width * height > MAX_PIXELS:
-        img.close()
         raise DataFormatError(f"{path}: image header claims {width}x{height} pixels (at most "
                               f"{MAX_PIXELS} read; corrupt file?)")
     try:
         img.load()
     except _PIL_ERRORS as exc:
-        img.close()
         raise DataFormatError(f"{path}: unreadable or corrupt image ({_one_line(exc)})") from None
     return img
 
@@ -90,19 +100,19 @@ def _one_line(exc: BaseException) -> str:
 def read_rgb(path: Path) -> np.ndarray:
     """8-bit colour image as ``uint8`` HxWx3 (RGBA and palette images are converted; grey and
     16-bit images are refused)."""
-    img = _open(path)
-    if img.mode not in ("RGB", "RGBA", "P"):
-        raise DataFormatError(f"{path}: expected an 8-bit colour image, got mode {img.mode}")
-    return np.asarray(img.convert("RGB"), dtype=np.uint8)
+    with _open(path) as img:
+        if img.mode not in ("RGB", "RGBA", "P"):
+            raise DataFormatError(f"{path}: expected an 8-bit colour image, got mode {img.mode}")
+        return np.asarray(img.convert("RGB"), dtype=np.uint8)
 
 
 def read_uint16(path: Path) -> np.ndarray:
     """16-bit single-channel image (depth) as ``uint16`` HxW."""
-    img = _open(path)
-    if img.mode not in ("I;16", "I;16B", "I;16L", "I"):
-        raise DataFormatError(f"{path}: expected a 16-bit single-channel depth image, "
-                              f"got mode {img.mode}")
-    arr = np.asarray(img)
+    with _open(path) as img:
+        if img.mode not in ("I;16", "I;16B", "I;16L", "I"):
+            raise DataFormatError(f"{path}: expected a 16-bit single-channel depth image, "
+                                  f"got mode {img.mode}")
+        arr = np.asarray(img)
     if arr.ndim != 2:
         raise DataFormatError(f"{path}: expected a single-channel image, got shape {arr.shape}")
     if arr.dtype != np.uint16:
@@ -114,11 +124,11 @@ def read_uint16(path: Path) -> np.ndarray:
 
 def read_uint8_labels(path: Path) -> np.ndarray:
     """8-bit single-channel label image as ``uint8`` HxW."""
-    img = _open(path)
-    if img.mode not in ("L", "P"):
-        raise DataFormatError(f"{path}: expected an 8-bit single-channel label image, "
-                              f"got mode {img.mode}")
-    return np.asarray(img, dtype=np.uint8)
+    with _open(path) as img:
+        if img.mode not in ("L", "P"):
+            raise DataFormatError(f"{path}: expected an 8-bit single-channel label image, "
+                                  f"got mode {img.mode}")
+        return np.asarray(img, dtype=np.uint8)
 
 
 def write_png(path: Path, array: np.ndarray) -> None:

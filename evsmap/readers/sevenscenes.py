@@ -71,7 +71,7 @@ def _scan(folder: Path) -> dict[int, dict[str, str]]:
     present."""
     frames: dict[int, dict[str, str]] = {}
     try:
-        names = [e.name for e in os.scandir(folder)]
+        names = _names(folder)
     except OSError as exc:
         raise DataFormatError(f"{folder}: cannot list the folder ({exc})") from None
     for name in names:
@@ -85,9 +85,15 @@ def _scan(folder: Path) -> dict[int, dict[str, str]]:
     return frames
 
 
+def _names(folder: Path) -> list[str]:
+    """The names in ``folder`` (the directory handle closed before returning)."""
+    with os.scandir(folder) as entries:
+        return [e.name for e in entries]
+
+
 def _has_frames(folder: Path) -> bool:
     try:
-        return any(_FRAME_FILE.match(e.name) for e in os.scandir(folder))
+        return any(_FRAME_FILE.match(name) for name in _names(folder))
     except OSError:
         return False
 
@@ -95,16 +101,17 @@ def _has_frames(folder: Path) -> bool:
 def _sequence_dirs(folder: Path) -> list[Path]:
     """``seq-NN`` sub-folders in number order."""
     try:
-        entries = [e for e in os.scandir(folder) if e.is_dir() and _SEQ_DIR.match(e.name)]
+        with os.scandir(folder) as it:
+            names = [e.name for e in it if _SEQ_DIR.match(e.name) and e.is_dir()]
     except OSError:
         return []
-    entries.sort(key=lambda e: (int(_SEQ_DIR.match(e.name).group(1)), e.name))
-    return [folder / e.name for e in entries]
+    names.sort(key=lambda n: (int(_SEQ_DIR.match(n).group(1)), n))
+    return [folder / n for n in names]
 
 
 def _zipped_sequences(folder: Path) -> list[str]:
     try:
-        return sorted(e.name for e in os.scandir(folder) if _SEQ_ZIP.match(e.name))
+        return sorted(n for n in _names(folder) if _SEQ_ZIP.match(n))
     except OSError:
         return []
 

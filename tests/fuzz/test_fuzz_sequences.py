@@ -315,7 +315,8 @@ def _apply_frame_edits(root: Path, seven_dir: Path, edits) -> None:
         name = f"frame-{n:06d}.{kind}"
         present = sorted(p for p in root.iterdir() if p.name.startswith("frame-"))
         if op == "remove" and present:
-            present[n % len(present)].unlink()
+            victim = present[n % len(present)]
+            victim.rmdir() if victim.is_dir() and not victim.is_symlink() else victim.unlink()
         elif op == "rename" and present:
             src = present[n % len(present)]
             if not (root / name).exists():
