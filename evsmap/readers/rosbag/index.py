@@ -25,7 +25,7 @@ from evsmap.readers.rosbag.messages import (
     _frame_name,
     _stamp_ns,
 )
-from evsmap.readers.rosbag.poses import _check_quat, _Samples, _TfTree
+from evsmap.readers.rosbag.poses import _check_quat, _check_translation, _Samples, _TfTree
 from evsmap.readers.tum import associate
 
 
@@ -111,6 +111,7 @@ class _IndexMixin:
             child, t, q = "", msg.pose.pose.position, msg.pose.pose.orientation
         stamp = _stamp_ns(msg)
         _check_quat(q, f"{self.label}: topic {topic} message at {_fmt(stamp)}")
+        _check_translation(t, f"{self.label}: topic {topic} message at {_fmt(stamp)}")
         if self._pose_samples is None:
             self._pose_samples = _Samples(_frame_name(msg.header.frame_id), _frame_name(child),
                                           f"{topic}")

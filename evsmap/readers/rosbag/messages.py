@@ -43,6 +43,9 @@ def _fmt(ns: int) -> str:
     return f"{ns / 1e9:.6f} s"
 
 
+def _one_line(exc: BaseException) -> str:
+    """An exception's text on one line (a library's message may span several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 def _raw_rows(msg: Any, row_bytes: int, where: str) -> np.ndarray:
     """The image bytes as (height, row_bytes) uint8, honouring ``step`` (row padding)."""
@@ -99,21 +102,34 @@ def decode_depth_image(msg: Any, where: str) -> np.ndarray:
     return _clean_depth(values.astype(np.float32))
 
 
-def _pil_open(data: bytes, where: str, what: str):
+def _pil_open(data: bytes, where: str, what: str, size: tuple[int, int] | None = None):
+    """The decoded image; with ``size`` (width, height), an image of another size is refused
+    from its header, before its pixels are allocated."""
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
     try:
-        img = Image.open(io.BytesIO(data))
-        img.load()
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        raise DataFormatError(f"{where}: cannot decode the {what} data ({exc})") from None
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            img = Image.open(io.BytesIO(data))
+            if size is not None and img.size != tuple(size):
+                raise DataFormatError(f"{where}: {what} is {img.size[0]}x{img.size[1]}; "
+                                      f"expected {size[0]}x{size[1]}")
+            img.load()
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, EOFError,
+            Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        raise DataFormatError(f"{where}: cannot decode the {what} data "
+                              f"({_one_line(exc)})") from None
     return img
 
 
-def decode_compressed_color(msg: Any, where: str) -> np.ndarray:
-    """``sensor_msgs/CompressedImage`` (JPEG, PNG, anything Pillow reads) -> ``uint8`` RGB."""
+def decode_compressed_color(msg: Any, where: str,
+                            size: tuple[int, int] | None = None) -> np.ndarray:
+    """``sensor_msgs/CompressedImage`` (JPEG, PNG, anything Pillow reads) -> ``uint8`` RGB;
+    with ``size`` (width, height), an image of another size is refused before decoding."""
     img = _pil_open(bytes(np.asarray(msg.data, dtype=np.uint8)), where,
-                    f"compressed image ({msg.format!r})")
+                    f"compressed image ({msg.format!r})", size)
     if img.mode in ("I;16", "I;16B", "I;16L", "I", "F"):
         raise DataFormatError(f"{where}: compressed colour image is {img.mode} "
                               f"(16/32-bit); expected 8-bit colour or grey")
@@ -123,8 +139,8 @@ def decode_compressed_color(msg: Any, where: str) -> np.ndarray:
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def _png_uint16(data: bytes, where: str) -> np.ndarray:
-    img = _pil_open(data, where, "compressedDepth PNG")
+def _png_uint16(data: bytes, where: str, size: tuple[int, int] | None) -> np.ndarray:
+    img = _pil_open(data, where, "compressedDepth PNG", size)
     arr = np.asarray(img)
     if arr.ndim != 2 or img.mode not in ("I;16", "I;16B", "I;16L", "I", "L"):
         raise DataFormatError(f"{where}: compressedDepth PNG is {img.mode} with shape "
@@ -132,9 +148,11 @@ def _png_uint16(data: bytes, where: str) -> np.ndarray:
     return arr.astype(np.uint16)
 
 
-def decode_compressed_depth(msg: Any, where: str) -> np.ndarray:
+def decode_compressed_depth(msg: Any, where: str,
+                            size: tuple[int, int] | None = None) -> np.ndarray:
     """Depth from ``sensor_msgs/CompressedImage``: image_transport's ``compressedDepth`` PNG
-    (16UC1 millimetres, or 32FC1 as quantised inverse depth) or a plain 16-bit PNG in mm.
+    (16UC1 millimetres, or 32FC1 as quantised inverse depth) or a plain 16-bit PNG in mm; with
+    ``size`` (width, height), an image of another size is refused before decoding.
 
     ``compressedDepth`` data is a 12-byte header (int32 format, float32 depthQuantA,
     float32 depthQuantB; little-endian) followed by a PNG; a 32FC1 image's pixels hold
@@ -159,7 +177,7 @@ def decode_compressed_depth(msg: Any, where: str) -> np.ndarray:
         else:
             raise DataFormatError(f"{where}: compressedDepth data has no PNG at byte 0 or 12 "
                                   f"({len(data)} bytes)")
-        raw = _png_uint16(png, where)
+        raw = _png_uint16(png, where, size)
         if encoding == "32fc1":
             if len(header) != 12:
                 raise DataFormatError(f"{where}: 32FC1 compressedDepth without its quantisation "
@@ -173,7 +191,7 @@ def decode_compressed_depth(msg: Any, where: str) -> np.ndarray:
     if encoding and encoding in ("32fc1",):
         raise DataFormatError(f"{where}: compressed depth format {fmt!r} is not supported; "
                               f"expected compressedDepth PNG or a 16-bit PNG in millimetres")
-    img = _pil_open(data, where, f"compressed depth ({fmt!r})")
+    img = _pil_open(data, where, f"compressed depth ({fmt!r})", size)
     if img.mode not in ("I;16", "I;16B", "I;16L", "I"):
         raise DataFormatError(f"{where}: compressed depth image is {img.mode}; expected a "
                               f"16-bit PNG in millimetres or compressedDepth")
@@ -220,7 +238,6 @@ def decode_cloud(msg: Any, where: str) -> tuple[np.ndarray, np.ndarray | None]:
             for c in "rgb":
                 add(c, "u1")
             color_field = "r,g,b"
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
     h, w = int(msg.height), int(msg.width)
     n = h * w
     data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
@@ -233,6 +250,8 @@ def decode_cloud(msg: Any, where: str) -> tuple[np.ndarray, np.ndarray | None]:
     if n == 0:
         return np.zeros((0, 3), np.float32), None if color_field is None else \
             np.zeros((0, 3), np.uint8)
+    # a point is at most the data (checked above), so point_step fits numpy's itemsize here
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
     if row_step != row or data.size != row * h:
         if data.size < row_step * h:
             data = np.concatenate([data, np.zeros(row_step * h - data.size, np.uint8)])

@@ -95,8 +95,16 @@ class _Track:
 
 def _check_quat(q: Any, where: str) -> None:
     v = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
-    if not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-6:
+    with np.errstate(over="ignore"):
+        norm = np.linalg.norm(v)
+    if not np.all(np.isfinite(v)) or not np.isfinite(norm) or norm < 1e-6:
         raise DataFormatError(f"{where}: invalid rotation quaternion {v.tolist()}")
+
+
+def _check_translation(t: Any, where: str) -> None:
+    v = np.array([t.x, t.y, t.z], dtype=np.float64)
+    if not np.all(np.isfinite(v)):
+        raise DataFormatError(f"{where}: non-finite translation {v.tolist()}")
 
 
 class _TfTree:
@@ -114,6 +122,7 @@ class _TfTree:
         parent, child = _frame_name(tf.header.frame_id), _frame_name(tf.child_frame_id)
         where = f"{self.label}: topic {topic} transform {parent} -> {child}"
         _check_quat(tf.transform.rotation, where)
+        _check_translation(tf.transform.translation, where)
         t, q = tf.transform.translation, tf.transform.rotation
         if static:
             self.static[child] = (parent, pose_matrix(

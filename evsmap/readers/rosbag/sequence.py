@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import re
 from collections import Counter
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
 from evsmap.data import Frame, Intrinsics, Sequence
-from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.errors import DataFormatError, EvsmapError, InvalidDataError
 from evsmap.readers.rosbag.framepose import _FramePoseMixin
 from evsmap.readers.rosbag.index import _IndexMixin, _Msg
 from evsmap.readers.rosbag.messages import (
@@ -24,6 +24,7 @@ from evsmap.readers.rosbag.messages import (
     IMAGE,
     TF_TYPES,
     _fmt,
+    _one_line,
     decode_cloud,
     decode_color_image,
     decode_compressed_color,
@@ -59,6 +60,40 @@ def is_rosbag(path: Path) -> bool:
     if path.is_dir() and (path / "metadata.yaml").is_file():
         return any(path.glob("*.db3*")) or any(path.glob("*.mcap*"))
     return False
+
+
+def _leaves_folder(entry: str) -> bool:
+    """Whether a file path from metadata.yaml is absolute or climbs out (``..``), as POSIX or
+    Windows reads it."""
+    posix, windows = PurePosixPath(entry), PureWindowsPath(entry)
+    return posix.is_absolute() or bool(windows.anchor) or ".." in posix.parts or \
+        ".." in windows.parts
+
+
+def check_bag_folder(folder: Path) -> None:
+    """Refuse a ROS 2 bag folder whose ``metadata.yaml`` names a file outside the folder (an
+    absolute path or a ``..`` component in ``relative_file_paths`` or ``files``): a bag must not
+    make evsmap open files elsewhere. Other problems with the file are left to the bag reader."""
+    meta = folder / "metadata.yaml"
+    try:
+        from ruamel.yaml import YAML
+
+        doc = YAML(typ="safe").load(meta.read_text(encoding="utf-8"))
+    except Exception as exc:  # unreadable or not YAML: OSError, YAMLError, UnicodeError, ...
+        raise DataFormatError(f"{meta}: not a readable bag metadata file "
+                              f"({_one_line(exc)})") from None
+    info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
+    if not isinstance(info, dict):
+        return
+    entries = info.get("relative_file_paths")
+    named = [("relative_file_paths", e) for e in entries] if isinstance(entries, list) else []
+    files = info.get("files")
+    if isinstance(files, list):
+        named += [("files", f.get("path")) for f in files if isinstance(f, dict)]
+    for key, entry in named:
+        if isinstance(entry, str) and _leaves_folder(entry):
+            raise DataFormatError(f"{meta}: {key} names {entry!r}, which is absolute or leaves "
+                                  f"the bag folder; a bag's files must lie inside its folder")
 
 
 class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
@@ -104,13 +139,16 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
                                 "bag_format": _bag_format(bag), "preset": preset}
         super().__init__(name or str(bag), None, meta)
 
+        if bag.is_dir() and (bag / "metadata.yaml").is_file():
+            check_bag_folder(bag)
         try:
             from rosbags.typesys import Stores, get_typestore
 
             reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             reader.open()
         except Exception as exc:  # rosbags raises its own errors, OSError, YAML errors, ...
-            raise DataFormatError(f"{self.label}: not a readable ROS bag ({exc})") from None
+            raise DataFormatError(f"{self.label}: not a readable ROS bag "
+                                  f"({_one_line(exc)})") from None
         self._reader = reader
         self._cursor: tuple[Any, frozenset, int, Counter] | None = None
         try:
@@ -240,7 +278,7 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
             self._cursor = (gen, keys, last, counts)
             self._drop_cursor()
             raise DataFormatError(f"{self.label}: cannot read messages at bag time "
-                                  f"{_fmt(start)} ({exc})") from None
+                                  f"{_fmt(start)} ({_one_line(exc)})") from None
         if found < len(msgs):
             self._cursor = (gen, keys, last, counts)
             self._drop_cursor()
@@ -274,14 +312,18 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
         if self.kind == "cloud":
             _, where, msg = decoded[0]
             points, colors = decode_cloud(msg, where)
-            return Frame.from_points(points, plan.pose, plan.time / 1e9, colors=colors,
-                                     name=stamp)
+            try:
+                return Frame.from_points(points, plan.pose, plan.time / 1e9, colors=colors,
+                                         name=stamp)
+            except InvalidDataError as exc:
+                raise DataFormatError(f"{where}: {_one_line(exc)}") from None
+        intr = self.intrinsics
+        size = (intr.width, intr.height)
         (m_rgb, w_rgb, rgb_msg), (m_depth, w_depth, depth_msg) = decoded
         rgb = decode_color_image(rgb_msg, w_rgb) if self._type_of(m_rgb.topic) == IMAGE else \
-            decode_compressed_color(rgb_msg, w_rgb)
+            decode_compressed_color(rgb_msg, w_rgb, size)
         depth = decode_depth_image(depth_msg, w_depth) if self._type_of(m_depth.topic) == IMAGE \
-            else decode_compressed_depth(depth_msg, w_depth)
-        intr = self.intrinsics
+            else decode_compressed_depth(depth_msg, w_depth, size)
         if rgb.shape[:2] != intr.shape:
             raise DataFormatError(f"{w_rgb}: image is {rgb.shape[1]}x{rgb.shape[0]} but the "
                                   f"intrinsics ({self.meta['intrinsics_source']}) are for "
@@ -290,8 +332,11 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
             raise DataFormatError(f"{w_depth}: depth is {depth.shape[1]}x{depth.shape[0]} but "
                                   f"the colour image on {m_rgb.topic} is "
                                   f"{rgb.shape[1]}x{rgb.shape[0]} (depth must be registered)")
-        return Frame(rgb=rgb, depth=depth, intrinsics=intr, pose=plan.pose,
-                     timestamp=plan.time / 1e9, name=stamp)
+        try:
+            return Frame(rgb=rgb, depth=depth, intrinsics=intr, pose=plan.pose,
+                         timestamp=plan.time / 1e9, name=stamp)
+        except InvalidDataError as exc:
+            raise DataFormatError(f"{w_rgb}: {_one_line(exc)}") from None
 
     def close(self) -> None:
         """Close the bag (frames can no longer be read)."""

@@ -17,6 +17,7 @@ from evsmap.readers.rosbag.messages import (
     IMAGE,
     POSE_TYPES,
     TF_TYPES,
+    _one_line,
 )
 
 # Topic and frame defaults for known recordings. A tuple lists alternatives: the first topic the
@@ -96,7 +97,7 @@ class _TopicsMixin:
             return self._reader.deserialize(raw, conn.msgtype)
         except Exception as exc:
             raise DataFormatError(f"{where}: cannot decode the {conn.msgtype} message "
-                                  f"({exc})") from None
+                                  f"({_one_line(exc)})") from None
 
     def _pick(self, role: str, option: str, given: Any, preset: dict, types: tuple[str, ...],
               candidates: list[str] | None = None, required: bool = True) -> str | None:
