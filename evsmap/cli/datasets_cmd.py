@@ -127,8 +127,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_prepare(args: argparse.Namespace) -> int:
+    from evsmap.interrupt import set_resume_hint
+
     name = args.dataset
     out = args.out if args.out is not None else DEFAULT_ROOT / name
+    set_resume_hint(f"{out} was not touched (a dataset is prepared in a staging folder and "
+                    f"moved into place at the end); run the same command again")
     if name in GENERATED:
         return _run_generate(args, out)
     given = [f"--{k.replace('_', '-')}" for k in ("rooms", "frames_per_room", "size", "seed")
@@ -197,7 +201,12 @@ def _describe(folder: Path) -> dict | None:
             record = read_manifest(folder)
         except DataFormatError as exc:
             return {"path": str(folder), "name": None, "error": str(exc)}
-        return {"path": str(folder), "name": record.get("name"), "splits": record.get("splits"),
+        name, splits = record.get("name"), record.get("splits")
+        if not isinstance(name, str) or not (splits is None or isinstance(splits, dict)):
+            return {"path": str(folder), "name": name if isinstance(name, str) else None,
+                    "error": f"{folder / MANIFEST}: \"name\" must be a string and \"splits\" "
+                             "an object (frames per split)"}
+        return {"path": str(folder), "name": name, "splits": splits,
                 "version": record.get("version"), "source": record.get("source")}
     for name in DATASETS:
         detect = READERS.get(name).extras.get("detect")
@@ -261,6 +270,10 @@ def run_fetch(args: argparse.Namespace) -> int:
         raise EvsmapError(f"{root}: the shared data folder is read-only for evsmap; pass --out "
                           "DIR to fetch elsewhere")
     interactive = sys.stdin.isatty() and sys.stderr.isatty()
+    from evsmap.interrupt import set_resume_hint
+
+    set_resume_hint("a partial download is kept (NAME.part in the download cache) and is "
+                    "resumed where it stopped: run the same command again")
     t0 = time.perf_counter()
     manifest = fetch_sample(args.name, root, overwrite=args.overwrite, yes=args.yes,
                             cache_dir=args.cache_dir, retries=args.retries,
@@ -282,9 +295,10 @@ def _sample_rows(root: Path) -> list[dict]:
     for sample in SAMPLES.values():
         path = root / sample.folder
         manifest = read_sample_manifest(sample, root) if path.exists() else None
+        date = manifest.get("date") if manifest else None
         rows.append({
             "name": sample.name, "path": str(path), "present": path.exists(),
-            "fetched": manifest.get("date") if manifest else None,
+            "fetched": date if isinstance(date, str) else None,
             "size": sample.size_text(), "description": sample.description,
             "sources": [{"url": s.url, "file": s.filename, "size": s.size, "sha256": s.sha256}
                         for s in sample.sources],

@@ -166,10 +166,11 @@ class CityscapesSequence(SegmentationSequence):
                                   f"not {NAME!r}")
         self.prepared = root if manifest is not None else None
         if manifest is not None:
-            source = Path(str(manifest.get("source", "")))
-            if not source.is_dir():
+            raw = manifest.get("source")
+            source = Path(raw) if isinstance(raw, str) and raw else Path("?")
+            if not source.is_absolute() or not (source / RGB_DIR).is_dir():
                 raise DataFormatError(f"{root / MANIFEST}: the Cityscapes tree it was prepared "
-                                      f"from ({source}) is not there; prepare it again")
+                                      f"from ({raw}) is not there; prepare it again")
             present = [s for s in SPLITS if (root / f"{s}.txt").is_file()]
         else:
             source = root

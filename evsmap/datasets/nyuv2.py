@@ -192,9 +192,11 @@ def _check_dataset(f, path: Path, key: str, shape: tuple) -> object:
         raise DataFormatError(f"{path}: unreadable HDF5 file ({exc})") from None
     if ds is None:
         raise DataFormatError(f"{path}: has no dataset {key!r} (expected the labelled NYUv2 set)")
-    if not isinstance(ds, h5py.Dataset) or ds.dtype.kind not in "uif":
-        raise DataFormatError(f"{path}: {key!r} is not a numeric array (expected the labelled "
-                              "NYUv2 set)")
+    if not isinstance(ds, h5py.Dataset) or ds.dtype.kind not in "uif" \
+            or (key == "images" and ds.dtype != np.uint8):
+        what = "a uint8 array" if key == "images" else "a numeric array"
+        raise DataFormatError(f"{path}: {key!r} is not {what} (expected the labelled NYUv2 "
+                              "set)")
     if ds.ndim != len(shape) or any(e is not None and e != s for e, s in zip(shape, ds.shape,
                                                                               strict=True)):
         want = " x ".join("N" if e is None else str(e) for e in shape)

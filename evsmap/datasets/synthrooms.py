@@ -320,7 +320,7 @@ class SynthRoomsSequence(SegmentationSequence):
         try:
             intrinsics = Intrinsics(**manifest["intrinsics"])
             rooms = {int(r["index"]): r for r in manifest["rooms"]}
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise DataFormatError(f"{root / 'evsmap-dataset.json'}: bad intrinsics or rooms "
                                   f"({exc})") from None
         for sub in (RGB_DIR, DEPTH_DIR, LABEL_DIR):

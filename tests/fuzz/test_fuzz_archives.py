@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import json
 import re
 import shutil
 import stat
@@ -465,3 +466,48 @@ def test_no_extractall_on_user_archives():
                 f"{path}: extractall without filter='data'"
             assert "zipfile" not in text or "ZipFile" not in text[max(0, match.start() - 400):
                                                                  match.start()], path
+
+
+def test_fuzz_fetch_list_cli(tmp_path, capsys):
+    """``evsmap datasets fetch --list`` over a data root whose sample manifest
+    (``evsmap-sample.json``) is damaged."""
+    from evsmap.fetch import manifest_path
+
+    sample = SAMPLES["nyuv2-samples"]
+    target = manifest_path(sample, tmp_path)
+    target.parent.mkdir(parents=True)
+    record = {"format": "evsmap-sample", "sample": sample.name, "date": "2026-01-01T00:00:00",
+              "files": [{"path": "rgb/000433.png", "size": 10, "sha256": "0" * 64,
+                         "check": "pixels"}], "archives": [], "options": {}}
+    original = json.dumps(record, indent=2).encode()
+    odd = st.one_of(st.none(), st.integers(), st.floats(allow_nan=True), st.text(max_size=5),
+                    st.builds(list), st.builds(dict))
+
+    @st.composite
+    def edited(draw: st.DrawFn) -> bytes:
+        out = json.loads(original)
+        keys = st.sampled_from(sorted(out))
+        out[draw(st.one_of(keys, st.sampled_from(["date", "files", "format"])))] = draw(odd)
+        return json.dumps(out).encode()
+
+    @given(st.one_of(mutated_bytes(original), edited()), st.booleans())
+    def inner(data, as_json):
+        write_variant(target, data)
+        check_cli("archives/fetch-list-cli", ["datasets", "fetch", "--list", "--out",
+                                              str(tmp_path)] + (["--json"] if as_json else []),
+                  (target.name,), capsys)
+
+    inner()
+
+
+@pytest.mark.parametrize("date", [5, 1.5, ["2026"], True])
+def test_fetch_list_with_a_date_that_is_not_text(tmp_path, capsys, date):
+    from evsmap.cli.main import main
+    from evsmap.fetch import manifest_path
+
+    target = manifest_path(SAMPLES["nyuv2-samples"], tmp_path)
+    target.parent.mkdir(parents=True)
+    target.write_text(json.dumps({"format": "evsmap-sample", "date": date}))
+    assert main(["datasets", "fetch", "--list", "--out", str(tmp_path)]) == 0
+    row = [line for line in capsys.readouterr().out.splitlines() if "nyuv2-samples" in line][0]
+    assert row.split()[1] == "yes"

@@ -53,6 +53,24 @@ def _png(array: np.ndarray, mode: str | None = None) -> bytes:
     return buf.getvalue()
 
 
+def png_claiming(width: int, height: int, bits: int = 8, colour: int = 0) -> bytes:
+    """A PNG whose (checksummed) header claims ``width`` x ``height`` over a tiny image."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + \
+            struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    head = struct.pack(">IIBBBBB", width, height, bits, colour, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", head) + \
+        chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+
+
+HUGE_PNGS = [png_claiming(100_000, 100_000), png_claiming(20_000, 20_000, 16),
+             png_claiming(2**31 - 1, 1), png_claiming(640, 480_000)]
+
+
 def _read_frame(folder: Path, split: str, **options: object) -> None:
     """Open ``folder`` as ``evsmap eval`` does (detected reader, split) and read frame 0."""
     seq, _ = open_dataset(str(folder), split=split, options=list(options.items()))
@@ -71,20 +89,20 @@ def _json_edits(record: dict) -> st.SearchStrategy[str]:
     def edit(draw: st.DrawFn) -> str:
         out = json.loads(json.dumps(record))
         for _ in range(draw(st.integers(1, 3))):
-            keys = sorted(out)
-            key = draw(st.sampled_from(keys))
-            op = draw(st.sampled_from(["drop", "replace", "inner"]))
-            if op == "drop":
-                del out[key]
-            elif op == "inner" and isinstance(out[key], dict) and out[key]:
-                inner = draw(st.sampled_from(sorted(out[key])))
-                out[key][inner] = draw(odd)
-            elif op == "inner" and isinstance(out[key], list) and out[key]:
-                out[key][draw(st.integers(0, len(out[key]) - 1))] = draw(odd)
-            else:
-                out[key] = draw(odd)
             if not out:
                 break
+            # a value at depth 1..3 (inside objects and lists) replaced, or a key dropped
+            holder, key = out, draw(st.sampled_from(sorted(out)))
+            for _depth in range(draw(st.integers(0, 2))):
+                inner = holder[key]
+                if isinstance(inner, dict) and inner:
+                    holder, key = inner, draw(st.sampled_from(sorted(inner)))
+                elif isinstance(inner, list) and inner:
+                    holder, key = inner, draw(st.integers(0, len(inner) - 1))
+            if isinstance(holder, dict) and draw(st.booleans()):
+                del holder[key]
+            else:
+                holder[key] = draw(odd)
         return json.dumps(out, allow_nan=True)
 
     return edit()
@@ -202,7 +220,8 @@ def test_fuzz_label_png(prepared, tmp_path_factory):
     original = target.read_bytes()
     labels = np.asarray(Image.open(io.BytesIO(original)))
 
-    @given(st.one_of(mutated_bytes(original), _label_variants(labels)), st.booleans())
+    @given(st.one_of(mutated_bytes(original), _label_variants(labels), st.sampled_from(HUGE_PNGS)),
+           st.booleans())
     def inner(data, direct):
         write_variant(target, data)
         if direct:
@@ -222,7 +241,8 @@ def test_fuzz_depth_png(prepared, tmp_path_factory):
     depth = np.asarray(Image.open(io.BytesIO(original)))
     variants = st.sampled_from([
         _png(depth.astype(np.uint8)), _png(np.stack([depth.astype(np.uint8)] * 3, axis=2)),
-        _png(depth[:100]), _png(depth.astype(np.uint8), "P"), b"", b"\x89PNG\r\n\x1a\n"])
+        _png(depth[:100]), _png(depth.astype(np.uint8), "P"), b"", b"\x89PNG\r\n\x1a\n",
+        *HUGE_PNGS])
 
     @given(st.one_of(mutated_bytes(original), variants))
     def inner(data):
@@ -398,6 +418,8 @@ def test_fuzz_sunrgbd_scene_files(rel, sun_source, tmp_path_factory):
     original = target.read_bytes()
     out = src.parent / "out"
     strategies = [mutated_bytes(original)]
+    if rel.endswith(".png"):
+        strategies.append(st.sampled_from(HUGE_PNGS))
     if rel.endswith(".txt"):
         strategies.append(text_lines(original.decode().splitlines()))
 
@@ -505,7 +527,7 @@ def test_fuzz_cityscapes_label_png(city_source, tmp_path_factory, capsys):
     out = src.parent / "out"
     variants = st.sampled_from([
         _png(ids[:512]), _png(np.stack([ids] * 3, axis=2)), _png(ids.astype(np.uint16) * 300),
-        _png(np.full_like(ids, 200)), _png(ids, "P"), _png(ids, "LA")])
+        _png(np.full_like(ids, 200)), _png(ids, "P"), _png(ids, "LA"), *HUGE_PNGS])
 
     @given(st.one_of(mutated_bytes(original), variants), st.booleans())
     def inner(data, cli):
@@ -538,3 +560,37 @@ def test_fuzz_cityscapes_camera_cli(city_source, tmp_path_factory, capsys):
                                            str(src), "--out", str(out)], (target.name,), capsys)
 
     inner()
+
+
+def test_fuzz_datasets_list_cli(prepared, tmp_path_factory, capsys):
+    """``evsmap datasets list`` over a root whose prepared folders' manifests are damaged."""
+    root = tmp_path_factory.mktemp("list_root")
+    for name in ("nyuv2", "synthrooms"):
+        shutil.copytree(prepared[name], root / name)
+    manifest = root / "nyuv2" / MANIFEST
+    original = manifest.read_bytes()
+    record = json.loads(original)
+    listed = {k: record[k] for k in ("format", "name", "splits", "version", "source")}
+
+    @given(st.one_of(mutated_bytes(original), _json_edits(record), _json_edits(listed)),
+           st.booleans())
+    def inner(data, as_json):
+        write_variant(manifest, data)
+        check_cli("datasets/list-cli", ["datasets", "list", "--root", str(root)]
+                  + (["--json"] if as_json else []), (MANIFEST, "nyuv2"), capsys)
+
+    inner()
+
+
+@pytest.mark.parametrize("record", [{"name": "nyuv2", "splits": [1, 2]},
+                                    {"name": 5, "splits": {"train": 1}},
+                                    {"name": "nyuv2", "splits": "train"}])
+def test_datasets_list_with_odd_manifest_fields(tmp_path, capsys, record):
+    from evsmap.cli.main import main
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / MANIFEST).write_text(json.dumps({"format": "evsmap-dataset", **record}))
+    assert main(["datasets", "list", "--root", str(tmp_path)]) == 0
+    assert capsys.readouterr().out.split("  ")[-1].strip() == (
+        f"{tmp_path / 'a' / MANIFEST}: \"name\" must be a string and \"splits\" an object "
+        "(frames per split)")
