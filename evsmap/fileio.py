@@ -6,11 +6,16 @@
   file, if any, stays. ``durable=True`` also flushes the file and its folder to disk (training
   checkpoints, which a power cut must not lose).
 * :func:`staging_folder`: the same for a whole output folder.
+
+A write that fails for a reason the user can fix (a full disk or quota, no permission, a
+read-only file system: :data:`WRITE_ERRNOS`) is raised as :class:`WriteError`, one line naming the
+file it was writing (not the temporary name); the file that was there before is untouched.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import secrets
 import shutil
@@ -19,6 +24,21 @@ from pathlib import Path
 from typing import IO, Any
 
 from evsmap.errors import EvsmapError
+
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS,
+                          errno.EFBIG})
+"""OS errors that are the machine's state, not a bug: full disk or quota, no permission,
+read-only file system, file too large."""
+
+
+class WriteError(EvsmapError, OSError):
+    """A file or folder that cannot be written (:data:`WRITE_ERRNOS`); the message names it."""
+
+
+def write_error(exc: OSError, path: str | os.PathLike[str]) -> WriteError:
+    """``exc`` as a :class:`WriteError` naming ``path``."""
+    reason = exc.strerror or str(exc)
+    return WriteError(f"cannot write {path}: {reason}")
 
 
 def new_file_mode() -> int:
@@ -67,6 +87,12 @@ def atomic_path(path: str | os.PathLike[str], *, durable: bool = False,
         os.replace(tmp, path)
         if durable:
             fsync_folder(path.parent)
+    except OSError as exc:
+        # a failed write of this file (not of another one the block touched) names the file
+        if isinstance(exc, WriteError) or exc.errno not in WRITE_ERRNOS or \
+                exc.filename not in (None, str(tmp), str(path)):
+            raise
+        raise write_error(exc, path) from None
     finally:
         with contextlib.suppress(OSError):
             tmp.unlink()
@@ -133,7 +159,9 @@ def staging_folder(out: Path, *, overwrite: bool, source: Path | None = None,
             shutil.rmtree(old, ignore_errors=True)
         else:
             partial.rename(dst)
+    except WriteError:
+        raise
     except OSError as exc:
-        raise EvsmapError(f"{name}: cannot write ({exc})") from None
+        raise WriteError(f"{name}: cannot write ({exc.strerror or exc})") from None
     finally:
         shutil.rmtree(partial, ignore_errors=True)

@@ -1,7 +1,10 @@
 """The ``evsmap`` command line.
 
 User errors (:class:`evsmap.errors.EvsmapError`, bad options) print one line on stderr and exit
-with status 2; Ctrl-C exits with 130. Anything else is a bug and keeps its traceback.
+with status 2, and so does a file that cannot be written (a full disk, a read-only folder: the
+line names the path). Ctrl-C (SIGINT) and SIGTERM stop the command (:mod:`evsmap.interrupt`),
+print how to resume it where it says, and exit with 130 or 143. Anything else is a bug and keeps
+its traceback.
 """
 
 from __future__ import annotations
@@ -9,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from evsmap.errors import EvsmapError
 
@@ -68,22 +72,76 @@ def _format_warning(message, category, filename, lineno, line=None) -> str:
     return f"evsmap: warning: {message}\n"
 
 
+def _leave_now(status: int) -> None:
+    """End an interrupted command at once: run the exit handlers (multiprocessing's among them:
+    its semaphores are released, its workers are already gone), flush the output, and skip the
+    interpreter's teardown of its modules, which takes a second or more once torch is loaded
+    (every file evsmap wrote is closed and in place by now)."""
+    import atexit
+    import os
+
+    try:
+        atexit._run_exitfuncs()
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(status)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     import warnings
 
     warnings.formatwarning = _format_warning
+    from evsmap.interrupt import Interrupted, handle_signals, resume_hint
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.run(args) or 0)
-    except EvsmapError as exc:
-        sys.stderr.write(f"evsmap {args.command}: error: {exc}\n")
-        return 2
-    except KeyboardInterrupt:
-        sys.stderr.write("evsmap: interrupted\n")
-        return 130
-    except BrokenPipeError:
-        return 0
+    with handle_signals():
+        try:
+            return int(args.run(args) or 0)
+        except EvsmapError as exc:
+            sys.stderr.write(f"evsmap {args.command}: error: {exc}\n")
+            return 2
+        except KeyboardInterrupt as exc:
+            signum = exc.signum if isinstance(exc, Interrupted) else 2
+            hint = resume_hint()
+            name = "SIGTERM" if signum == 15 else "Ctrl-C" if signum == 2 else f"signal {signum}"
+            sys.stderr.write(f"evsmap {args.command}: interrupted ({name})"
+                             + (f"; {hint}" if hint else "") + "\n")
+            if argv is None:  # the console script: leave now (see _leave_now)
+                _leave_now(128 + signum)
+            return 128 + signum
+        except BrokenPipeError:
+            return 0
+        except OSError as exc:
+            message = write_failure(exc)
+            if message is None:
+                raise
+            sys.stderr.write(f"evsmap {args.command}: error: {message}\n")
+            return 2
+
+
+def write_failure(exc: OSError) -> str | None:
+    """One line for an OS error a user can fix (:data:`evsmap.fileio.WRITE_ERRNOS`: full disk,
+    no permission, read-only folder), naming the path; None for any other."""
+    from evsmap.fileio import WRITE_ERRNOS
+
+    if exc.errno not in WRITE_ERRNOS:
+        return None
+    path = exc.filename
+    reason = exc.strerror or str(exc)
+    if path is None:
+        return f"{reason} ({exc})" if str(exc) != reason else reason
+    hidden = Path(str(path))
+    # a temporary file (.NAME.PID.HEX.tmp, evsmap.fileio) is named by the file it would become
+    if hidden.name.startswith(".") and hidden.name.endswith(".tmp"):
+        parts = hidden.name[1:].rsplit(".", 3)
+        if len(parts) == 4:
+            hidden = hidden.with_name(parts[0])
+    return f"{hidden}: {reason}"
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -31,6 +31,13 @@ def _tables(text: str) -> list[str]:
     return out
 
 
+def _cells(text: str) -> list[str]:
+    out = [g.strip() for g in text.split(",") if g.strip()]
+    if not out:
+        raise argparse.ArgumentTypeError("no cell pattern given")
+    return list(dict.fromkeys(out))
+
+
 def _models(text: str) -> list[str]:
     from evsmap.registry import SEGMENTERS
 
@@ -65,22 +72,30 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--weights-dir", type=Path, metavar="DIR",
                    help="trained weights named <segmenter>@<dataset>.pt, e.g. "
                         "feagnet-v2@nyuv2.pt")
-    p.add_argument("--quick", action="store_true",
+    p.add_argument("--quick", action=argparse.BooleanOptionalAction, default=None,
                    help="smoke test (under 3 minutes): 8 frames at 320x240, 3 timed runs with "
-                        "torch, speed cells above 1024x512 skipped")
-    p.add_argument("--workers", type=positive_int, default=2, metavar="N",
-                   help="processes for the cells that are not timed (default 2); timed cells "
+                        "torch, speed cells above 1024x512 skipped (with --resume: as the run "
+                        "was made)")
+    p.add_argument("--cells", type=_cells, default=None, metavar="GLOBS",
+                   help="only the cells whose key matches one of these comma-separated globs, "
+                        "e.g. 'table1/feagnet-*/complexity*' (keys as in records/*.json; a "
+                        "Table IV cell brings its mapping runs); default: every cell of "
+                        "--tables (with --resume: the run's)")
+    p.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                   help="processes for the cells that are not timed (default 2; with --resume, "
+                        "the run's); timed cells "
                         "always run alone, each in a fresh process (with --executor ray: not "
                         "used, each cell reserves the CPUs it uses)")
-    p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="where the cells run: local (default: process pools on this machine) "
+    p.add_argument("--executor", choices=("local", "ray"), default=None,
+                   help="where the cells run: local (default, or the resumed run's: process "
+                        "pools on this machine) "
                         "or ray (a Ray cluster, pip install \"evsmap[ray]\"): cells that are "
                         "not timed run as tasks on any node, each timed cell alone on a whole "
                         "node (docs/runner.md)")
     p.add_argument("--address", default=None, metavar="ADDR",
                    help="with --executor ray: the cluster to join (HOST:6379, or auto); "
                         "default: start a local Ray cluster with this machine's CPUs")
-    p.add_argument("--strict-timing", action="store_true",
+    p.add_argument("--strict-timing", action=argparse.BooleanOptionalAction, default=None,
                    help="refuse to time on a busy machine: stop at once when the load average "
                         "exceeds the cores, and record a speed cell whose calibration shows "
                         "contention (twice) as not measured instead of flagging it")
@@ -89,10 +104,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "updaters and segmenters, e.g. plug-ins) mapped beside the paper's on "
                         "the same sequences; see docs/plugins.md (with --resume: the run's)")
     p.add_argument("--resume", action="store_true",
-                   help="continue the run in --out: keep its finished cells, run the rest")
+                   help="continue the run in --out (after Ctrl-C, a failure or a crash): keep "
+                        "its finished cells, run the rest, with the run's own settings (tables, "
+                        "--quick, --cells, --systems, --train, --precision, data and weights "
+                        "folders, executor, workers) unless given again")
     p.add_argument("--force", action="store_true",
                    help="with --resume: run every cell again")
-    p.add_argument("--train", action="store_true",
+    p.add_argument("--train", action=argparse.BooleanOptionalAction, default=None,
                    help="opt-in, long: train the missing proxy weights on evsmap's synthetic "
                         "rooms (synthrooms, prepared if missing) and report their mIoU and, "
                         "with Table IV, TFEAGMap's and EVSMap's maps made with the trained "
@@ -104,17 +122,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "feagnet-v1,feagnet-v2,fchardnet-70)")
     p.add_argument("--proxy-recipe", default=None, metavar="NAME",
                    help="with --train: training recipe (default synth-proxy)")
-    p.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
+    p.add_argument("--precision", choices=("fp32", "int8"), default=None,
                    help="int8: also measure every network with a speed cell in int8 beside "
                         "fp32 (ONNX Runtime static QDQ u8s8: speed-up, top-1 agreement, mIoU "
                         "where weights and data are here), in an 'int8 beside fp32' section of "
-                        "Tables I-III and int8.csv; the paper's cells stay fp32 (default fp32)")
+                        "Tables I-III and int8.csv; the paper's cells stay fp32 (default fp32; "
+                        "with --resume, the run's)")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     import json
 
+    from evsmap.interrupt import set_resume_hint
     from evsmap.progress import progress
     from evsmap.report.build import build_report
     from evsmap.runner.context import RunContext
@@ -130,14 +150,12 @@ def run(args: argparse.Namespace) -> int:
             raise EvsmapError(f"--resume: {out} holds no run (run.json missing)")
         try:
             previous = json.loads((out / "run.json").read_text())
+            if not isinstance(previous, dict):
+                raise ValueError("not a JSON object")
         except (OSError, ValueError) as exc:
             raise EvsmapError(f"--resume: {out / 'run.json'} is unreadable ({exc})") from None
         stamp = previous.get("run", stamp)
-        # a resumed run keeps its settings: records made with other ones would be mixed in
-        if bool(previous.get("quick")) != args.quick:
-            raise EvsmapError(f"--resume: the run in {out} was made "
-                              f"{'with' if previous.get('quick') else 'without'} --quick; "
-                              f"resume it with the same setting")
+        _resume_settings(args, previous, out / "run.json")
         stored = list(previous.get("tables") or TABLE_NAMES.values())
         if args.tables is not None and args.tables != stored:
             raise EvsmapError(f"--resume: the run in {out} covers tables "
@@ -151,6 +169,9 @@ def run(args: argparse.Namespace) -> int:
     elif out.exists() and any(out.iterdir()):
         raise EvsmapError(f"--out {out}: folder exists and is not empty (use --resume to "
                           f"continue a run there)")
+    for name, value in SETTING_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
     if args.tables is None:
         args.tables = list(TABLE_NAMES.values())
     if not args.train and (args.proxy_models is not None or args.proxy_recipe is not None):
@@ -181,7 +202,10 @@ def run(args: argparse.Namespace) -> int:
 
     ctx = RunContext.create(out, data_root=args.data_root, weights_dir=args.weights_dir,
                             quick=args.quick, strict_timing=args.strict_timing)
-    the_plan = plan(ctx, args.tables, systems)
+    the_plan = plan(ctx, args.tables, systems, cells=args.cells)
+    if not the_plan.keys:
+        raise EvsmapError(f"--cells {','.join(args.cells or [])}: no cell of tables "
+                          f"{', '.join(args.tables)} matches")
     if "table4" in args.tables and ctx.dataset_path("tum") is None:
         print(f"note: no real TUM sample under {ctx.data_root} (or datasets/): Table IV maps the "
               f"synthetic room only; `evsmap datasets fetch tum-fr1-xyz` adds the sample")
@@ -192,9 +216,12 @@ def run(args: argparse.Namespace) -> int:
         if name != "synthetic":
             sequences[name] = _describe_sequence(ctx, name)
     fields = dict(run=stamp, started=started, finished=None, tables=args.tables,
+                  settings=settings_record(args),
                   environment=env, sequences=sequences,
                   systems=[s.as_dict() for s in systems])
     write_run_file(ctx, the_plan, out / "run.json", **fields)
+    set_resume_hint(f"the finished cells are kept in {out}/records: resume with "
+                    f"`evsmap reproduce --resume --out {out}`")
 
     total = len(the_plan.keys)
     bar = progress(range(total), total=total, desc="cells", unit="cell")
@@ -236,6 +263,56 @@ def run(args: argparse.Namespace) -> int:
         print(f"  failed: {r.key}: {r.error}")
     print(f"report written to {out}/ ({', '.join(p.name for p in written[:6])}, ...)")
     return 1 if err else 0
+
+
+SETTING_DEFAULTS: dict[str, object] = {
+    "quick": False, "cells": None, "workers": 2, "executor": "local", "address": None,
+    "strict_timing": False, "train": False, "proxy_models": None, "proxy_recipe": None,
+    "precision": "fp32", "data_root": None, "weights_dir": None}
+"""``reproduce``'s settings that ``run.json`` keeps (``settings``) and ``--resume`` takes back
+when they are not given again, with their defaults for a new run."""
+
+FIXED_SETTINGS = ("quick", "cells", "train", "proxy_models", "proxy_recipe", "precision")
+"""Settings that decide what a run measures: a resumed run may not change them (its records
+would be a mix); the others (where the data is, how many workers) may change."""
+
+_PATH_SETTINGS = ("data_root", "weights_dir")
+
+
+def settings_record(args: argparse.Namespace) -> dict[str, object]:
+    """The settings of this run, as ``run.json`` stores them."""
+    return {name: (str(value) if name in _PATH_SETTINGS and value is not None else value)
+            for name in SETTING_DEFAULTS for value in [getattr(args, name)]}
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _resume_settings(args: argparse.Namespace, previous: dict, source: Path) -> None:
+    """Fill the settings not given with the resumed run's (``run.json``); refuse a given one
+    that would change what the run measures. Runs written before ``settings`` was stored keep
+    at least their ``quick``."""
+    stored = previous.get("settings")
+    if not isinstance(stored, dict):
+        stored = {"quick": bool(previous.get("quick"))}
+    for name in SETTING_DEFAULTS:
+        given = getattr(args, name)
+        if name not in stored:
+            continue
+        value = stored[name]
+        if name in _PATH_SETTINGS and value is not None:
+            value = Path(value)
+        if given is None:
+            setattr(args, name, value)
+        elif name in FIXED_SETTINGS and given != value:
+            if isinstance(value, bool):
+                made = f"{'with' if value else 'without'} {_flag(name)}"
+            else:
+                made = f"with {_flag(name)} {value if value is not None else '(not given)'}"
+            raise EvsmapError(f"--resume: the run in {source.parent} was made {made}; resume "
+                              f"it without {_flag(name)} (a resumed run keeps what it "
+                              f"measures)")
 
 
 def _systems(args: argparse.Namespace, out: Path) -> list:

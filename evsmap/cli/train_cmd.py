@@ -112,8 +112,18 @@ def run(args: argparse.Namespace) -> int:
     import os
     import sys
 
+    from evsmap.interrupt import set_resume_hint
+    from evsmap.train.checkpoint import CHECKPOINT
     from evsmap.train.loop import RunOptions, train
 
+    def hint() -> str:
+        if (args.out / CHECKPOINT).is_file():
+            return (f"the last finished epoch is in {args.out / CHECKPOINT}: run the same "
+                    f"command with --resume to continue from it")
+        return f"no epoch had finished; run the same command again (nothing in {args.out} " \
+               f"is half-written)"
+
+    set_resume_hint(hint)
     opts = RunOptions(
         model=args.model, dataset=args.dataset, out=args.out, recipe=args.recipe,
         overrides=overrides(args), options=dict(args.option), reader=args.reader,

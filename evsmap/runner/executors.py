@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import abc
 import multiprocessing
+import os
 from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import dataclass
@@ -44,16 +45,69 @@ class TimingSlot:
     node_id: str | None = None
 
 
+class TerminatingPool(ProcessPoolExecutor):
+    """A spawned process pool that never outlives an error or an interruption.
+
+    Leaving its ``with`` block normally waits for the tasks, as any pool does. Leaving it by an
+    exception (Ctrl-C, SIGTERM, a failed cell) cancels what has not started and terminates the
+    workers at once (SIGTERM, then SIGKILL for one that is still there after ``grace_s``),
+    instead of waiting for the running tasks to finish. Its workers ignore SIGINT and die with
+    this process (:func:`evsmap.interrupt.worker_init`).
+
+    Args:
+        max_workers: processes.
+        max_tasks_per_child: tasks a worker runs before it is replaced (1: a fresh interpreter
+            per task).
+        grace_s: how long a terminated worker has to go before it is killed.
+    """
+
+    def __init__(self, max_workers: int, *, max_tasks_per_child: int | None = None,
+                 grace_s: float = 1.0) -> None:
+        from evsmap.interrupt import worker_init
+
+        super().__init__(max_workers=max(1, max_workers),
+                         mp_context=multiprocessing.get_context("spawn"),
+                         initializer=worker_init, initargs=(os.getpid(),),
+                         max_tasks_per_child=max_tasks_per_child)
+        self.grace_s = grace_s
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            return super().__exit__(exc_type, exc, tb)
+        self.terminate_workers()
+        return False
+
+    def terminate_workers(self) -> None:
+        """Cancel the queued tasks and end every worker now."""
+        processes = list((getattr(self, "_processes", None) or {}).values())
+        self.shutdown(wait=False, cancel_futures=True)
+        terminate_processes(processes, self.grace_s)
+
+
+def terminate_processes(processes: list, grace_s: float = 1.0) -> None:
+    """SIGTERM to every live process of ``processes``, SIGKILL to those still alive after
+    ``grace_s`` seconds in all; each is reaped."""
+    import time
+
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
+    deadline = time.monotonic() + grace_s
+    for proc in processes:
+        proc.join(max(0.0, deadline - time.monotonic()))
+        if proc.is_alive():
+            proc.kill()
+            proc.join(1.0)
+
+
 def spawn_pool(workers: int) -> Executor:
     """``workers`` spawned processes, each running any number of cells."""
-    return ProcessPoolExecutor(max_workers=max(1, workers),
-                               mp_context=multiprocessing.get_context("spawn"))
+    return TerminatingPool(workers)
 
 
 def fresh_process() -> Executor:
     """One task per fresh (spawned) interpreter, one at a time."""
-    return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                               max_tasks_per_child=1)
+    return TerminatingPool(1, max_tasks_per_child=1)
 
 
 class CellExecutor(abc.ABC):

@@ -23,14 +23,12 @@ reruns everything.
 
 from __future__ import annotations
 
-import multiprocessing
 import queue
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import (
     Executor,
     Future,
-    ProcessPoolExecutor,
     ThreadPoolExecutor,
     as_completed,
 )
@@ -56,6 +54,7 @@ from evsmap.runner.executors import (
     LocalExecutor,
     TimingSlot,
     fresh_process,
+    spawn_pool,
 )
 from evsmap.runner.records import CellRecord, RecordStore, needs_text
 from evsmap.runner.systems import ExtraSystem
@@ -82,9 +81,11 @@ class Plan:
 
 
 def plan(ctx: RunContext, tables: Iterable[str] = TABLES,
-         systems: Sequence[ExtraSystem] = ()) -> Plan:
+         systems: Sequence[ExtraSystem] = (), *, cells: Sequence[str] | None = None) -> Plan:
     """Expand ``tables`` against what is available here; with Table IV, the user's ``systems``
-    (``--systems``) map the same sequences as its rows."""
+    (``--systems``) map the same sequences as its rows. ``cells``: keep only the cells whose
+    key matches one of these globs (``fnmatch``), and the mapping runs that a kept Table IV
+    cell is read from or that match themselves."""
     loaded = load_tables()
     specs: list[CellSpec] = []
     for tid in tables:
@@ -107,6 +108,16 @@ def plan(ctx: RunContext, tables: Iterable[str] = TABLES,
             d for d in ("tum", "rtabmap", "asl", "ours1", "ours2")
             if ctx.dataset_path(d) is not None]
     runs = mapping_runs(sequences, ctx.voxel_size, systems) if sequences else []
+    if cells is not None:
+        from fnmatch import fnmatchcase
+
+        def wanted(key: str) -> bool:
+            return any(fnmatchcase(key, glob) for glob in cells)
+
+        specs = [s for s in specs if wanted(s.key)]
+        rows = {s.row for s in specs if s.kind == "mapping"}
+        runs = [r for r in runs if r.row in rows or wanted(r.key)]
+        skipped = [(k, why) for k, why in skipped if wanted(k)]
     return Plan(specs, runs, sequences, skipped)
 
 
@@ -126,9 +137,8 @@ _fresh_executor = fresh_process
 
 
 def _spawn_pool(workers: int) -> Executor:
-    """The local pool (this module's ``ProcessPoolExecutor``, so tests can replace it)."""
-    return ProcessPoolExecutor(max_workers=max(1, workers),
-                               mp_context=multiprocessing.get_context("spawn"))
+    """The local pool (a module name, so tests can replace it)."""
+    return spawn_pool(workers)
 
 
 def make_executor(name: str, *, address: str | None = None) -> CellExecutor:
@@ -143,6 +153,19 @@ def make_executor(name: str, *, address: str | None = None) -> CellExecutor:
     from evsmap.runner.ray_executor import RayExecutor
 
     return RayExecutor(address=address)
+
+
+def _result(fut: Future, key: str, out: Path) -> dict[str, Any]:
+    """A cell's record from its worker; a worker that died (killed from outside, out of
+    memory) stops the run with one line: the finished cells are kept for ``--resume``."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return fut.result()
+    except BrokenProcessPool:
+        raise EvsmapError(f"a worker process died while measuring {key} (killed from "
+                          f"outside, or out of memory); the finished cells are kept: resume "
+                          f"with `evsmap reproduce --resume --out {out}`") from None
 
 
 def _severity(record: CellRecord) -> float | None:
@@ -161,7 +184,8 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
 
     def once() -> CellRecord:
         with fresh() as ex:
-            return CellRecord.from_dict(ex.submit(_mapping_worker, run, ctx.as_dict()).result())
+            return CellRecord.from_dict(
+                _result(ex.submit(_mapping_worker, run, ctx.as_dict()), run.key, ctx.out))
 
     from evsmap.measure.contention import describe
 
@@ -296,7 +320,7 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
                 for group in by_config.values()}
             for fut in as_completed(futures):
                 group = futures[fut]
-                first = _placed(CellRecord.from_dict(fut.result()), executor)
+                first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
                 for spec in group:
                     keep(_copy_for(first, spec))
 
@@ -305,7 +329,9 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
         with executor.fresh(slot) as ex:
             data = _slot_context(ctx, slot).as_dict()
             return _placed(CellRecord.from_dict(
-                ex.submit(_spec_worker, spec.table, spec.key, data).result()), executor)
+                _result(ex.submit(_spec_worker, spec.table, spec.key, data), spec.key,
+                        ctx.out)),
+                executor)
 
     def time_run(run: MappingRun, slot: TimingSlot) -> CellRecord:
         return _placed(_timed_mapping(run, _slot_context(ctx, slot),

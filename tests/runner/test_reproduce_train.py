@@ -34,7 +34,7 @@ def fake_cells(monkeypatch):
 
     monkeypatch.setattr(matrix, "execute_spec", execute_spec)
     monkeypatch.setattr(matrix, "execute_mapping", execute_mapping)
-    monkeypatch.setattr(matrix, "ProcessPoolExecutor", Inline)
+    monkeypatch.setattr(matrix, "_spawn_pool", Inline)
     monkeypatch.setattr(matrix, "_fresh_executor", Inline)
     monkeypatch.setattr(matrix, "_unlabelled", lambda *a: False)
 

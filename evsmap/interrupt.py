@@ -1,0 +1,134 @@
+"""Interruption: Ctrl-C (SIGINT) and SIGTERM stop a command promptly and leave nothing behind.
+
+* :func:`handle_signals` (the command line wraps every command in it) turns SIGTERM into the
+  same exception as Ctrl-C (:class:`Interrupted`, a :class:`KeyboardInterrupt`), so one code
+  path unwinds both: ``with`` blocks close, process pools terminate their workers
+  (:class:`evsmap.runner.executors.TerminatingPool`), temporary files go, finished files stay
+  whole (they are all written by rename, :mod:`evsmap.fileio`).
+* :func:`set_resume_hint`: a command says how to continue it; the command line prints that
+  line when the command is interrupted.
+* :func:`worker_init`: run first in every worker process evsmap spawns. The worker ignores
+  SIGINT (a terminal's Ctrl-C reaches the whole process group; the parent decides and
+  terminates its workers) and dies with its parent (``PR_SET_PDEATHSIG`` on Linux, and a
+  watchdog thread elsewhere), so no worker outlives a parent killed outright.
+
+This module imports nothing heavy: it is the first thing a spawned worker unpickles.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import sys
+import threading
+from collections.abc import Callable, Iterator
+
+SIGNAL_NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
+
+_hint: str | Callable[[], str | None] | None = None
+
+
+class Interrupted(KeyboardInterrupt):
+    """A command stopped by a signal (SIGINT or SIGTERM).
+
+    Attributes:
+        signum: the signal's number.
+    """
+
+    def __init__(self, signum: int = signal.SIGINT) -> None:
+        super().__init__(SIGNAL_NAMES.get(signum, f"signal {signum}"))
+        self.signum = signum
+
+    @property
+    def exit_status(self) -> int:
+        """128 + the signal's number, as a shell reports a process the signal ended."""
+        return 128 + int(self.signum)
+
+
+def set_resume_hint(hint: str | Callable[[], str | None] | None) -> None:
+    """What the command line prints when this command is interrupted: a line, or a function
+    that says it then (what is left to resume depends on when); ``None``: nothing."""
+    global _hint
+    _hint = hint
+
+
+def resume_hint() -> str | None:
+    """The line set by :func:`set_resume_hint`, as of now."""
+    if callable(_hint):
+        try:
+            return _hint()
+        except Exception:  # a hint must never hide the interruption
+            return None
+    return _hint
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    # the first signal unwinds the command; a second one (an impatient Ctrl-C) must not break
+    # off that cleanup (terminating workers takes at most a second or two), so it is ignored
+    for other in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(other, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def handle_signals() -> Iterator[None]:
+    """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread for the block (a no-op
+    off the main thread, where Python cannot set handlers). Handlers that were there are
+    restored after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        current = signal.getsignal(signum)
+        if current is signal.SIG_IGN:  # e.g. started with nohup: keep ignoring it
+            continue
+        saved[signum] = current
+        signal.signal(signum, _raise_interrupted)
+    try:
+        yield
+    finally:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)
+        set_resume_hint(None)
+
+
+# ------------------------------------------------------------------------------------- workers
+PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent_linux() -> bool:
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def _watch_parent(parent: int, period_s: float = 0.5) -> None:
+    import time
+
+    while True:
+        time.sleep(period_s)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
+def worker_init(parent: int | None = None) -> None:
+    """The initializer of every worker process: ignore SIGINT, die with the parent.
+
+    ``parent`` is the pid of the process that spawned this one (``initargs=(os.getpid(),)``):
+    a parent already gone by now ends the worker at once. The watchdog thread runs everywhere,
+    as a second line behind ``PR_SET_PDEATHSIG``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if parent is None:
+        parent = os.getppid()
+    if sys.platform.startswith("linux"):
+        _die_with_parent_linux()
+    if os.getppid() != parent:
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent,), name="evsmap-parent-watch",
+                     daemon=True).start()
