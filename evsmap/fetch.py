@@ -50,7 +50,7 @@ def read_sample_manifest(sample: Sample, root: Path) -> dict | None:
     path = manifest_path(sample, root)
     try:
         record = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+    except (OSError, ValueError, RecursionError):  # ValueError: JSON, UTF-8, integer digits
         return None
     return record if isinstance(record, dict) and record.get("format") == MANIFEST_FORMAT \
         else None

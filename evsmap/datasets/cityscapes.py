@@ -22,7 +22,6 @@ names the official tree; reading that folder takes images, disparity and cameras
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -43,6 +42,7 @@ from evsmap.datasets.common import (
     make_manifest,
     manifest_name,
     read_id_list,
+    read_json,
     read_label_png,
     read_manifest,
     require_dir,
@@ -85,12 +85,9 @@ def disparity_to_depth(raw: np.ndarray, baseline: float, fx: float) -> np.ndarra
 
 def read_camera(path: Path) -> tuple[float, Intrinsics]:
     """(baseline in metres, native 2048x1024 intrinsics) from a ``*_camera.json``."""
-    try:
-        record = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DataFormatError(f"{path}: camera file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DataFormatError(f"{path}: not valid JSON ({exc})") from None
+    if not path.is_file():
+        raise DataFormatError(f"{path}: camera file not found")
+    record = read_json(path)
     try:
         baseline = record["extrinsic"]["baseline"]
         values = [record["intrinsic"][k] for k in ("fx", "fy", "u0", "v0")]

@@ -132,15 +132,23 @@ def read_id_list(path: Path, parts: int = 1) -> list[str]:
     return ids
 
 
+def read_json(path: Path) -> Any:
+    """The JSON value in ``path``; unreadable, not UTF-8, not JSON, nested too deeply or holding
+    an integer too long to convert: a one-line error naming the file."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:  # ValueError: JSON, UTF-8, integer digits
+        raise DataFormatError(f"{path}: not valid JSON ({_one_line(exc)})") from None
+    except RecursionError:
+        raise DataFormatError(f"{path}: not valid JSON (nested too deeply)") from None
+
+
 def read_manifest(folder: Path) -> dict | None:
     """The manifest of a prepared folder, ``None`` when there is none."""
     path = Path(folder) / MANIFEST
     if not path.is_file():
         return None
-    try:
-        record = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DataFormatError(f"{path}: not valid JSON ({exc})") from None
+    record = read_json(path)
     if not isinstance(record, dict) or record.get("format") != MANIFEST_FORMAT:
         raise DataFormatError(f"{path}: not an evsmap dataset manifest "
                               f"(expected \"format\": \"{MANIFEST_FORMAT}\")")

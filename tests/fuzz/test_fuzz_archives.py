@@ -490,7 +490,10 @@ def test_fuzz_fetch_list_cli(tmp_path, capsys):
         out[draw(st.one_of(keys, st.sampled_from(["date", "files", "format"])))] = draw(odd)
         return json.dumps(out).encode()
 
-    @given(st.one_of(mutated_bytes(original), edited()), st.booleans())
+    deep = st.sampled_from([b"[" * 100_000, b'{"format": "evsmap-sample", "date": ' + b"9" * 5000
+                            + b"}"])
+
+    @given(st.one_of(mutated_bytes(original), edited(), deep), st.booleans())
     def inner(data, as_json):
         write_variant(target, data)
         check_cli("archives/fetch-list-cli", ["datasets", "fetch", "--list", "--out",

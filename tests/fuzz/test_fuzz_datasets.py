@@ -78,6 +78,14 @@ def _read_frame(folder: Path, split: str, **options: object) -> None:
         seq[0]
 
 
+ODD_JSON = st.sampled_from([
+    "[" * 100_000, '{"a":' * 50_000 + "1" + "}" * 50_000,
+    '{"format": "evsmap-dataset", "name": "nyuv2", "version": ' + "9" * 5000 + "}",
+    '{"extrinsic": {"baseline": ' + "1" * 4500 + "}}", "\ufeff{}", "null", "[]", '"x"'])
+"""JSON texts no edit of a record gives: deep nesting, integers too long to convert, a BOM,
+values that are not objects."""
+
+
 def _json_edits(record: dict) -> st.SearchStrategy[str]:
     """A manifest with one of its values replaced by an odd one, or keys dropped."""
     odd = st.one_of(st.none(), st.booleans(), st.integers(-2**70, 2**70),
@@ -146,7 +154,7 @@ def test_fuzz_manifest(name, prepared, tmp_path_factory):
     original = manifest.read_bytes()
     record = json.loads(original)
 
-    @given(st.one_of(mutated_bytes(original), _json_edits(record),
+    @given(st.one_of(mutated_bytes(original), _json_edits(record), ODD_JSON,
                      text_lines(original.decode().splitlines())))
     def inner(data):
         write_variant(manifest, data)
@@ -507,7 +515,7 @@ def test_fuzz_cityscapes_camera(city_source):
             st.floats(allow_nan=True, allow_infinity=True), st.just([1.0])))
         return json.dumps(out, allow_nan=True)
 
-    @given(st.one_of(mutated_bytes(original), text_lines(lines), nested()))
+    @given(st.one_of(mutated_bytes(original), text_lines(lines), nested(), ODD_JSON))
     def inner(data):
         write_variant(folder / "fuzz_camera.json", data)
         check_file("datasets/cityscapes-camera",
@@ -572,7 +580,7 @@ def test_fuzz_datasets_list_cli(prepared, tmp_path_factory, capsys):
     record = json.loads(original)
     listed = {k: record[k] for k in ("format", "name", "splits", "version", "source")}
 
-    @given(st.one_of(mutated_bytes(original), _json_edits(record), _json_edits(listed)),
+    @given(st.one_of(mutated_bytes(original), _json_edits(record), _json_edits(listed), ODD_JSON),
            st.booleans())
     def inner(data, as_json):
         write_variant(manifest, data)
