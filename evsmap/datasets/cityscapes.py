@@ -290,7 +290,8 @@ def _probe(path: Path, modes: tuple[str, ...], what: str) -> None:
     try:
         with Image.open(path) as img:
             mode, size = img.mode, img.size
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, EOFError,
+            Image.DecompressionBombError) as exc:
         raise DataFormatError(f"{path}: unreadable or corrupt image ({exc})") from None
     if mode not in modes:
         raise DataFormatError(f"{path}: expected {what}, got mode {mode}")

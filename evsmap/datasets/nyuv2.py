@@ -150,7 +150,7 @@ def _mapping_lut(path: Path) -> np.ndarray:
     """``uint8`` table: source label (0 void, 1..894) -> 0..39, void 255."""
     mapping = np.asarray(load_mat(path, ["mapClass"], "894->40 class mapping")["mapClass"])
     flat = mapping.ravel()
-    if flat.size != NUM_SOURCE_CLASSES or not np.issubdtype(flat.dtype, np.number):
+    if flat.size != NUM_SOURCE_CLASSES or flat.dtype.kind not in "uif":
         raise DataFormatError(f"{path}: mapClass must hold {NUM_SOURCE_CLASSES} class ids, got "
                               f"{flat.dtype} of shape {mapping.shape}")
     if not np.all(np.isfinite(flat)) or np.any(flat != np.round(flat)) \
@@ -168,7 +168,8 @@ def _split_indices(path: Path, count: int) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for split, key in (("train", "trainNdxs"), ("test", "testNdxs")):
         v = np.asarray(data[key]).ravel()
-        if v.size == 0 or not np.issubdtype(v.dtype, np.number) or np.any(v != np.round(v)):
+        if v.size == 0 or v.dtype.kind not in "uif" or not np.all(np.isfinite(v)) \
+                or np.any(v != np.round(v)) or np.any(np.abs(v) > 2**53):
             raise DataFormatError(f"{path}: {key} must be a list of 1-based frame indices")
         v = v.astype(np.int64)
         if v.min() < 1 or v.max() > count:

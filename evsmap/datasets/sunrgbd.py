@@ -210,9 +210,14 @@ def _load_meta(path: Path) -> list[_MetaEntry]:
             if not isinstance(value, str) or not value:
                 raise DataFormatError(f"{path}: SUNRGBDMeta({i + 1}) has no {field}")
             fields[field] = value
+        for field in ("rgbname", "depthname"):
+            name = fields[field]
+            if name in (".", "..") or any(c in name for c in "/\\\0"):
+                raise DataFormatError(f"{path}: SUNRGBDMeta({i + 1}).{field} {name!r} is not a "
+                                      "file name")
         rgb = PurePosixPath(fields["rgbpath"].replace("\\", "/"))
         key = scene_key(str(rgb.parent.parent)) if rgb.parent.name == "image" else None
-        if key is None:
+        if key is None or ".." in key.split("/") or "\0" in key:
             raise DataFormatError(f"{path}: SUNRGBDMeta({i + 1}).rgbpath "
                                   f"{fields['rgbpath']!r} is not .../SUNRGBD/<scene>/image/<file>")
         entries.append(_MetaEntry(i, key, fields["rgbname"], fields["depthname"],
@@ -251,7 +256,11 @@ def _read_intrinsics(scene: Path, entry: _MetaEntry, width: int, height: int) ->
                                   f"got {len(values)}")
         K = np.array(values).reshape(3, 3)  # row-major, as the toolbox reads it
     elif entry.K is not None and np.asarray(entry.K).shape == (3, 3):
-        K = np.asarray(entry.K, dtype=np.float64)
+        K = np.asarray(entry.K)
+        if K.dtype.kind not in "uif":
+            raise DataFormatError(f"{path}: not found, and SUNRGBDMeta({entry.index + 1}).K is "
+                                  f"not a numeric 3x3 matrix ({K.dtype})")
+        K = K.astype(np.float64)
     else:
         raise DataFormatError(f"{path}: camera intrinsics not found")
     try:
@@ -272,7 +281,7 @@ def _read_seglabel(f, refs: np.ndarray, entry: _MetaEntry, seg_path: Path) -> np
     if not isinstance(obj, h5py.Dataset) or obj.ndim != 2:
         raise DataFormatError(f"{seg_path}: {where}: expected a 2-D label image")
     arr = read_h5_array(seg_path, obj, where).T  # MATLAB H x W stored column-major
-    if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
+    if arr.dtype.kind not in "uif":
         raise DataFormatError(f"{seg_path}: {where}: expected numeric labels, got {arr.dtype}")
     if arr.size and (not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr))
                      or arr.min() < 0 or arr.max() > NUM_CLASSES):

@@ -602,3 +602,62 @@ def test_datasets_list_with_odd_manifest_fields(tmp_path, capsys, record):
     assert capsys.readouterr().out.split("  ")[-1].strip() == (
         f"{tmp_path / 'a' / MANIFEST}: \"name\" must be a string and \"splits\" an object "
         "(frames per split)")
+
+
+META_VARIANTS = {
+    "rgbname climbs": ("rgbname", "../../../../evil.jpg"),
+    "depthname path": ("depthname", "sub/x.png"),
+    "rgbpath climbs": ("rgbpath", "/n/SUNRGBD/../../../etc/image/img_0000.jpg"),
+    "rgbpath number": ("rgbpath", 5.0),
+    "rgbname empty": ("rgbname", np.zeros((0, 0))),
+    "K strings": ("K", np.array([["a", "b", "c"]] * 3)),
+    "K complex": ("K", np.eye(3) * (1 + 1j)),
+    "K NaN": ("K", np.full((3, 3), np.nan)),
+    "K shape": ("K", np.ones((2, 5))),
+    "K struct": ("K", {"a": 1.0}),
+}
+
+
+@pytest.mark.parametrize("variant", sorted(META_VARIANTS))
+def test_sunrgbd_meta_variants(variant, sun_source, tmp_path, capsys):
+    """``SUNRGBDMeta.mat`` whose first frame has a field of the wrong kind (the camera matrix
+    counts when the scene has no intrinsics.txt), through ``evsmap datasets prepare sunrgbd``."""
+    src = tmp_path / "src"
+    shutil.copytree(sun_source, src)
+    meta_path = src / "SUNRGBDtoolbox" / "Metadata" / "SUNRGBDMeta.mat"
+    meta = scipy.io.loadmat(meta_path)["SUNRGBDMeta"]
+    field, value = META_VARIANTS[variant]
+    meta[0, 0][field] = value
+    scipy.io.savemat(meta_path, {"SUNRGBDMeta": meta})
+    (src / "SUNRGBD" / SUN_SCENE / "intrinsics.txt").unlink()
+    check_cli("datasets/prepare-cli", ["datasets", "prepare", "sunrgbd", "--from", str(src),
+                                       "--out", str(tmp_path / "out")],
+              ("SUNRGBDMeta.mat", "intrinsics.txt"), capsys)
+    assert not list(tmp_path.rglob("evil*"))
+
+
+@pytest.mark.parametrize("rel", [f"leftImg8bit/{CITY_STEM}_leftImg8bit.png",
+                                 f"disparity/{CITY_STEM}_disparity.png"])
+def test_fuzz_cityscapes_images(rel, city_source, tmp_path_factory):
+    """The colour and disparity PNGs: header-checked by ``prepare_cityscapes`` (the prepared
+    folder is then read, frame 0), and decoded by the reader of the official tree."""
+    src = tmp_path_factory.mktemp("city_images") / "src"
+    shutil.copytree(city_source, src)
+    target = src / rel
+    original = target.read_bytes()
+    out = src.parent / "out"
+
+    def prepare_and_read() -> None:
+        shutil.rmtree(out, ignore_errors=True)
+        cs.prepare_cityscapes(src, out)
+        _read_frame(out, "val", resolution="2048x1024")
+
+    @given(st.one_of(mutated_bytes(original), st.sampled_from(HUGE_PNGS)), st.booleans())
+    def inner(data, prepare):
+        write_variant(target, data)
+        if prepare:
+            check_file("datasets/cityscapes-images", prepare_and_read, target)
+        else:
+            check_file("datasets/cityscapes-images", lambda: _read_frame(src, "val"), target)
+
+    inner()
