@@ -233,11 +233,18 @@ def array_digest(array) -> str:
 
 
 def _open_image(path: Path):
-    """``path`` opened and decoded with PIL; an unreadable image is a :class:`FetchError`."""
+    """``path`` decoded with PIL (from memory: PIL reads what a damaged PNG chunk length claims
+    in one call); an unreadable image, or one claiming more pixels than evsmap's readers take,
+    is a :class:`FetchError`."""
     from PIL import Image, UnidentifiedImageError
 
+    from evsmap.readers.images import MAX_PIXELS
+
     try:
-        im = Image.open(path)
+        im = Image.open(io.BytesIO(path.read_bytes()))
+        if im.width * im.height > MAX_PIXELS:
+            raise FetchError(f"{path}: image header claims {im.width}x{im.height} pixels (at "
+                             f"most {MAX_PIXELS} read; corrupt file?)")
         im.load()
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError, EOFError,
             Image.DecompressionBombError) as exc:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import struct
 import warnings
 import zlib
@@ -66,7 +67,9 @@ def _open(path: Path) -> Image.Image:
         raise DataFormatError(f"{path}: file not found")
     try:
         with open(path, "rb") as fh:
-            return _decode(path, fh)
+            # from memory: PIL reads the rest of a PNG chunk whose length field claims up to
+            # 4 GiB in one read(), which a file object allocates before reading, memory not
+            return _decode(path, io.BytesIO(fh.read()))
     except OSError as exc:
         raise DataFormatError(f"{path}: cannot read ({_one_line(exc)})") from None
 

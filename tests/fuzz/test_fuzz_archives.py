@@ -318,7 +318,10 @@ def test_fuzz_verify_images(tmp_path):
     sample = dataclasses.replace(SAMPLES["sevenscenes-100"], rules=rules)
     display = tmp_path / "root" / "sevenscenes_100"
 
-    @given(mutated_bytes(depth), st.sampled_from(["a.png", "a.jpg", "a.dpt"]))
+    i = depth.find(b"IDAT")
+    claims = st.sampled_from([depth[:i - 4] + b"\xff\xff\xff\x00" + depth[i:]])
+
+    @given(st.one_of(mutated_bytes(depth), claims), st.sampled_from(["a.png", "a.jpg", "a.dpt"]))
     def inner(data, name):
         for old in folder.iterdir():
             old.unlink()

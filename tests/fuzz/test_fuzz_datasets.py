@@ -67,6 +67,13 @@ def png_claiming(width: int, height: int, bits: int = 8, colour: int = 0) -> byt
         chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
 
 
+def idat_claim(png: bytes, length: int = 0xFFFFFF00) -> bytes:
+    """``png`` whose first IDAT chunk claims ``length`` bytes (PIL reads the unread rest of it in
+    one call once the image is decoded)."""
+    i = png.find(b"IDAT")
+    return png[:i - 4] + length.to_bytes(4, "big") + png[i:]
+
+
 HUGE_PNGS = [png_claiming(100_000, 100_000), png_claiming(20_000, 20_000, 16),
              png_claiming(2**31 - 1, 1), png_claiming(640, 480_000)]
 
@@ -228,8 +235,9 @@ def test_fuzz_label_png(prepared, tmp_path_factory):
     original = target.read_bytes()
     labels = np.asarray(Image.open(io.BytesIO(original)))
 
-    @given(st.one_of(mutated_bytes(original), _label_variants(labels), st.sampled_from(HUGE_PNGS)),
-           st.booleans())
+    huge = st.sampled_from([*HUGE_PNGS, idat_claim(original)])
+
+    @given(st.one_of(mutated_bytes(original), _label_variants(labels), huge), st.booleans())
     def inner(data, direct):
         write_variant(target, data)
         if direct:
@@ -250,7 +258,7 @@ def test_fuzz_depth_png(prepared, tmp_path_factory):
     variants = st.sampled_from([
         _png(depth.astype(np.uint8)), _png(np.stack([depth.astype(np.uint8)] * 3, axis=2)),
         _png(depth[:100]), _png(depth.astype(np.uint8), "P"), b"", b"\x89PNG\r\n\x1a\n",
-        *HUGE_PNGS])
+        *HUGE_PNGS, idat_claim(original)])
 
     @given(st.one_of(mutated_bytes(original), variants))
     def inner(data):
@@ -652,7 +660,9 @@ def test_fuzz_cityscapes_images(rel, city_source, tmp_path_factory):
         cs.prepare_cityscapes(src, out)
         _read_frame(out, "val", resolution="2048x1024")
 
-    @given(st.one_of(mutated_bytes(original), st.sampled_from(HUGE_PNGS)), st.booleans())
+    huge = st.sampled_from([*HUGE_PNGS, idat_claim(original)])
+
+    @given(st.one_of(mutated_bytes(original), huge), st.booleans())
     def inner(data, prepare):
         write_variant(target, data)
         if prepare:
