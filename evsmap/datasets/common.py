@@ -188,10 +188,11 @@ def is_hdf5(path: Path) -> bool:
         return False
 
 
-MAX_MAT_BYTES = 1 << 30
-"""The largest MATLAB variable (or HDF5 dataset) read whole, in bytes: more than any file of the
-official releases holds in one variable it reads whole (the NYUv2 images are read frame by
-frame), far less than what a damaged header can claim."""
+MAX_MAT_BYTES = 256 * 1024**2
+"""The largest HDF5 (MATLAB v7.3) variable read whole, in bytes: far more than any variable of
+the official releases evsmap reads whole (split lists, class mappings, one label image; the
+NYUv2 images are read frame by frame), far less than what a damaged header can claim, with room
+for the checks' temporary copies."""
 
 H5_ERRORS: tuple[type[Exception], ...] = (OSError, RuntimeError, KeyError, ValueError,
                                           TypeError, AttributeError)

@@ -195,6 +195,30 @@ def test_prepared_folder_needs_its_source(city_prepared, tmp_path):
     (moved / MANIFEST).write_text(json.dumps(manifest))
     with pytest.raises(DataFormatError, match="prepare it again"):
         CityscapesSequence(path=moved)
+    for source in ("", ".", 5, "relative/tree"):  # not an absolute path to a tree
+        manifest["source"] = source
+        (moved / MANIFEST).write_text(json.dumps(manifest))
+        with pytest.raises(DataFormatError, match=f"^{moved / MANIFEST}: .*prepare it again"):
+            CityscapesSequence(path=moved)
+
+
+@pytest.mark.parametrize("line", ["../../etc/x", "lindau", "lindau/", "a/b/c", "lindau/x\\y"])
+def test_prepared_list_lines_that_cannot_name_a_frame(city_prepared, tmp_path, line):
+    moved = tmp_path / "prep"
+    shutil.copytree(city_prepared, moved)
+    (moved / "val.txt").write_text(f"{line}\n")
+    with pytest.raises(DataFormatError, match=f"^{moved / 'val.txt'}:1: id .* cannot name a "
+                                              "frame's files"):
+        CityscapesSequence(path=moved, split="val")
+
+
+def test_prepared_list_naming_a_frame_without_image(city_prepared, tmp_path):
+    moved = tmp_path / "prep"
+    shutil.copytree(city_prepared, moved)
+    (moved / "val.txt").write_text("frankfurt/frankfurt_000000_999999\n")
+    with pytest.raises(DataFormatError, match=f"^{moved / 'val.txt'}: frame frankfurt/"
+                                              "frankfurt_000000_999999 has no image "):
+        CityscapesSequence(path=moved, split="val")
 
 
 @pytest.mark.parametrize("resolution", ["2048x1024", "1024x512"])

@@ -192,3 +192,22 @@ def test_missing_folders_raise_at_open(nyu_prepared, tmp_path):
         NYUv2Sequence(path=nyu_prepared)
     with pytest.raises(DataFormatError, match="not a folder"):
         NYUv2Sequence(path=tmp_path / "nope")
+
+
+@pytest.mark.parametrize("text", ["", "# nothing\n", "../rgb/000001\n", "000001/x\n",
+                                  "0000\x0001\n"])
+def test_split_file_that_lists_no_usable_frame(nyu_prepared, text):
+    (nyu_prepared / "test.txt").write_text(text)
+    with pytest.raises(DataFormatError, match=f"^{nyu_prepared / 'test.txt'}"):
+        NYUv2Sequence(path=nyu_prepared, split="test")
+
+
+def test_labelled_file_with_fractional_labels(tmp_path):
+    arrays = {"rgb": np.zeros((2, 480, 640, 3), np.uint8),
+              "depth": np.ones((2, 480, 640), np.float32),
+              "labels": np.full((2, 480, 640), 2.5, np.float32)}
+    write_nyu_source(tmp_path / "src", arrays)
+    scipy.io.savemat(tmp_path / "src" / "splits.mat", {"trainNdxs": np.array([[1.0]]),
+                                                       "testNdxs": np.array([[2.0]])})
+    with pytest.raises(DataFormatError, match="labels of frame 1 hold non-integer values"):
+        prepare_nyuv2(tmp_path / "src", tmp_path / "out")
