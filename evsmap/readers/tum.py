@@ -12,7 +12,9 @@ ground-truth pose is interpolated to each depth timestamp (linear translation, s
 
 from __future__ import annotations
 
+import bisect
 import json
+import math
 import re
 from pathlib import Path
 
@@ -51,7 +53,8 @@ def detect_camera(path: Path) -> str | None:
 
 
 def read_list(path: Path, columns: int) -> list[list[str]]:
-    """Non-comment lines of a TUM text file split on whitespace, each with ``columns`` fields."""
+    """Non-comment lines of a TUM text file split on whitespace, each with ``columns`` fields
+    and a finite time stamp first."""
     if not path.is_file():
         raise DataFormatError(f"{path}: file not found")
     rows = []
@@ -68,9 +71,11 @@ def read_list(path: Path, columns: int) -> list[list[str]]:
             raise DataFormatError(
                 f"{path}:{lineno}: expected {columns} fields, got {len(fields)}: {line[:80]!r}")
         try:
-            float(fields[0])
+            stamp = float(fields[0])
         except ValueError:
             raise DataFormatError(f"{path}:{lineno}: bad timestamp {fields[0]!r}") from None
+        if not math.isfinite(stamp):
+            raise DataFormatError(f"{path}:{lineno}: timestamp {fields[0]!r} is not finite")
         rows.append(fields)
     return rows
 
@@ -145,7 +150,8 @@ def _candidates(a: np.ndarray, b: np.ndarray, max_difference: float):
     cands = []
     for i, (first, last) in enumerate(zip(lo, hi, strict=True)):
         js = np.arange(first, last)
-        d = np.abs(a[i] - bs[js])
+        with np.errstate(invalid="ignore"):  # inf - inf: nan, never within the tolerance
+            d = np.abs(a[i] - bs[js])
         keep = d < max_difference
         cands.append(list(zip(js[keep].tolist(), d[keep].tolist(), strict=True)))
     return order_b, cands
@@ -177,29 +183,51 @@ def associate(a: np.ndarray, b: np.ndarray, max_difference: float,
                 used_b.add(j)
                 pairs.append((int(order_a[i]), int(order_b[j])))
         return sorted(pairs)
-    # best[(j)] after frame i: score (pairs, -total diff) and back-pointer, j = last used b (-1)
-    states: dict[int, tuple[tuple[int, float], list[tuple[int, int]]]] = {-1: ((0, 0.0), [])}
+    floors = [min((j for j, _ in cs), default=len(b)) for cs in cands]
+    for i in range(len(floors) - 2, -1, -1):  # the smallest j any frame from i on can take
+        floors[i] = min(floors[i], floors[i + 1])
+    return sorted((int(order_a[i]), int(order_b[j])) for i, j in _optimal_path(cands, floors))
+
+
+def _optimal_path(cands: list[list[tuple[int, float]]], floors: list[int]) -> list[tuple[int, int]]:
+    """The order-preserving matching of :func:`associate` (``optimal``) as (i, j) pairs.
+
+    Dynamic programming over frames: a state is the last b index used (-1: none) with its score
+    (pairs, -total difference) and its pairs as a linked list. States are kept only while no
+    state with a smaller last index scores at least as much, so scores rise with the last index
+    and the best state to extend with b index j is the one with the largest last index below j
+    (a bisection). States whose last index is below every candidate of the frames still to come
+    (``floors[i + 1]``) are all extended alike: only the best of them is kept. A frame costs its
+    candidates' bisections plus the states within its time window, so a long sequence is
+    linear in its length and duplicated stamps cost a window's square, not its cube.
+    """
+    lasts: list[int] = [-1]
+    states: list[tuple[tuple[int, float], tuple | None]] = [((0, 0.0), None)]
     for i, cs in enumerate(cands):
-        new = dict(states)  # a_i left unmatched
+        new = dict(zip(lasts, states, strict=True))  # a_i left unmatched
         for j, d in cs:
-            best = None
-            for last, (score, path) in states.items():
-                if last < j and (best is None or score > best[0]):
-                    best = (score, path)
-            if best is None:
+            k = bisect.bisect_left(lasts, j) - 1
+            if k < 0:
                 continue
-            score = (best[0][0] + 1, best[0][1] - d)
+            (pairs, total), node = states[k]
+            score = (pairs + 1, total - d)
             if j not in new or score > new[j][0]:
-                new[j] = (score, best[1] + [(i, j)])
-        # keep, for every last-used j, only states not dominated by one with a smaller j
-        pruned, top = {}, None
+                new[j] = (score, ((i, j), node))
+        floor = floors[i + 1] if i + 1 < len(floors) else None
+        lasts, states = [], []
         for last in sorted(new):
-            if top is None or new[last][0] > top:
-                pruned[last] = new[last]
-                top = new[last][0]
-        states = pruned
-    _, path = max(states.values(), key=lambda s: s[0])
-    return sorted((int(order_a[i]), int(order_b[j])) for i, j in path)
+            if states and not new[last][0] > states[-1][0]:
+                continue  # dominated by a state with a smaller last index
+            if floor is not None and states and lasts[-1] < floor and last < floor:
+                lasts.pop()  # both below what later frames can take: keep the better
+                states.pop()
+            lasts.append(last)
+            states.append(new[last])
+    path, node = [], states[-1][1]
+    while node is not None:
+        path.append(node[0])
+        node = node[1]
+    return path[::-1]
 
 
 def read_intrinsics_file(path: Path) -> Intrinsics:

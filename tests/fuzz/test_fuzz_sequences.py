@@ -12,6 +12,7 @@ return or one line naming the file or the folder.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -21,10 +22,11 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from PIL import Image
 
 from evsmap.readers.detect import open_sequence
 from evsmap.readers.sevenscenes import open_sevenscenes
-from evsmap.readers.tum import open_tum
+from evsmap.readers.tum import associate, open_tum
 from tests.fuzz.harness import check_cli, check_file, mutated_bytes, text_lines, write_variant
 
 TUM_NAME = "rgbd_dataset_freiburg1_xyz"
@@ -173,6 +175,56 @@ def test_fuzz_tum_groundtruth(tum_folder):
 
 def test_fuzz_tum_labels_list(tum_labelled):
     _fuzz_tum_list(tum_labelled, "labels.txt", "tum/labels-list")
+
+
+_stamp = st.one_of(st.sampled_from([0.0, 0.01, 0.03, 0.0333, 0.05]),
+                   st.floats(0.0, 1.3), st.floats(allow_nan=True, allow_infinity=True))
+
+
+@st.composite
+def stamp_lists(draw) -> tuple[list[float], list[float]]:
+    """Depth and RGB time stamps (offsets from the first ground-truth sample's): duplicated,
+    equal, close, shuffled, non-finite, huge; up to a few hundred of each."""
+    n, m = draw(st.integers(0, 300)), draw(st.integers(0, 300))
+    base = draw(st.lists(_stamp, min_size=1, max_size=6))
+    pick = st.sampled_from(base) | _stamp
+    return draw(st.lists(pick, min_size=n, max_size=n)), \
+        draw(st.lists(pick, min_size=m, max_size=m))
+
+
+def test_fuzz_tum_association(tum_folder):
+    """Many equal or close stamps (a list written with a frozen clock, concatenated lists) are
+    associated one-to-one within the tolerance, in order, without a hang."""
+    rgb, depth = tum_folder / "rgb.txt", tum_folder / "depth.txt"
+    originals = {p: p.read_bytes() for p in (rgb, depth)}
+    images = {p: p.read_text().split()[-1] for p in (rgb, depth)}
+    t0 = float((tum_folder / "groundtruth.txt").read_text().splitlines()[3].split()[0])
+
+    def check(t_depth, t_rgb):
+        pairs = associate(t_depth, t_rgb, 0.02)
+        greedy = associate(t_depth, t_rgb, 0.02, method="greedy")
+        for found in (pairs, greedy):  # one-to-one, within the tolerance
+            assert len({i for i, _ in found}) == len({j for _, j in found}) == len(found)
+            assert all(abs(t_depth[i] - t_rgb[j]) < 0.02 for i, j in found)
+        assert len(pairs) >= len(greedy)  # optimal keeps the most pairs
+        matched = sorted(pairs, key=lambda p: (t_depth[p[0]], p[0]))
+        rgb_order = [t_rgb[j] for _, j in matched]
+        assert rgb_order == sorted(rgb_order)  # order-preserving
+        open_tum(path=str(tum_folder)).frame(0)
+
+    @given(stamp_lists())
+    def inner(stamps):
+        for p, offsets in zip((depth, rgb), stamps, strict=True):
+            p.write_text("".join(f"{t0 + t!r} {images[p]}\n" for t in offsets))
+        t_depth, t_rgb = (np.array([t0 + t for t in offsets]) for offsets in stamps)
+        try:
+            check_file("tum/association", lambda: check(t_depth, t_rgb), depth,
+                       names=(tum_folder.name,))
+        finally:
+            for p, data in originals.items():
+                p.write_bytes(data)
+
+    inner()
 
 
 _number = st.one_of(
@@ -500,6 +552,48 @@ def test_fuzz_cli_sevenscenes(tmp_path_factory, sevenscenes_dir, capsys):
     root = build_sevenscenes(tmp_path_factory.mktemp("cliseven"), sevenscenes_dir)
     _fuzz_cli(root, ("camera-intrinsics.txt", "frame-000001.pose.txt"), "cli/sevenscenes",
               capsys, tmp_path_factory.mktemp("cliseven-out"))
+
+
+@st.composite
+def label_images(draw, root: Path) -> tuple[str, bytes]:
+    """One of the folder's label images replaced by a valid PNG of the right or a wrong size
+    holding any class id (beyond the 40 classes, void)."""
+    rel = draw(st.sampled_from(sorted(str(p.relative_to(root)) for p in
+                                      (root / "labels").iterdir())))
+    w, h = draw(st.sampled_from([(40, 30), (40, 30), (30, 40), (1, 1)]))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    high = draw(st.sampled_from([40, 41, 256]))
+    buf = io.BytesIO()
+    Image.fromarray(rng.integers(0, high, (h, w)).astype(np.uint8)).save(buf, format="PNG")
+    return rel, buf.getvalue()
+
+
+def test_fuzz_cli_synth(tmp_path_factory, capsys):
+    from evsmap.cli.main import main
+
+    root = tmp_path_factory.mktemp("clisynth") / "synth"
+    assert main(["synth", "--out", str(root), "--frames", "3", "--width", "40",
+                 "--height", "30"]) == 0
+    restore = Restore(root)
+    commands = [["info", str(root)],
+                ["map", str(root), "--updater", "orgb", "--frames", "2"],
+                ["map", str(root), "--updater", "multiclass-bayes", "--frames", "2"],
+                ["map", str(root), "--updater", "classic-semantic", "--frames", "2",
+                 "--skip-bad"]]
+    meta = json.loads((root / "evsmap.json").read_text())
+
+    @given(st.one_of(_cli_strategy(root, SYNTH_FILES), label_images(root),
+                     st.tuples(st.just("evsmap.json"), json_variants(meta))),
+           st.sampled_from(commands))
+    def inner(choice, argv):
+        name, data = choice
+        write_variant(root / name, data)
+        try:
+            check_cli("cli/synth", argv, (root.name, Path(name).name), capsys)
+        finally:
+            restore()
+
+    inner()
 
 
 def test_skip_bad_reports_a_corrupt_frame(tmp_path_factory, tum_dir, sevenscenes_dir, capsys):
