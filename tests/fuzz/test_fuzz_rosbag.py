@@ -390,7 +390,7 @@ def image_fields(draw: st.DrawFn, encodings: list[str]) -> dict[str, Any]:
     if draw(st.integers(0, 5)) == 0:
         w, h = draw(st.sampled_from([(10**5, 10**5), (2**32 - 1, 2), (1, 2**32 - 1),
                                      (70_000, 70_000), (2**31, 2**31)]))
-    step = w * bpp + draw(st.sampled_from([0, 0, 0, 1, 3, -1, -w * bpp]))
+    step = w * bpp + draw(st.sampled_from([0, 0, 0, 1, 3, -1, -w * bpp, 2**32]))
     step = max(0, min(step, 2**32 - 1))
     size = min(step * h, 4096) + draw(st.sampled_from([0, 0, 0, 1, -1, -7, 64]))
     size = max(0, size)

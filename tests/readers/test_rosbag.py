@@ -557,6 +557,28 @@ def test_missing_file_and_empty_bag(tmp_path):
         open_rosbag(path=str(bad))
 
 
+@pytest.mark.parametrize("entry", ["/etc/passwd", "../outside.db3", "sub/../../outside.db3",
+                                   "..", "C:\\bags\\outside.db3", "..\\outside.db3"])
+def test_metadata_paths_outside_the_bag_folder_refused(tmp_path, entry):
+    """A ROS 2 bag's metadata.yaml must not make evsmap open files outside its folder."""
+    w = BagWriter(tmp_path / "bag", "sqlite3")
+    w.tf("/tf", 10**9, "world", "cam", np.eye(4))
+    folder = w.close()
+    meta = folder / "metadata.yaml"
+    db3 = next(folder.glob("*.db3"))
+    text = meta.read_text()
+    assert f"- {db3.name}" in text
+    meta.write_text(text.replace(f"- {db3.name}", f"- {entry!r}"))
+    with pytest.raises(DataFormatError, match=r"bag/metadata\.yaml: relative_file_paths names "
+                                              r".*leaves the bag folder") as err:
+        open_rosbag(path=str(folder))
+    assert "\n" not in str(err.value)
+    # the same file name inside the folder is fine
+    meta.write_text(text)
+    with pytest.raises(DataFormatError, match="no images"):
+        open_rosbag(path=str(folder))
+
+
 def test_missing_topics(tmp_path):
     only_tf = small_bag(tmp_path / "only_tf.bag", colors=(), depth=None, info=False)
     with pytest.raises(DataFormatError, match=r"only_tf\.bag: .*no images .*or point clouds"):

@@ -70,7 +70,7 @@ class _IndexMixin:
         self._pose_samples: _Samples | None = None
         self._camera_info = None
         counts: Counter = Counter()
-        for conn, log, raw in self._reader.messages(connections=conns):
+        for conn, log, raw in self._messages(self.label, connections=conns):
             topic = conn.topic
             key = (topic, conn.id)
             nth = counts[(key, log)]

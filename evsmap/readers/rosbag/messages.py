@@ -59,9 +59,19 @@ def _raw_rows(msg: Any, row_bytes: int, where: str) -> np.ndarray:
     if data.size < step * (h - 1) + row_bytes:
         raise DataFormatError(f"{where}: {data.size} data bytes for a {w}x{h} image with step "
                               f"{step} (expected {step * h})")
-    if data.size < step * h:  # last row without its padding
-        data = np.concatenate([data, np.zeros(step * h - data.size, dtype=np.uint8)])
-    return data[: step * h].reshape(h, step)[:, :row_bytes]
+    return _rows(data, h, row_bytes, step)
+
+
+def _rows(data: np.ndarray, count: int, row_bytes: int, stride: int) -> np.ndarray:
+    """``count`` rows of ``row_bytes`` starting every ``stride`` bytes of ``data`` (which holds
+    them, the last one possibly without its padding): no padding is allocated, however large
+    the stride claims to be."""
+    data = np.ascontiguousarray(data)
+    if stride == row_bytes:
+        return data[: count * row_bytes].reshape(count, row_bytes)
+    view = np.lib.stride_tricks.as_strided(data, shape=(count, row_bytes), strides=(stride, 1),
+                                           writeable=False)
+    return np.ascontiguousarray(view)
 
 
 def decode_color_image(msg: Any, where: str) -> np.ndarray:
@@ -252,10 +262,7 @@ def decode_cloud(msg: Any, where: str) -> tuple[np.ndarray, np.ndarray | None]:
             np.zeros((0, 3), np.uint8)
     # a point is at most the data (checked above), so point_step fits numpy's itemsize here
     dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
-    if row_step != row or data.size != row * h:
-        if data.size < row_step * h:
-            data = np.concatenate([data, np.zeros(row_step * h - data.size, np.uint8)])
-        data = np.ascontiguousarray(data[: row_step * h].reshape(h, row_step)[:, :row])
+    data = np.ascontiguousarray(_rows(data, h, row, row_step))
     rec = data.reshape(-1).view(dtype)
     pts = np.stack([rec["x"].astype(np.float32), rec["y"].astype(np.float32),
                     rec["z"].astype(np.float32)], axis=1)

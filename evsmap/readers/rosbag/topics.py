@@ -6,7 +6,7 @@ pose source (a pose topic or ``/tf``)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 from evsmap.errors import DataFormatError
@@ -83,11 +83,30 @@ class _TopicsMixin:
         types = {c.msgtype for c in self._conns(topic)}
         return types.pop() if len(types) == 1 else ""
 
+    def _messages(self, where: str, **selection: Any) -> Iterator[tuple[Any, int, bytes]]:
+        """The reader's messages; a failure of the bag's storage (a corrupt chunk, index or
+        record, a failed decompression: rosbags' errors, OSError, RuntimeError, ...) raises a
+        one-line DataFormatError naming ``where``."""
+        gen = self._reader.messages(**selection)
+        try:
+            while True:
+                try:
+                    item = next(gen)
+                except StopIteration:
+                    return
+                except Exception as exc:
+                    raise DataFormatError(f"{where}: cannot read the bag's messages "
+                                          f"({_one_line(exc)})") from None
+                yield item
+        finally:
+            gen.close()
+
     def _first(self, topic: str) -> Any:
-        gen = self._reader.messages(connections=self._conns(topic))
+        where = f"{self.label}: topic {topic}"
+        gen = self._messages(where, connections=self._conns(topic))
         try:
             for conn, _, raw in gen:
-                return self._deserialize(raw, conn, f"{self.label}: topic {topic}")
+                return self._deserialize(raw, conn, where)
         finally:
             gen.close()
         return None
