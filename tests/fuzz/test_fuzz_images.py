@@ -178,12 +178,15 @@ def test_fuzz_huge_claimed_sizes(tmp_path, samples):
     png = ("tum-depth", "tum-rgb", "nyu-label40", "7scenes-depth")
 
     @given(st.sampled_from(png + ("7scenes-color",)), _side, _side,
-           st.sampled_from(["whole", "truncated"]))
+           st.sampled_from(["whole", "truncated", "idat-length"]))
     def inner(name, width, height, cut):
         data, kind = samples[name]
         jpeg = name == "7scenes-color"
         if jpeg:
             edited = jpeg_with_size(data, min(width, 65535), min(height, 65535))
+        elif cut == "idat-length":  # the size kept, the first IDAT chunk claiming ~4 GiB
+            i = data.find(b"IDAT")
+            edited = data[:i - 4] + (0xFFFFFF00 - width % 256).to_bytes(4, "big") + data[i:]
         else:
             edited = png_with_size(data, width, height)
         if cut == "truncated":
