@@ -83,6 +83,17 @@ def disparity_to_depth(raw: np.ndarray, baseline: float, fx: float) -> np.ndarra
     return depth.astype(np.float32)
 
 
+def _camera_number(value: object) -> float:
+    """``value`` as a float; NaN for what is not a number (a bool, a string, an integer beyond
+    the float range)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return math.nan
+    try:
+        return float(value)
+    except OverflowError:
+        return math.nan
+
+
 def read_camera(path: Path) -> tuple[float, Intrinsics]:
     """(baseline in metres, native 2048x1024 intrinsics) from a ``*_camera.json``."""
     if not path.is_file():
@@ -94,11 +105,14 @@ def read_camera(path: Path) -> tuple[float, Intrinsics]:
     except (KeyError, TypeError):
         raise DataFormatError(f"{path}: expected extrinsic.baseline and intrinsic.fx/fy/u0/v0") \
             from None
-    numbers = [baseline, *values]
-    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-               for v in numbers) or baseline <= 0:
+    numbers = [_camera_number(v) for v in (baseline, *values)]
+    if not all(math.isfinite(v) for v in numbers) or numbers[0] <= 0 \
+            or not math.isfinite(numbers[0] * numbers[1]):
+        shown = str([baseline, *values])
         raise DataFormatError(f"{path}: baseline and intrinsics must be finite numbers with a "
-                              f"positive baseline, got {numbers}")
+                              f"positive baseline, got {shown[:200]}"
+                              + ("..." if len(shown) > 200 else ""))
+    baseline, values = numbers[0], numbers[1:]
     try:
         return float(baseline), Intrinsics(*values, NATIVE_WIDTH, NATIVE_HEIGHT)
     except EvsmapError as exc:

@@ -275,6 +275,10 @@ def _read_poses(path: Path) -> dict[str, tuple[int, float, np.ndarray, np.ndarra
             values = np.array([float(x) for x in fields[2:]], dtype=np.float64)
             if not np.all(np.isfinite(values)):
                 raise ValueError
+            norm = float(np.linalg.norm(values[4:8]))
+            if not (math.isfinite(norm) and 1e-6 < norm < 1e6):
+                raise DataFormatError(f"{path}:{number}: quaternion qx qy qz qw has norm {norm:g} "
+                                      "(expected a unit quaternion)")
         except ValueError:
             raise DataFormatError(f"{path}:{number}: expected 'id room timestamp tx ty tz qx qy "
                                   f"qz qw', got {line!r}") from None

@@ -184,8 +184,24 @@ def test_fuzz_id_lists(name, rel, split, prepared, tmp_path_factory):
     target = folder / rel
     original = target.read_bytes()
 
-    @given(st.one_of(mutated_bytes(original), text_lines(original.decode().splitlines()),
-                     st.binary(max_size=64)))
+    lines = original.decode().splitlines()
+
+    @st.composite
+    def quaternion(draw: st.DrawFn) -> str:
+        """poses.txt with a frame's quaternion zero, tiny or huge."""
+        out = list(lines)
+        i = draw(st.integers(1, len(out) - 1))
+        fields = out[i].split()
+        q = draw(st.sampled_from(["0", "1e-320", "1e308", "1e200", "-0"]))
+        fields[6:10] = [q, q, q, q] if draw(st.booleans()) else [q, "0", "0", "0"]
+        out[i] = " ".join(fields)
+        return "\n".join(out) + "\n"
+
+    strategies = [mutated_bytes(original), text_lines(lines), st.binary(max_size=64)]
+    if rel == "poses.txt":
+        strategies.append(quaternion())
+
+    @given(st.one_of(*strategies))
     def inner(data):
         write_variant(target, data)
         check_file("datasets/id-list", lambda: _read_frame(folder, split), target,
@@ -520,6 +536,7 @@ def test_fuzz_cityscapes_camera(city_source):
         key = draw(st.sampled_from(sorted(out[part])))
         out[part][key] = draw(st.one_of(
             st.none(), st.booleans(), st.text(max_size=5), st.integers(-2**80, 2**80),
+            st.sampled_from([10**400, -10**400, 10**308 * 10, 1e308]),
             st.floats(allow_nan=True, allow_infinity=True), st.just([1.0])))
         return json.dumps(out, allow_nan=True)
 
