@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from evsmap.data import Frame, Sequence
+from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.synth.sequence import SyntheticSequence
 
 
@@ -55,7 +56,10 @@ class CachedSynthetic(Sequence):
 
         self.live = SyntheticSequence(**options)  # checks the options before rendering
         self.folder = rendered_folder(options)
-        self._tum = READERS.create("tum", path=str(self.folder))
+        try:
+            self._tum = READERS.create("tum", path=str(self.folder))
+        except EvsmapError as exc:
+            raise self._damaged(exc) from None
         meta = dict(self.live.meta, render="cached", path=str(self.folder))
         super().__init__(self.live.name, self._tum.intrinsics, meta)
         self.class_names = self.live.class_names
@@ -65,7 +69,15 @@ class CachedSynthetic(Sequence):
         return len(self._tum)
 
     def frame(self, index: int) -> Frame:
-        return self._tum.frame(index)
+        try:
+            return self._tum.frame(index)
+        except EvsmapError as exc:
+            raise self._damaged(exc) from None
+
+    def _damaged(self, exc: EvsmapError) -> DataFormatError:
+        """The reader's one-line error with what to do about a damaged cache folder."""
+        return DataFormatError(f"{exc} (in evsmap's cached rendering of the synthetic sequence; "
+                               f"delete {self.folder} to render it again)")
 
     def ground_truth(self, resolution: float):
         """Occupied voxels of the room with their labels (the live sequence's)."""

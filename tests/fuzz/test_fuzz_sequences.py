@@ -24,6 +24,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from PIL import Image
 
+from evsmap.errors import EvsmapError
 from evsmap.readers.detect import open_sequence
 from evsmap.readers.sevenscenes import open_sevenscenes
 from evsmap.readers.tum import associate, open_tum
@@ -507,6 +508,14 @@ def test_fuzz_cached_synthetic():
             restore()
 
     inner()
+    # the message says what to do about a damaged cache
+    (folder / "depth.txt").write_text("not a list\n")
+    try:
+        with pytest.raises(EvsmapError, match="delete .* to render it again"):
+            CachedSynthetic(**options)
+    finally:
+        restore()
+    assert len(CachedSynthetic(**options)) == 2
 
 
 # ----------------------------------------------------------------------------- command line
