@@ -71,9 +71,12 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise DataFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
     for key, kind in (("tables", list), ("available", list), ("cells", list),
-                      ("environment", dict), ("sequences", dict)):
+                      ("environment", dict), ("sequences", dict), ("skipped", list)):
         if data.get(key) is not None and not isinstance(data[key], kind):
             raise DataFormatError(f"{path}: {key!r} must be a JSON {kind.__name__}")
+    for key in ("tables", "available", "cells"):
+        if not all(isinstance(v, str) for v in data.get(key) or []):
+            raise DataFormatError(f"{path}: {key!r} must be a list of strings")
     return data
 
 
@@ -95,9 +98,7 @@ def read_records(run_dir: str | Path) -> list[CellRecord]:
             raise DataFormatError(f"{path}: unreadable record ({exc})") from None
         except RecursionError:
             raise DataFormatError(f"{path}: unreadable record (nested too deeply)") from None
-        if not isinstance(data, dict):
-            raise DataFormatError(f"{path}: not a cell record (a JSON {type(data).__name__})")
-        rec = CellRecord.from_dict(data, source=str(path))
+        rec = CellRecord.from_json(data, source=str(path))
         _check_record(rec, path)
         out.append(rec)
     return out

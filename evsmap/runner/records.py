@@ -12,7 +12,7 @@ import json
 import os
 import re
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -89,7 +89,7 @@ class CellRecord:
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
-            raise ValueError(f"record {self.key}: status must be one of {STATUSES}, "
+            raise ValueError(f"record {self.key!r}: status must be one of {STATUSES}, "
                              f"got {self.status!r}")
 
     def as_dict(self) -> dict[str, Any]:
@@ -97,10 +97,46 @@ class CellRecord:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], *, source: str = "record") -> CellRecord:
+        names = {f.name for f in fields(cls)}
+        unknown = sorted((k for k in data if k not in names), key=str)
+        if unknown:
+            raise DataFormatError(f"{source}: not a cell record (unknown field {unknown[0]!r})")
         try:
             return cls(**data)
         except (TypeError, ValueError) as exc:
             raise DataFormatError(f"{source}: not a cell record ({exc})") from None
+
+    @classmethod
+    def from_json(cls, data: Any, *, source: str) -> CellRecord:
+        """A record read from a file: ``data`` must be a JSON object whose fields have their
+        JSON types (strings, lists of strings, objects, a number of seconds).
+
+        Raises:
+            DataFormatError: ``source: not a cell record (what is wrong)``, one line.
+        """
+        if not isinstance(data, dict):
+            raise DataFormatError(f"{source}: not a cell record (a JSON {type(data).__name__})")
+        for name, value in data.items():
+            kind = _JSON_TYPES.get(name)
+            if kind is None:
+                continue
+            bad = not isinstance(value, kind) or isinstance(value, bool) and kind is not bool
+            if not bad and kind is list and name in _STRING_LISTS:
+                bad = not all(isinstance(v, str) for v in value)
+            if bad:
+                what = "a list of strings" if name in _STRING_LISTS else _KIND_NAMES[kind]
+                raise DataFormatError(f"{source}: not a cell record ({name!r} must be {what}, "
+                                      f"not {type(value).__name__})")
+        return cls.from_dict(data, source=source)
+
+
+_JSON_TYPES: dict[str, Any] = {
+    "key": str, "table": str, "row": str, "label": str, "kind": str, "status": str,
+    "reason": str, "error": str, "started": str, "seconds": (int, float),
+    "metrics": list, "notes": list, "needs": list,
+    "values": dict, "details": dict, "inputs": dict, "environment": dict}
+_STRING_LISTS = ("metrics", "notes", "needs")
+_KIND_NAMES = {str: "a string", (int, float): "a number", list: "a list", dict: "an object"}
 
 
 def _file_name(key: str) -> str:
@@ -141,7 +177,7 @@ class RecordStore:
             raise DataFormatError(f"{path}: unreadable record ({exc})") from None
         except RecursionError:
             raise DataFormatError(f"{path}: unreadable record (nested too deeply)") from None
-        return CellRecord.from_dict(data, source=str(path))
+        return CellRecord.from_json(data, source=str(path))
 
     def __iter__(self) -> Iterator[CellRecord]:
         if not self.folder.is_dir():

@@ -34,7 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from evsmap.errors import EvsmapError
 from evsmap.tables.schema import Component
 
-ID = re.compile(r"^[a-z0-9][a-z0-9_.-]*$")
+ID = re.compile(r"[a-z0-9][a-z0-9_.-]*")
 
 
 class _PluginModel(BaseModel):
@@ -89,10 +89,17 @@ def _component(plugin: _PluginModel) -> Component:
     return Component(plugin.name, tuple(sorted(plugin.options.items())))
 
 
+_PLAIN_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
 def _where(loc: tuple[Any, ...]) -> str:
+    """``systems[0].updater.name``; a key that is not a plain word is quoted (``[' a\\n']``)."""
     out = ""
     for part in loc:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+        if isinstance(part, int) or not _PLAIN_KEY.fullmatch(str(part)):
+            out += f"[{part!r}]"
+        else:
+            out += f".{part}" if out else str(part)
     return out
 
 
@@ -105,7 +112,8 @@ def parse_systems(data: dict[str, Any], *, source: str,
     except ValidationError as exc:
         first = exc.errors()[0]
         more = len(exc.errors()) - 1
-        raise EvsmapError(f"{source}: {_where(first['loc']) or 'the file'}: {first['msg']}"
+        message = " ".join(str(first["msg"]).split())
+        raise EvsmapError(f"{source}: {_where(first['loc']) or 'the file'}: {message}"
                           + (f" (and {more} more)" if more else "")) from None
     from evsmap.registry import SEGMENTERS, UPDATERS
 
@@ -113,7 +121,7 @@ def parse_systems(data: dict[str, Any], *, source: str,
     seen: set[str] = set()
     for n, s in enumerate(model.systems):
         where = f"{source}: systems[{n}] ({s.id!r})"
-        if not ID.match(s.id):
+        if not ID.fullmatch(s.id):
             raise EvsmapError(f"{where}: an id is lower-case letters, digits, '-', '_' or '.'")
         if s.id in taken or s.id in seen:
             raise EvsmapError(f"{where}: the id is taken ("
@@ -134,8 +142,8 @@ def parse_systems(data: dict[str, Any], *, source: str,
                     is not None
         except EvsmapError as exc:
             raise EvsmapError(f"{where}: {exc}") from None
-        except TypeError as exc:  # a factory refusing an option
-            raise EvsmapError(f"{where}: {exc}") from None
+        except (TypeError, ValueError) as exc:  # a factory refusing an option
+            raise EvsmapError(f"{where}: {' '.join(str(exc).split())}") from None
         systems.append(ExtraSystem(id=s.id, label=s.label or s.id, updater=updater,
                                    segmenter=segmenter, segmenter_is_network=network))
     return systems

@@ -67,12 +67,20 @@ def parse_tables(data: Mapping[str, Any], *, source: str = "paper tables") -> Pa
     Raises:
         TableSchemaError: ``source: place: what is wrong`` (one line).
     """
-    model = validate(data, source=source)
+    try:
+        model = validate(data, source=source)
+    except TableSchemaError as exc:  # a key of the file may hold a line break: keep one line
+        raise TableSchemaError(_one_line(str(exc))) from None
     return PaperTables(
         tables={tid: _table(tid, t) for tid, t in model.tables.items()},
         hardware={k: v.model_dump(exclude_unset=True) for k, v in model.hardware.items()},
         datasets={k: v.model_dump(exclude_unset=True) for k, v in model.datasets.items()},
         source=model.source)
+
+
+def _one_line(text: str) -> str:
+    """``text`` with line breaks and other unprintable characters escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def _table(tid: str, raw: TableModel) -> PaperTable:

@@ -226,13 +226,30 @@ class MultiClassBayesMap(OctreeUpdater):
                                    f"{EMPTY_ID} classes, got {observation.num_classes}")
 
 
+MAX_RESTORE_VOXELS = 10_000_000
+"""Finest voxels a restored map may hold (the file's pruned leaves expanded): about 110 bytes
+each while restoring, so ~1.1 GB; a small file whose coarse leaves claim more is refused."""
+
+
 def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBayesMap:
     """A :class:`MultiClassBayesMap` restored from its ``.ot`` file (mapping can continue);
-    ``kwargs`` are the map's options."""
+    ``kwargs`` are the map's options.
+
+    Raises:
+        DataFormatError: unreadable or corrupt file, another tree type, or leaves covering more
+            than :data:`MAX_RESTORE_VOXELS` finest voxels (names the file).
+    """
     from evsmap.errors import DataFormatError, InvalidDataError
+    from evsmap.mapping.keys import TREE_DEPTH
     from evsmap.mapping.octree_io import read_ot
 
-    resolution = read_ot(path, payload_format={TREE_TYPE: PAYLOAD_FORMAT}).resolution
+    saved = read_ot(path, payload_format={TREE_TYPE: PAYLOAD_FORMAT})
+    resolution, tree = saved.resolution, saved.tree
+    depth = tree.leaves()[0].astype(np.float64)
+    voxels = float(np.sum(8.0 ** (TREE_DEPTH - depth)))
+    if voxels > MAX_RESTORE_VOXELS:
+        raise DataFormatError(f"{path}: its {len(depth)} leaves cover {voxels:.3g} finest voxels, "
+                              f"more than the {MAX_RESTORE_VOXELS:.3g} a map is restored with")
     try:
         return MultiClassBayesMap(resolution=resolution, **kwargs).restore(path)
     except DataFormatError:

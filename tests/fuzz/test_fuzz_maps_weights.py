@@ -230,6 +230,13 @@ def test_octree_refuses_huge_and_looping_claims(tmp_path):
     head = b"# Octomap OcTree file\nid " + TREE_TYPE.encode() + b"\nsize 1\nres 0.05\ndata\n"
     path = write_variant(tmp_path / "root-leaf.ot", head + root.tobytes())
     check_file("octree/claims", lambda: load_multiclass_bayes(path), path)
+    # 10 records (a chain to depth 7, two leaves at depth 8): 3.4e7 finest voxels to restore
+    masks = [1] * 7 + [3, 0, 0]
+    chain = np.zeros(len(masks), dtype=root.dtype)
+    chain["mask"] = masks
+    head = head.replace(b"size 1", b"size 10")
+    path = write_variant(tmp_path / "coarse-leaves.ot", head + chain.tobytes())
+    check_file("octree/claims", lambda: load_multiclass_bayes(path), path)
     for data in (_looping_ot(3, 0),):
         check_file("octree/claims", lambda d=data: parse_ot(d, name="bytes.ot"), None,
                    names=("bytes.ot",))

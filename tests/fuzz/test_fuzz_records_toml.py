@@ -419,11 +419,12 @@ def _docs_systems() -> str:
 @st.composite
 def generated_systems(draw: st.DrawFn) -> str:
     plugin = st.fixed_dictionaries(
-        {"name": st.one_of(st.sampled_from(["max-confidence", "multiclass-bayes", "row-bands",
-                                            "octomap", "feagnet-v1", "nope", ""]), _SCALAR)},
+        {"name": st.one_of(st.sampled_from(["orgb", "multiclass-bayes", "octomap-cpp",
+                                            "classic-semantic", "oracle", "feagnet-s", "nope",
+                                            ""]), _SCALAR)},
         optional={"options": st.one_of(st.dictionaries(
-            st.sampled_from(["first_class", "bands", "resolution", "max_range", "theta",
-                             "clamp_min", "x"]), _SCALAR, max_size=3), _SCALAR),
+            st.sampled_from(["resolution", "max_range", "theta", "clamp_min", "leaf_update",
+                             "num_classes", "weights", "x"]), _SCALAR, max_size=3), _SCALAR),
             "extra": _SCALAR})
     system = st.fixed_dictionaries(
         {"id": st.one_of(st.sampled_from(["maxconf", "evsmap", "Bad Id", "a", ""]), _SCALAR)},
@@ -454,3 +455,38 @@ def test_fuzz_systems_file(tmp_path_factory):
         check_file("toml/systems", lambda: load_systems(path, taken={"evsmap"}), path)
 
     inner()
+
+
+def test_records_toml_regressions(tmp_path, run_template, capsys):
+    """What the fuzzer found, kept as fixed cases: fields of the wrong JSON type that broke the
+    report (a dict as a record's table, a list as its row, a number as run.json's skipped),
+    keys holding line breaks (a record's unknown field, a systems key, a table id), a systems
+    id with a trailing line break (``$`` matches before it)."""
+    import tomllib
+
+    from evsmap.runner.systems import load_systems
+    from evsmap.tables.load import parse_tables
+
+    name = _record_files(run_template)[0].name
+    real = json.loads((run_template / "records" / name).read_text())
+    for change in ({"table": {}}, {"row": []}, {"status": "odd", "key": "a\nb"}, {"x\ny": 1},
+                   {"metrics": [1]}, {"seconds": "1"}, {"notes": None}):
+        run = _fresh_run(run_template, tmp_path)
+        target = write_variant(run / "records" / name, _json_text({**real, **change}))
+        check_file("records/regressions", lambda r=run: _read_all(r), target)
+        check_cli("records/regressions", ["report", str(run)], (name,), capsys)
+    run = _fresh_run(run_template, tmp_path)
+    raw_run = json.loads((run / "run.json").read_text())
+    for change in ({"skipped": 3}, {"tables": [{}]}, {"available": [[1]]}):
+        target = write_variant(run / "run.json", _json_text({**raw_run, **change}))
+        check_cli("records/regressions", ["report", str(run)], ("run.json",), capsys)
+    for text in ('[[systems]]\nid = "a"\nupdater = { name = "orgb" }\n"x\\ny" = 1\n',
+                 '[[systems]]\nid = "a\\n"\nupdater = { name = "orgb" }\n'):
+        path = write_variant(tmp_path / "systems.toml", text)
+        check_file("records/regressions", lambda p=path: load_systems(p), path)
+        with pytest.raises(Exception, match="systems"):
+            load_systems(path)
+    data = tomllib.loads(TABLES.read_text())
+    data["tables"]["a\nb"] = {}
+    check_file("records/regressions", lambda: parse_tables(data, source="tables.toml"), None,
+               names=("tables.toml",))
