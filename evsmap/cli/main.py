@@ -95,25 +95,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     import warnings
 
     warnings.formatwarning = _format_warning
-    from evsmap.interrupt import Interrupted, handle_signals, resume_hint
+    from evsmap.interrupt import handle_signals
 
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    with handle_signals():
+    with handle_signals():  # before the parser: building it imports for half a second
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+        except KeyboardInterrupt as exc:
+            return _interrupted(exc, "evsmap", leave=argv is None)
         try:
             return int(args.run(args) or 0)
         except EvsmapError as exc:
+            interrupt = _interrupt_behind(exc)
+            if interrupt is not None:  # e.g. an import broken off by Ctrl-C, seen as missing
+                return _interrupted(interrupt, f"evsmap {args.command}", leave=argv is None)
             sys.stderr.write(f"evsmap {args.command}: error: {exc}\n")
             return 2
         except KeyboardInterrupt as exc:
-            signum = exc.signum if isinstance(exc, Interrupted) else 2
-            hint = resume_hint()
-            name = "SIGTERM" if signum == 15 else "Ctrl-C" if signum == 2 else f"signal {signum}"
-            sys.stderr.write(f"evsmap {args.command}: interrupted ({name})"
-                             + (f"; {hint}" if hint else "") + "\n")
-            if argv is None:  # the console script: leave now (see _leave_now)
-                _leave_now(128 + signum)
-            return 128 + signum
+            return _interrupted(exc, f"evsmap {args.command}", leave=argv is None)
         except BrokenPipeError:
             return 0
         except OSError as exc:
@@ -122,6 +121,31 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise
             sys.stderr.write(f"evsmap {args.command}: error: {message}\n")
             return 2
+
+
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interruption an error was raised while handling, if any (its context chain)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _interrupted(exc: KeyboardInterrupt, prog: str, *, leave: bool) -> int:
+    """The line of an interrupted command (with its resume hint) and its exit status; the
+    console script (``leave``) ends right here (:func:`_leave_now`)."""
+    from evsmap.interrupt import Interrupted, resume_hint
+
+    signum = exc.signum if isinstance(exc, Interrupted) else 2
+    hint = resume_hint()
+    name = "SIGTERM" if signum == 15 else "Ctrl-C" if signum == 2 else f"signal {signum}"
+    sys.stderr.write(f"{prog}: interrupted ({name})" + (f"; {hint}" if hint else "") + "\n")
+    if leave:
+        _leave_now(128 + signum)
+    return 128 + signum
 
 
 def write_failure(exc: OSError) -> str | None:

@@ -85,13 +85,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from evsmap.interrupt import set_resume_hint
+
+    set_resume_hint("no map was written (a map file is written whole or not at all); run the "
+                    "same command again")
     from evsmap.measure.mapping import map_sequence
     from evsmap.measure.pipelined import stage_threads_option
     from evsmap.progress import progress
     from evsmap.registry import SEGMENTERS, UPDATERS
 
-    set_resume_hint("no map was written (a map file is written whole or not at all); run the "
-                    "same command again")
     if args.out is not None:
         if args.out.suffix not in (".ot", ".bt"):
             raise EvsmapError(f"--out {args.out}: the map file must end in .ot or .bt")

@@ -4,14 +4,17 @@ prompt, the listing; and the catalogue's expected values against the real sample
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import io
 import json
+import signal
 import subprocess
 import sys
 import tarfile
 import threading
+import time
 import zipfile
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -41,6 +44,7 @@ class FileServer:
     def __init__(self) -> None:
         self.files: dict[str, bytes] = {}
         self.cut_once: dict[str, int] = {}
+        self.interrupt_at: dict[str, int] = {}  # path -> bytes sent before Ctrl-C reaches us
         self.wrong: set[str] = set()
         self.redirects: dict[str, str] = {}
         self.no_head = False
@@ -114,6 +118,19 @@ class FileServer:
                     self.wfile.write(body[:cut])
                     self.wfile.flush()
                     self.close_connection = True
+                    return
+                with server.lock:
+                    at = server.interrupt_at.pop(self.path, None)
+                if at is not None:
+                    # Ctrl-C in the middle of the transfer: the signal reaches the client (this
+                    # process's main thread) while the rest is still on its way
+                    self.wfile.write(body[:at])
+                    self.wfile.flush()
+                    time.sleep(0.3)  # the client is now waiting for the rest
+                    signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+                    time.sleep(0.5)
+                    with contextlib.suppress(OSError):
+                        self.wfile.write(body[at:])
                     return
                 self.wfile.write(body)
 
@@ -663,3 +680,26 @@ def test_the_command_line_module_stays_light():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=True).stdout
     assert out.strip() == "[]"
+
+
+@pytest.mark.parametrize("at", [150_000, 299_999])
+def test_ctrl_c_keeps_the_part_file_and_the_next_call_resumes(capsys, tmp_path, server, bag, at):
+    from evsmap.interrupt import handle_signals
+
+    server.interrupt_at["/mirror/test.bag"] = at
+    with handle_signals():  # as the command line runs it (a test's main() keeps pytest's)
+        code, out, err = fetch_cli(capsys, tmp_path, "lidar-odometry-bag")
+    assert code == 130, err
+    assert err.startswith("evsmap datasets: interrupted (Ctrl-C); a partial download is kept")
+    part = tmp_path / "cache" / "test.bag.part"
+    assert not (tmp_path / "root").exists()
+    # the signal may land before the body is read (no .part yet); what was kept is a prefix
+    kept = part.stat().st_size if part.exists() else 0
+    assert part.read_bytes() == BAG[:kept] if part.exists() else True
+
+    code, out, err = fetch_cli(capsys, tmp_path, "lidar-odometry-bag")
+    assert code == 0, err
+    if 0 < kept < len(BAG):
+        assert server.gets("/mirror/test.bag")[-1] == f"bytes={kept}-"
+    assert (tmp_path / "root" / "ros" / "lidar_odometry.bag").read_bytes() == BAG
+    assert not part.exists()
