@@ -441,16 +441,17 @@ def _sun_prepare(src: Path, out: Path) -> None:
 SUN_SCENE = "kv1/NYUdata/NYU0001"
 
 
-@pytest.mark.parametrize("rel", ["intrinsics.txt", "depth_bfx/img_0000.png"])
+@pytest.mark.parametrize("rel", ["intrinsics.txt", "depth_bfx/img_0000.png",
+                                 "image/img_0000.jpg"])
 def test_fuzz_sunrgbd_scene_files(rel, sun_source, tmp_path_factory):
-    """A scene's ``intrinsics.txt`` (lines and bytes) and refined depth PNG (bytes)."""
+    """A scene's ``intrinsics.txt`` (lines and bytes), refined depth PNG and colour JPEG."""
     src = tmp_path_factory.mktemp("sun_scene") / "src"
     shutil.copytree(sun_source, src)
     target = src / "SUNRGBD" / SUN_SCENE / rel
     original = target.read_bytes()
     out = src.parent / "out"
     strategies = [mutated_bytes(original)]
-    if rel.endswith(".png"):
+    if rel.endswith((".png", ".jpg")):
         strategies.append(st.sampled_from(HUGE_PNGS))
     if rel.endswith(".txt"):
         strategies.append(text_lines(original.decode().splitlines()))
