@@ -742,6 +742,7 @@ def _write_raw_depth(labelled: Path, frames: list[int], folder: Path) -> None:
     import numpy as np
 
     from evsmap.datasets import nyuv2
+    from evsmap.datasets.common import H5_ERRORS
     from evsmap.readers.images import write_png
 
     try:
@@ -750,16 +751,17 @@ def _write_raw_depth(labelled: Path, frames: list[int], folder: Path) -> None:
                 raise FetchError(f"{labelled}: has no dataset 'rawDepths' (expected the labelled "
                                  "NYUv2 set)")
             raw = f["rawDepths"]
+            if not isinstance(raw, h5py.Dataset) or raw.dtype.kind not in "uif" \
+                    or raw.shape[1:] != (nyuv2.WIDTH, nyuv2.HEIGHT) or raw.shape[0] < frames[-1]:
+                raise FetchError(f"{labelled}: rawDepths is not N x {nyuv2.WIDTH} x "
+                                 f"{nyuv2.HEIGHT} numbers with N >= {frames[-1]}")
             for index in frames:
                 metres = np.asarray(raw[index - 1], dtype=np.float64).T
-                if metres.shape != (nyuv2.HEIGHT, nyuv2.WIDTH):
-                    raise FetchError(f"{labelled}: rawDepths frame {index} has shape "
-                                     f"{metres.shape}, expected {nyuv2.WIDTH}x{nyuv2.HEIGHT}")
                 ok = np.isfinite(metres) & (metres > 0)
                 q = np.where(ok, np.round(np.where(ok, metres, 0.0) * nyuv2.DEPTH_SCALE), 0.0)
                 depth = np.where(q > 65535, 0, q).astype(np.uint16)
                 write_png(folder / f"{index:06d}.png", depth)
-    except OSError as exc:
+    except H5_ERRORS as exc:
         raise FetchError(f"{labelled}: cannot read rawDepths ({exc})") from None
 
 

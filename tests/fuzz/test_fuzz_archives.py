@@ -517,3 +517,47 @@ def test_fetch_list_with_a_date_that_is_not_text(tmp_path, capsys, date):
     assert main(["datasets", "fetch", "--list", "--out", str(tmp_path)]) == 0
     row = [line for line in capsys.readouterr().out.splitlines() if "nyuv2-samples" in line][0]
     assert row.split()[1] == "yes"
+
+
+# -- NYUv2: the labelled .mat and the class mapping, through the sample's extractor ------------
+@pytest.fixture(scope="module")
+def nyu_downloads(tmp_path_factory) -> dict[str, bytes]:
+    """The two downloads of the NYUv2 sample, tiny: a two-frame labelled file with rawDepths
+    and the class mapping."""
+    import h5py
+
+    from evsmap.datasets import nyuv2
+    from tests.datasets.datasets_fixtures import nyu_arrays, write_nyu_source
+
+    root = tmp_path_factory.mktemp("nyu_downloads")
+    arrays = {k: v[:2] for k, v in nyu_arrays(2).items()}
+    write_nyu_source(root, arrays)
+    with h5py.File(root / nyuv2.LABELLED_MAT, "a") as f:
+        f.create_dataset("rawDepths", data=arrays["depth"].transpose(0, 2, 1) * 0.9)
+    return {name: (root / name).read_bytes() for name in (nyuv2.LABELLED_MAT,
+                                                           nyuv2.MAPPING_MAT)}
+
+
+def test_fuzz_nyuv2_downloads(nyu_downloads, tmp_path):
+    sample = dataclasses.replace(SAMPLES["nyuv2-samples"], expected=None,
+                                 options={"frames": (1, 2), "depth": "raw"})
+    files = {name: tmp_path / "cache" / name for name in nyu_downloads}
+    for name, data in nyu_downloads.items():
+        write_variant(files[name], data)
+    base = tmp_path / "x"
+
+    def run() -> None:
+        shutil.rmtree(base, ignore_errors=True)
+        (base / "out").mkdir(parents=True)
+        (base / "work").mkdir()
+        extract_sample(sample, files, base / "out", base / "work")
+
+    @given(st.sampled_from(sorted(nyu_downloads)), st.data())
+    def inner(name, data):
+        for other, original in nyu_downloads.items():
+            write_variant(files[other], original)
+        mutated = data.draw(mutated_bytes(nyu_downloads[name]))
+        write_variant(files[name], mutated)
+        check_file("archives/nyuv2-downloads", run, files[name])
+
+    inner()
