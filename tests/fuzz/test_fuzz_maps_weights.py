@@ -448,9 +448,27 @@ def test_fuzz_weights_cli(tmp_path_factory, weights_samples, capsys):
         argv = ["weights", action, str(path)] + (["--json"] if json_ else [])
         if action == "convert":
             argv += ["--out", str(folder / "out.pt"), "--force"]
-        check_cli("weights/cli", argv, (path.name,), capsys)
+        if action == "show":  # exit 1 is show's answer to tensors that differ from the card
+            check_file("weights/cli", lambda: _show(argv, path.name, capsys), path)
+        else:
+            check_cli("weights/cli", argv, (path.name,), capsys)
 
     inner()
+
+
+def _show(argv: list[str], name: str, capsys) -> None:
+    """``evsmap weights show``: exit 0, 1 with the verification saying the tensors differ, or
+    2 with one line naming the file."""
+    from evsmap.cli.main import main
+
+    capsys.readouterr()
+    code = main(argv)
+    out, err = capsys.readouterr()
+    if code == 1:
+        assert "differ" in out and not err.strip(), (out[-300:], err)
+    elif code != 0:
+        lines = [ln for ln in err.splitlines() if not ln.startswith("evsmap: warning:")]
+        assert code == 2 and len(lines) == 1 and name in lines[0], (code, err)
 
 
 # pickles that call a function: refused, never run
