@@ -198,12 +198,17 @@ def run(args: argparse.Namespace) -> int:
             raise EvsmapError(f"--strict-timing: the machine is busy (load average {load1:.1f} "
                               f"on {cores} cores); wait until it is idle or drop "
                               f"--strict-timing (busy cells are then flagged)")
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
 
     ctx = RunContext.create(out, data_root=args.data_root, weights_dir=args.weights_dir,
                             quick=args.quick, strict_timing=args.strict_timing)
     the_plan = plan(ctx, args.tables, systems, cells=args.cells)
     if not the_plan.keys:
+        if created:
+            import shutil
+
+            shutil.rmtree(out, ignore_errors=True)
         raise EvsmapError(f"--cells {','.join(args.cells or [])}: no cell of tables "
                           f"{', '.join(args.tables)} matches")
     if "table4" in args.tables and ctx.dataset_path("tum") is None:

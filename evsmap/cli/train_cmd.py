@@ -113,17 +113,19 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from evsmap.interrupt import set_resume_hint
-    from evsmap.train.checkpoint import CHECKPOINT
-    from evsmap.train.loop import RunOptions, train
 
     def hint() -> str:
+        from evsmap.train.checkpoint import CHECKPOINT
+
         if (args.out / CHECKPOINT).is_file():
             return (f"the last finished epoch is in {args.out / CHECKPOINT}: run the same "
                     f"command with --resume to continue from it")
         return f"no epoch had finished; run the same command again (nothing in {args.out} " \
                f"is half-written)"
 
-    set_resume_hint(hint)
+    set_resume_hint(hint)  # before the imports below, which take seconds
+    from evsmap.train.loop import RunOptions, train
+
     opts = RunOptions(
         model=args.model, dataset=args.dataset, out=args.out, recipe=args.recipe,
         overrides=overrides(args), options=dict(args.option), reader=args.reader,

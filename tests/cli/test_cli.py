@@ -146,9 +146,8 @@ def test_reproduce_quick_table_iv_then_resume_and_report(capsys, tmp_path, data_
     after = {p.name: p.stat().st_mtime_ns for p in (out_dir / "records").glob("*.json")}
     assert all(before[n] == after[n] for n in ok)
     # resuming with other settings would mix records: refused
-    code, _, err = run(capsys, "reproduce", "--tables", "IV", "--out", str(out_dir),
-                       "--resume")
-    assert code == 2 and "--quick" in err
+    code, _, err = run(capsys, "reproduce", "--no-quick", "--out", str(out_dir), "--resume")
+    assert code == 2 and "was made with --quick" in err
     code, _, err = run(capsys, "reproduce", "--quick", "--tables", "I", "--out", str(out_dir),
                        "--resume")
     assert code == 2 and "covers tables table4" in err
