@@ -95,3 +95,43 @@ def test_cells_that_match_nothing_are_one_line(tmp_path, counted_cells, capsys):
     err = capsys.readouterr().err
     assert "--cells table9/*: no cell of tables table1 matches" in err
     assert not (tmp_path / "run").exists()
+
+
+def test_a_full_disk_mid_run_keeps_the_records_and_resume_finishes(tmp_path, counted_cells,
+                                                                   capsys, monkeypatch):
+    import errno
+
+    from tests.test_disk_full import fail_writes
+
+    out = tmp_path / "run"
+    # run.json and two records go through; the disk is full at the third record
+    seen = fail_writes(monkeypatch, out, errno.ENOSPC, skip=3)
+    code = main(["reproduce", "--quick", "--tables", "I", "--cells", CELLS, "--workers", "1",
+                 "--data-root", str(tmp_path), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and seen["failed"] == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "No space left on device" in lines[0], err
+    assert str(out / "records") in lines[0]
+    kept = sorted((out / "records").iterdir())
+    assert len(kept) == 2 and all(p.suffix == ".json" for p in kept)  # no temporary left
+    for p in kept:
+        CellRecord.from_dict(json.loads(p.read_text()))  # whole
+
+    monkeypatch.undo()  # space again
+    monkeypatch.setattr(matrix, "execute_spec", counted_cells_execute(counted_cells))
+    monkeypatch.setattr(matrix, "_spawn_pool", Inline)
+    monkeypatch.setattr(matrix, "_fresh_executor", Inline)
+    assert main(["reproduce", "--resume", "--out", str(out)]) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert len(list((out / "records").glob("*.json"))) == len(run["cells"])
+
+
+def counted_cells_execute(calls):
+    def execute_spec(spec, ctx):
+        calls.append(spec.key)
+        return CellRecord(key=spec.key, table=spec.table, row=spec.row, label=spec.label,
+                          kind=spec.kind, metrics=list(spec.metrics), status="ok",
+                          values={m: 1.0 for m in spec.metrics})
+
+    return execute_spec
