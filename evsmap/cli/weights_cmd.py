@@ -287,7 +287,7 @@ def convert(source: Path, out: Path, *, model: str | None = None,
         segmenter = SEGMENTERS.create(name, **config)
     except EvsmapError as exc:
         raise EvsmapError(f"{where}: {exc}") from None
-    except (TypeError, ValueError) as exc:  # a factory refusing an option
+    except (TypeError, ValueError, OverflowError) as exc:  # a factory refusing an option
         raise EvsmapError(f"{where}: {' '.join(str(exc).split())}") from None
     module = segmenter.module
     if module is None:

@@ -142,7 +142,7 @@ def parse_systems(data: dict[str, Any], *, source: str,
                     is not None
         except EvsmapError as exc:
             raise EvsmapError(f"{where}: {exc}") from None
-        except (TypeError, ValueError) as exc:  # a factory refusing an option
+        except (TypeError, ValueError, OverflowError) as exc:  # a factory refusing an option
             raise EvsmapError(f"{where}: {' '.join(str(exc).split())}") from None
         systems.append(ExtraSystem(id=s.id, label=s.label or s.id, updater=updater,
                                    segmenter=segmenter, segmenter_is_network=network))
@@ -159,7 +159,7 @@ def load_systems(path: str | PathLike[str], *, taken: set[str] = frozenset()
         raise EvsmapError(f"--systems {path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise EvsmapError(f"--systems {path}: cannot read ({exc})") from None
-    except tomllib.TOMLDecodeError as exc:
+    except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise EvsmapError(f"--systems {path}: not valid TOML ({exc})") from None
     return parse_systems(data, source=str(path), taken=taken)
 

@@ -56,7 +56,7 @@ def load_file(path: str | PathLike[str] | None = None) -> PaperTables:
         raise TableSchemaError(f"{where}: cannot read ({exc})") from None
     except UnicodeDecodeError as exc:
         raise TableSchemaError(f"{where}: not UTF-8 text ({exc})") from None
-    except tomllib.TOMLDecodeError as exc:
+    except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise TableSchemaError(f"{where}: not valid TOML ({exc})") from None
     return parse_tables(data, source=str(where))
 

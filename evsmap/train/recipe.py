@@ -157,7 +157,12 @@ def _number(where: str, key: str, value: Any, *, low: float, low_open: bool = Fa
     if isinstance(value, bool) or not isinstance(value, (int, float)) or \
             (integer and not isinstance(value, int)):
         raise RecipeError(f"{where}: {key} must be {kind}, got {value!r}")
-    if not math.isfinite(value):
+    if not integer:
+        try:
+            value = float(value)
+        except OverflowError:  # an integer beyond the float range
+            raise RecipeError(f"{where}: {key} must be finite, got {value!r}") from None
+    if isinstance(value, float) and not math.isfinite(value):
         raise RecipeError(f"{where}: {key} must be finite, got {value!r}")
     below = value <= low if low_open else value < low
     above = value >= high if high_open else value > high
@@ -273,7 +278,7 @@ def shipped_recipes() -> list[str]:
 def _read_toml(text: str, where: str) -> dict[str, Any]:
     try:
         return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+    except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise RecipeError(f"{where}: not valid TOML ({exc})") from None
 
 

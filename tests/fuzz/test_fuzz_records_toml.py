@@ -490,3 +490,27 @@ def test_records_toml_regressions(tmp_path, run_template, capsys):
     data["tables"]["a\nb"] = {}
     check_file("records/regressions", lambda: parse_tables(data, source="tables.toml"), None,
                names=("tables.toml",))
+
+
+def test_toml_huge_integers(tmp_path):
+    """An integer too large for a float (recipe validation compared it as one) and one of more
+    than 4300 digits (tomllib raises a bare ValueError for it, not TOMLDecodeError)."""
+    from evsmap.runner.systems import load_systems
+    from evsmap.tables.load import load_file
+    from evsmap.train.recipe import load_recipe
+
+    for digits in (400, 5000):
+        big = "9" * digits
+        for key in ("epochs", "lr", "scale", "crop"):
+            value = f"[1, {big}]" if key in ("scale", "crop") else big
+            path = write_variant(tmp_path / f"{key}-{digits}.toml",
+                                 f'base = "paper"\n{key} = {value}\n')
+            check_file("toml/huge-integers", lambda p=path: load_recipe(p), path)
+        path = write_variant(tmp_path / f"systems-{digits}.toml",
+                             f'[[systems]]\nid = "a"\nupdater = {{ name = "orgb", options = '
+                             f'{{ max_range = {big} }} }}\n')
+        check_file("toml/huge-integers", lambda p=path: load_systems(p), path)
+        path = write_variant(tmp_path / f"tables-{digits}.toml",
+                             TABLES.read_text().replace("schema_version = 1",
+                                                        f"schema_version = {big}"))
+        check_file("toml/huge-integers", lambda p=path: load_file(p), path)
