@@ -140,8 +140,10 @@ def run(args: argparse.Namespace) -> int:
     rows = compare(base_entries, measured, same_machine=same) if baseline is not None else []
     passed, text = summary(rows) if rows else (True, "")
     if args.results:
-        args.results.write_text(json.dumps({"seconds": seconds, "workloads": measured},
-                                           indent=1))
+        from evsmap.fileio import atomic_write_text
+
+        atomic_write_text(args.results, json.dumps({"seconds": seconds, "workloads": measured},
+                                                   indent=1))
     if args.update:
         settings = {"threads": args.threads, "budget_s": args.budget, "repeats": repeats}
         write_baseline(args.baseline, updated_baseline(baseline, measured, settings))

@@ -41,8 +41,11 @@ def _figure(width: float, height: float, layout: str | None = None):
 
 
 def _save(fig, path: Path) -> None:
+    from evsmap.fileio import atomic_path
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png", dpi=_DPI)
+    with atomic_path(path, suffix=".png") as tmp:  # an earlier figure stays until this is whole
+        fig.savefig(tmp, format="png", dpi=_DPI)
 
 
 # ------------------------------------------------------------------------------- networks
