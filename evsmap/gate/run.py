@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import fnmatch
 import json
+import math
 import os
 import subprocess
 import sys
@@ -59,9 +60,19 @@ def read_baseline(path: str | os.PathLike[str]) -> dict[str, Any]:
             raise DataFormatError(f"{path}: workload {name!r} is not an object")
         for key in ("time_ratio", "peak_rss_bytes"):
             value = entry.get(key)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
-                raise DataFormatError(f"{path}: workload {name!r} has no valid {key!r}")
+            if not _finite_nonnegative(value):
+                raise DataFormatError(f"{path}: workload {name!r} has no valid {key!r} (a "
+                                      f"finite number >= 0)")
     return data
+
+
+def _finite_nonnegative(value: Any) -> bool:
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value) and value >= 0
+    except OverflowError:  # an integer beyond the float range
+        return False
 
 
 def write_baseline(path: str | os.PathLike[str], data: dict[str, Any]) -> None:

@@ -514,3 +514,17 @@ def test_toml_huge_integers(tmp_path):
                              TABLES.read_text().replace("schema_version = 1",
                                                         f"schema_version = {big}"))
         check_file("toml/huge-integers", lambda p=path: load_file(p), path)
+
+
+def test_gate_baseline_refuses_nan_and_huge(tmp_path):
+    """A NaN or infinite ratio (json reads NaN / Infinity) compared as nothing: refused, as an
+    integer beyond the float range is."""
+    from evsmap.errors import DataFormatError
+    from evsmap.gate.run import read_baseline
+
+    for value in ("NaN", "Infinity", "-1", "1" + "0" * 400, "true"):
+        entry = '{"time_ratio": ' + value + ', "peak_rss_bytes": 1}'
+        path = write_variant(tmp_path / "baseline.json", '{"workloads": {"read/tum": ' + entry + "}}")
+        check_file("gate/baseline-values", lambda p=path: read_baseline(p), path)
+        with pytest.raises(DataFormatError, match="time_ratio"):
+            read_baseline(path)
