@@ -524,7 +524,8 @@ def test_gate_baseline_refuses_nan_and_huge(tmp_path):
 
     for value in ("NaN", "Infinity", "-1", "1" + "0" * 400, "true"):
         entry = '{"time_ratio": ' + value + ', "peak_rss_bytes": 1}'
-        path = write_variant(tmp_path / "baseline.json", '{"workloads": {"read/tum": ' + entry + "}}")
+        path = write_variant(tmp_path / "baseline.json",
+                             '{"workloads": {"read/tum": ' + entry + "}}")
         check_file("gate/baseline-values", lambda p=path: read_baseline(p), path)
         with pytest.raises(DataFormatError, match="time_ratio"):
             read_baseline(path)
