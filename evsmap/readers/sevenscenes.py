@@ -176,11 +176,13 @@ def read_pose(path: Path) -> np.ndarray:
     if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
         raise DataFormatError(f"{path}: pose last row must be [0 0 0 1], got {pose[3].tolist()}")
     rot = pose[:3, :3]
-    err = float(np.abs(rot @ rot.T - np.eye(3)).max())
-    if err > ROTATION_TOLERANCE or np.linalg.det(rot) <= 0:
+    with np.errstate(all="ignore"):  # huge entries overflow to inf: refused just below
+        err = float(np.abs(rot @ rot.T - np.eye(3)).max())
+        det = float(np.linalg.det(rot))
+    if not err <= ROTATION_TOLERANCE or not det > 0:
         raise DataFormatError(
             f"{path}: pose rotation block is not a rotation (|R R^T - I| = {err:.2e}, "
-            f"det {np.linalg.det(rot):.4f}; tolerance {ROTATION_TOLERANCE:g})")
+            f"det {det:.4f}; tolerance {ROTATION_TOLERANCE:g})")
     u, _, vt = np.linalg.svd(rot)
     pose[:3, :3] = u @ vt  # det R > 0, so U V^T is a proper rotation
     pose[3] = (0.0, 0.0, 0.0, 1.0)

@@ -90,7 +90,8 @@ def _pose_rows(path: Path, rows: list[list[str]]) -> np.ndarray:
         except ValueError:
             raise DataFormatError(f"{path}: pose row {n + 1} ({' '.join(row[:8])}) is not 8 "
                                   f"numbers") from None
-    bad = ~np.isfinite(out).all(axis=1) | (np.linalg.norm(out[:, 4:8], axis=1) < 1e-12)
+    with np.errstate(over="ignore"):  # a norm that overflows is not zero: judged later
+        bad = ~np.isfinite(out).all(axis=1) | (np.linalg.norm(out[:, 4:8], axis=1) < 1e-12)
     if bad.any():
         n = int(np.flatnonzero(bad)[0])
         raise DataFormatError(f"{path}: pose row {n + 1} ({' '.join(rows[n][:8])}) has a "

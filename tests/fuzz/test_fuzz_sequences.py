@@ -126,7 +126,9 @@ class Restore:
                     p.unlink()
         for p, (kind, value) in self.saved.items():
             p.parent.mkdir(parents=True, exist_ok=True)
-            if p.is_symlink() or p.exists():
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            elif p.is_symlink() or p.exists():
                 p.unlink()
             if kind == "link":
                 os.symlink(value, p)
