@@ -209,6 +209,9 @@ def load_state(module: nn.Module, converted: Converted, source: str | PathLike[s
     shapes = sorted(
         f"{k} (file {tuple(state[k].shape)}, network {tuple(own[k].shape)})"
         for k in set(own) & set(state) if state[k].shape != own[k].shape)
+    dtypes = sorted(
+        f"{k} (file {state[k].dtype}, network {own[k].dtype})"
+        for k in set(own) & set(state) if not castable(state[k].dtype, own[k].dtype))
     problems = []
     if missing:
         problems.append(f"missing keys: {_listing(missing)}")
@@ -216,12 +219,23 @@ def load_state(module: nn.Module, converted: Converted, source: str | PathLike[s
         problems.append(f"unexpected keys: {_listing(unexpected)}")
     if shapes:
         problems.append(f"shape mismatch: {_listing(shapes)}")
+    if dtypes:
+        problems.append(f"dtype mismatch: {_listing(dtypes)}")
     if problems:
         raise DataFormatError(
             f"{source}: weights do not fit {type(module).__name__} - " + "; ".join(problems)
             + _context(converted, state, own))
     module.load_state_dict(state, strict=True)
     return module
+
+
+def castable(file: torch.dtype, network: torch.dtype) -> bool:
+    """Whether a file's tensor of dtype ``file`` loads into the network's ``network`` tensor
+    without losing its meaning: real numbers are cast (half precision, double, a counter saved
+    as a float), complex and bool tensors only load into their own dtype."""
+    if file.is_complex or file == torch.bool or network.is_complex or network == torch.bool:
+        return file == network
+    return True
 
 
 def load_weights(module: nn.Module, path: str | PathLike[str]) -> nn.Module:

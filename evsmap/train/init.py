@@ -182,7 +182,7 @@ def load_encoder_weights(module: nn.Module, path: str | PathLike[str]) -> InitRe
             message says what the file holds).
     """
     from evsmap.segmenters.official import LAYOUTS
-    from evsmap.segmenters.weights import read_weights
+    from evsmap.segmenters.weights import castable, read_weights
 
     converted = read_weights(path)
     state = {k: v for k, v in converted.state.items() if isinstance(v, torch.Tensor)}
@@ -207,7 +207,10 @@ def load_encoder_weights(module: nn.Module, path: str | PathLike[str]) -> InitRe
                     r = key[len(prefix):]
                     if r not in rel:
                         continue
-                    if tensor.shape == rel[r].shape:
+                    if not castable(tensor.dtype, rel[r].dtype):
+                        mismatched.append(f"{r} (file {tensor.dtype}, network "
+                                          f"{rel[r].dtype})")
+                    elif tensor.shape == rel[r].shape:
                         exact.append((r, orig, tensor))
                     elif _summable(tensor, rel[r]):
                         summed.append((r, orig, tensor))

@@ -25,6 +25,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from torch import nn
 
+from evsmap.errors import DataFormatError
 from evsmap.mapping.keys import KEY_OFFSET, pack
 from evsmap.mapping.octree_io import (
     bt_bytes,
@@ -575,6 +576,11 @@ def test_weights_regressions(tmp_path, weights_samples, capsys):
         path.write_bytes(_saved({"state_dict": _tiny_state(),
                                  "card": {"model": "tiny", "options": options}}))
         check_file("weights/regressions", lambda p=path: _read_and_load(p), path)
+    for dtype in (torch.complex64, torch.bool):  # cast silently before: now refused
+        path = tmp_path / "complex.pt"
+        path.write_bytes(_saved({k: v.to(dtype) for k, v in _tiny_state().items()}))
+        with pytest.raises(DataFormatError, match="dtype mismatch"):
+            _read_and_load(path)
     path = tmp_path / "int-model.pt"
     path.write_bytes(_saved({"state_dict": _tiny_state(), "card": {"model": 3}}))
     check_file("weights/regressions", lambda: _read_and_load(path), path)
