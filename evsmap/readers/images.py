@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import io
+import re
 import struct
 import warnings
 import zlib
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
 from evsmap.errors import DataFormatError
 
@@ -96,8 +97,14 @@ def _decode(path: Path, fh) -> Image.Image:
 
 
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
+    """``exc``'s message on one line, short, without PIL's repr of the in-memory buffer."""
+    if isinstance(exc, UnidentifiedImageError):
+        return "not a recognised image format"
+    text = _BUFFER_REPR.sub("the file", " ".join(str(exc).split()))
     return text[:200] or type(exc).__name__
+
+
+_BUFFER_REPR = re.compile(r"<_io\.\w+ object at 0x[0-9a-fA-F]+>")
 
 
 def read_rgb(path: Path) -> np.ndarray:
