@@ -98,11 +98,20 @@ def _has_frames(folder: Path) -> bool:
         return False
 
 
+def _is_dir(entry: os.DirEntry) -> bool:
+    """Whether ``entry`` is a folder (or a link to one); a link that loops or cannot be
+    followed is not."""
+    try:
+        return entry.is_dir()
+    except OSError:
+        return False
+
+
 def _sequence_dirs(folder: Path) -> list[Path]:
     """``seq-NN`` sub-folders in number order."""
     try:
         with os.scandir(folder) as it:
-            names = [e.name for e in it if _SEQ_DIR.match(e.name) and e.is_dir()]
+            names = [e.name for e in it if _SEQ_DIR.match(e.name) and _is_dir(e)]
     except OSError:
         return []
     names.sort(key=lambda n: (int(_SEQ_DIR.match(n).group(1)), n))

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 from PIL import Image
 
@@ -403,6 +403,47 @@ def test_fuzz_sevenscenes_frames(tmp_path_factory, sevenscenes_dir):
             check_file("sevenscenes/frames", read_all, root)
         finally:
             restore()
+
+    inner()
+
+
+_SEQ_KINDS = ("frames", "frames", "empty", "file", "loop", "dangling", "zip", "absent")
+
+
+def test_fuzz_sevenscenes_scene_folder(tmp_path_factory, sevenscenes_dir):
+    """A scene folder of ``seq-NN`` entries that are sequences, empty folders, files, links
+    that loop or dangle, or zips, read with any ``sequence=``."""
+    base = tmp_path_factory.mktemp("scene")
+    counter = iter(range(10**9))
+
+    @given(st.lists(st.sampled_from(_SEQ_KINDS), min_size=1, max_size=3),
+           st.one_of(st.none(), st.integers(-1, 4), st.sampled_from(
+               ["seq-01", "seq-1", "02", "seq-03", "x", "", " 1 ", "9" * 30, "seq-"])))
+    @example(kinds=["frames", "loop"], sequence=None)  # a looping link once hid every sequence
+    def inner(kinds, sequence):
+        scene = base / f"scene{next(counter)}"
+        scene.mkdir()
+        for n, kind in enumerate(kinds, 1):
+            entry = scene / f"seq-{n:02d}"
+            if kind == "frames":
+                built = build_sevenscenes(base / f"build{next(counter)}", sevenscenes_dir, 1)
+                built.rename(entry)
+            elif kind == "empty":
+                entry.mkdir()
+            elif kind == "file":
+                entry.write_text("x")
+            elif kind == "loop":
+                os.symlink(entry.name, entry)
+            elif kind == "dangling":
+                os.symlink(scene / "nowhere", entry)
+            elif kind == "zip":
+                (scene / f"seq-{n:02d}.zip").write_bytes(b"PK\x05\x06" + b"\0" * 18)
+        check_file("sevenscenes/scene-folder",
+                   lambda: read_some(open_sevenscenes(path=str(scene), sequence=sequence), 1),
+                   scene)
+        if kinds[0] == "frames" and sequence in (None, 1, "seq-01", "seq-1", " 1 "):
+            # the other entries, however broken, do not hide the first sequence
+            assert len(open_sevenscenes(path=str(scene), sequence=sequence)) == 1
 
     inner()
 
