@@ -135,7 +135,7 @@ def read_matrix(path: Path, rows: int, cols: int, what: str) -> np.ndarray:
     if not path.is_file():
         raise DataFormatError(f"{path}: file not found")
     try:
-        tokens = path.read_text().split()
+        tokens = path.read_text(encoding="utf-8-sig").split()  # BOM dropped
     except (OSError, UnicodeDecodeError) as exc:
         raise DataFormatError(f"{path}: cannot read ({exc})") from None
     if len(tokens) != rows * cols:

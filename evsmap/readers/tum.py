@@ -59,7 +59,7 @@ def read_list(path: Path, columns: int) -> list[list[str]]:
         raise DataFormatError(f"{path}: file not found")
     rows = []
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a leading BOM is no field
     except (OSError, UnicodeDecodeError) as exc:
         raise DataFormatError(f"{path}: cannot read ({exc})") from None
     for lineno, line in enumerate(text.splitlines(), 1):

@@ -150,7 +150,13 @@ def tum_labelled(tmp_path_factory, tum_dir):
 def _fuzz_tum_list(root: Path, name: str, target: str) -> None:
     path = root / name
     original = path.read_bytes()
-    assert len(open_tum(path=str(root))) >= 2  # the unmutated folder reads
+    frames = len(open_tum(path=str(root)))
+    assert frames >= 2  # the unmutated folder reads
+    path.write_bytes(b"\xef\xbb\xbf" + original)  # and so it does saved with a BOM
+    try:
+        assert len(open_tum(path=str(root))) == frames
+    finally:
+        path.write_bytes(original)
 
     @given(text_or_bytes(path))
     def inner(data):
