@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import re
 from collections import Counter
-from pathlib import Path, PurePosixPath, PureWindowsPath
+from pathlib import Path
 from typing import Any
 
 from evsmap.data import Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError, InvalidDataError
+from evsmap.readers.rosbag.checks import check_bag_folder, check_storage_files
 from evsmap.readers.rosbag.framepose import _FramePoseMixin
 from evsmap.readers.rosbag.index import _IndexMixin, _Msg
 from evsmap.readers.rosbag.messages import (
@@ -62,40 +63,6 @@ def is_rosbag(path: Path) -> bool:
     return False
 
 
-def _leaves_folder(entry: str) -> bool:
-    """Whether a file path from metadata.yaml is absolute or climbs out (``..``), as POSIX or
-    Windows reads it."""
-    posix, windows = PurePosixPath(entry), PureWindowsPath(entry)
-    return posix.is_absolute() or bool(windows.anchor) or ".." in posix.parts or \
-        ".." in windows.parts
-
-
-def check_bag_folder(folder: Path) -> None:
-    """Refuse a ROS 2 bag folder whose ``metadata.yaml`` names a file outside the folder (an
-    absolute path or a ``..`` component in ``relative_file_paths`` or ``files``): a bag must not
-    make evsmap open files elsewhere. Other problems with the file are left to the bag reader."""
-    meta = folder / "metadata.yaml"
-    try:
-        from ruamel.yaml import YAML
-
-        doc = YAML(typ="safe").load(meta.read_text(encoding="utf-8"))
-    except Exception as exc:  # unreadable or not YAML: OSError, YAMLError, UnicodeError, ...
-        raise DataFormatError(f"{meta}: not a readable bag metadata file "
-                              f"({_one_line(exc)})") from None
-    info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
-    if not isinstance(info, dict):
-        return
-    entries = info.get("relative_file_paths")
-    named = [("relative_file_paths", e) for e in entries] if isinstance(entries, list) else []
-    files = info.get("files")
-    if isinstance(files, list):
-        named += [("files", f.get("path")) for f in files if isinstance(f, dict)]
-    for key, entry in named:
-        if isinstance(entry, str) and _leaves_folder(entry):
-            raise DataFormatError(f"{meta}: {key} names {entry!r}, which is absolute or leaves "
-                                  f"the bag folder; a bag's files must lie inside its folder")
-
-
 class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
     """Frames of a ROS 1 or ROS 2 bag: RGB-D images or point clouds, with poses.
 
@@ -141,11 +108,14 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
 
         if bag.is_dir() and (bag / "metadata.yaml").is_file():
             check_bag_folder(bag)
+        check_storage_files(bag)
         try:
             from rosbags.typesys import Stores, get_typestore
 
             reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             reader.open()
+        except MemoryError:  # a claimed size allocated: not the file's error
+            raise
         except Exception as exc:  # rosbags raises its own errors, OSError, YAML errors, ...
             raise DataFormatError(f"{self.label}: not a readable ROS bag "
                                   f"({_one_line(exc)})") from None
@@ -274,6 +244,8 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
                     found += 1
                     if found == len(msgs):
                         break
+        except MemoryError:
+            raise
         except Exception as exc:
             self._cursor = (gen, keys, last, counts)
             self._drop_cursor()

@@ -94,6 +94,8 @@ class _TopicsMixin:
                     item = next(gen)
                 except StopIteration:
                     return
+                except MemoryError:
+                    raise
                 except Exception as exc:
                     raise DataFormatError(f"{where}: cannot read the bag's messages "
                                           f"({_one_line(exc)})") from None
@@ -114,6 +116,8 @@ class _TopicsMixin:
     def _deserialize(self, raw: bytes, conn: Any, where: str) -> Any:
         try:
             return self._reader.deserialize(raw, conn.msgtype)
+        except MemoryError:
+            raise
         except Exception as exc:
             raise DataFormatError(f"{where}: cannot decode the {conn.msgtype} message "
                                   f"({_one_line(exc)})") from None
