@@ -119,7 +119,7 @@ def _interpolate(path: Path, gt: np.ndarray, ts: np.ndarray) -> np.ndarray:
 def _read_metadata(path: Path) -> dict:
     """``evsmap.json`` as a dict; unreadable, not JSON or not an object is an error naming it."""
     try:
-        info = json.loads(path.read_text())
+        info = json.loads(path.read_bytes())  # bytes: UTF-8/16/32, a BOM allowed
     except (OSError, ValueError) as exc:  # ValueError: JSONDecodeError, UnicodeDecodeError
         raise DataFormatError(f"{path}: not valid JSON ({_one_line(exc)})") from None
     except RecursionError:
