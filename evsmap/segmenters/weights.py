@@ -135,10 +135,11 @@ def _unwrap(obj: object, path: Path) -> dict[str, torch.Tensor]:
             if key in obj and isinstance(obj[key], dict):
                 obj = obj[key]
                 break
-    if not isinstance(obj, dict) or not all(isinstance(v, torch.Tensor) for v in obj.values()):
+    if not isinstance(obj, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor)
+                                            for k, v in obj.items()):
         raise DataFormatError(
-            f"{path}: not a state dict (expected a dict of tensors, optionally under one of "
-            f"the keys {', '.join(_WRAPPER_KEYS)})")
+            f"{path}: not a state dict (expected a dict of names to tensors, optionally under "
+            f"one of the keys {', '.join(_WRAPPER_KEYS)})")
     # checkpoints saved from nn.DataParallel / DistributedDataParallel prefix every key
     if obj and all(k.startswith("module.") for k in obj):
         obj = {k[len("module."):]: v for k, v in obj.items()}

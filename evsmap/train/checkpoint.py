@@ -65,13 +65,70 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     from evsmap.segmenters.weights import read_checkpoint
 
     obj = read_checkpoint(path)
-    if not isinstance(obj, dict) or obj.get("format") != FORMAT:
+    if not isinstance(obj, dict) or not isinstance(obj.get("format"), str) \
+            or obj["format"] != FORMAT:
         raise DataFormatError(f"{path}: not an evsmap training checkpoint (no \"format\": "
                               f"\"{FORMAT}\")")
-    if obj.get("version") != VERSION:
-        raise DataFormatError(f"{path}: training checkpoint version {obj.get('version')}, this "
-                              f"evsmap reads version {VERSION}")
+    if type(obj.get("version")) is not int or obj["version"] != VERSION:
+        raise DataFormatError(f"{path}: training checkpoint version {obj.get('version')!r}, "
+                              f"this evsmap reads version {VERSION}")
+    problem = _structure_problem(obj)
+    if problem:
+        raise DataFormatError(f"{path}: a damaged training checkpoint ({problem})")
     return obj
+
+
+_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "state_dict": dict, "card": dict, "optimizer": dict, "scheduler": dict, "rng": dict,
+    "epoch": int, "recipe": dict, "run": dict, "history": list}
+
+
+def _structure_problem(obj: dict[str, Any]) -> str | None:
+    """What a resumed run would trip over, in words (None: nothing)."""
+    for key, kind in _FIELDS.items():
+        value = obj.get(key)
+        if not isinstance(value, kind) or isinstance(value, bool):
+            return f"{key!r} is {_kind(value)}"
+    for key in ("best", "scaler"):
+        if obj.get(key) is not None and not isinstance(obj[key], dict):
+            return f"{key!r} is {_kind(obj[key])}"
+    if obj["epoch"] < 0:
+        return f"'epoch' is {obj['epoch']}"
+    if not all(isinstance(k, str) and isinstance(v, torch.Tensor)
+               for k, v in obj["state_dict"].items()):
+        return "'state_dict' is not a table of tensors"
+    run = obj["run"]
+    if not isinstance(run.get("model"), str) or not isinstance(run.get("options"), dict):
+        return "'run' lacks the model name or its options"
+    rng = obj["rng"]
+    numpy_state = rng.get("numpy")
+    python_state = rng.get("python")
+    if not isinstance(rng.get("torch"), torch.Tensor) or rng["torch"].dtype != torch.uint8 \
+            or not isinstance(rng.get("cuda", []), list):
+        return "'rng' lacks torch's generator state"
+    if not isinstance(numpy_state, dict) or not isinstance(numpy_state.get("key"), list) \
+            or not all(isinstance(numpy_state.get(k), int) for k in ("pos", "has_gauss")) \
+            or not isinstance(numpy_state.get("gauss"), float) \
+            or not isinstance(numpy_state.get("bit_generator"), str):
+        return "'rng' lacks numpy's generator state"
+    if not isinstance(python_state, (list, tuple)) or len(python_state) != 3 \
+            or not isinstance(python_state[1], (list, tuple)):
+        return "'rng' lacks Python's generator state"
+    try:  # restored into throwaway generators: the global ones are set only when resuming
+        torch.Generator().set_state(rng["torch"])
+        np.random.RandomState().set_state(  # noqa: NPY002
+            {"bit_generator": numpy_state["bit_generator"],
+             "state": {"key": np.asarray(numpy_state["key"], dtype=np.uint32),
+                       "pos": numpy_state["pos"]},
+             "has_gauss": numpy_state["has_gauss"], "gauss": numpy_state["gauss"]})
+        random.Random().setstate((python_state[0], tuple(python_state[1]), python_state[2]))
+    except (RuntimeError, ValueError, TypeError, OverflowError, IndexError, KeyError) as exc:
+        return f"'rng' holds a generator state that does not restore: {' '.join(str(exc).split())}"
+    return None
+
+
+def _kind(value: Any) -> str:
+    return "missing" if value is None else f"a {type(value).__name__}"
 
 
 # -- random number generators ----------------------------------------------------------------------
