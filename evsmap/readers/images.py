@@ -96,6 +96,17 @@ def _decode(path: Path, fh) -> Image.Image:
     return img
 
 
+def image_size(path: Path) -> tuple[int, int] | None:
+    """``(width, height)`` from the image header at ``path`` (nothing decoded), or None when the
+    file is missing or not an image PIL can identify (the caller reads and reports it later)."""
+    try:
+        with open(path, "rb") as fh, warnings.catch_warnings():  # closed even on a bomb error
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            return Image.open(fh).size
+    except _PIL_ERRORS:
+        return None
+
+
 def _one_line(exc: BaseException) -> str:
     """``exc``'s message on one line, short, without PIL's repr of the in-memory buffer."""
     if isinstance(exc, UnidentifiedImageError):

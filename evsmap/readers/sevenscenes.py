@@ -37,11 +37,16 @@ import re
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from evsmap.data import Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.readers.images import check_rgbd_shapes, dequantize_depth, read_rgb, read_uint16
+from evsmap.readers.images import (
+    check_rgbd_shapes,
+    dequantize_depth,
+    image_size,
+    read_rgb,
+    read_uint16,
+)
 from evsmap.registry import READERS
 
 LAYOUT = "sevenscenes"
@@ -325,13 +330,9 @@ class SevenScenesSequence(Sequence):
             return SEVENSCENES_INTRINSICS, "7-Scenes default depth camera"
         # K has no image size: take it from the first depth image's header (cheap, no decoding)
         width, height = SEVENSCENES_INTRINSICS.width, SEVENSCENES_INTRINSICS.height
-        for f in self.depth_files[:1]:
-            try:
-                with Image.open(f) as img:
-                    width, height = img.size
-            except (OSError, ValueError, SyntaxError, EOFError, IndexError, KeyError, TypeError,
-                    Image.DecompressionBombError):
-                pass  # frame() reports the bad image itself
+        size = image_size(self.depth_files[0]) if self.depth_files else None
+        if size is not None:  # else frame() reports the bad image itself
+            width, height = size
         try:
             return read_intrinsics_file(k_file, width, height), INTRINSICS_FILE
         except DataFormatError as exc:

@@ -413,6 +413,26 @@ def test_fuzz_sevenscenes_frames(tmp_path_factory, sevenscenes_dir):
     inner()
 
 
+def test_fuzz_sevenscenes_depth_header(tmp_path_factory, sevenscenes_dir):
+    """The first depth image's header gives the size of ``camera-intrinsics.txt``'s camera:
+    a header claiming any size (valid CRC) is read without allocating, and the frame refused."""
+    from tests.fuzz.test_fuzz_images import png_with_size
+
+    root = build_sevenscenes(tmp_path_factory.mktemp("sevenhuge"), sevenscenes_dir, 1)
+    path = root / "frame-000000.depth.png"
+    original = path.resolve().read_bytes()
+    path.unlink()
+    side = st.one_of(st.integers(0, 2**31 - 1), st.sampled_from([0, 1, 640, 480, 100000]))
+
+    @given(side, side)
+    def inner(width, height):
+        write_variant(path, png_with_size(original, width, height))
+        check_file("sevenscenes/depth-header",
+                   lambda: read_some(open_sevenscenes(path=str(root)), 1), path)
+
+    inner()
+
+
 _SEQ_KINDS = ("frames", "frames", "empty", "file", "loop", "dangling", "zip", "absent")
 
 
