@@ -102,8 +102,10 @@ def _check_pose(name: str, pose: object) -> np.ndarray:
     if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
         raise InvalidDataError(f"{name} last row must be [0 0 0 1], got {pose[3].tolist()}")
     rot = pose[:3, :3]
-    err = np.abs(rot @ rot.T - np.eye(3)).max()
-    if err > 1e-5 or np.linalg.det(rot) < 0:
+    with np.errstate(all="ignore"):  # huge entries: inf or nan, refused below (nan included)
+        err = np.abs(rot @ rot.T - np.eye(3)).max()
+        det = np.linalg.det(rot)
+    if not err <= 1e-5 or not det >= 0:
         raise InvalidDataError(
             f"{name} rotation block is not a proper rotation (|R R^T - I| = {err:.2e})"
         )
