@@ -133,6 +133,16 @@ def format_size(size: int) -> str:
     return f"{size} B"
 
 
+def _plain(value: Any) -> Any:
+    """A card's data as JSON takes it: keys as strings (a card may hold any key the
+    weights-only reader admits: numbers, tuples)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
 def _percent(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.1f} %"
 
@@ -141,7 +151,7 @@ def _percent(value: float | None) -> str:
 def run_list(args: argparse.Namespace) -> int:
     files = [inspect_weights(p) for p in find_weights_files(args.paths)]
     if args.json:
-        print(json.dumps([f.as_dict() for f in files], indent=2, default=str))
+        print(json.dumps(_plain([f.as_dict() for f in files]), indent=2, default=str))
         return 0
     if not files:
         where = ", ".join(str(p) for p in args.paths)
@@ -240,8 +250,9 @@ def run_show(args: argparse.Namespace) -> int:
     info, state = open_weights(args.file)
     verified, message, digest = verify_tensors(info.card, state)
     if args.json:
-        print(json.dumps({**info.as_dict(), "tensors_sha256": digest, "verified": verified,
-                          "verification": message}, indent=2, default=str))
+        shown = {**info.as_dict(), "tensors_sha256": digest, "verified": verified,
+                 "verification": message}
+        print(json.dumps(_plain(shown), indent=2, default=str))
         return 1 if verified is False else 0
     print(f"{info.path} ({format_size(info.size)}): {info.describe()}")
     if info.card is not None:

@@ -30,6 +30,7 @@ torch; it is imported when a file is read or a card made.
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 from collections.abc import Iterable, Mapping
@@ -255,8 +256,13 @@ def card_miou(card: Mapping[str, Any] | None, split: str) -> float | None:
                        (metrics, f"{split}_miou"), (metrics, f"miou_{split}"),
                        (metrics, split)):
         value = where.get(key)
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and value == value:
-            return float(value)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            try:
+                number = float(value)
+            except OverflowError:  # an integer beyond the float range
+                continue
+            if math.isfinite(number):
+                return number
     return None
 
 
@@ -270,7 +276,8 @@ def format_options(options: Any) -> str:
     """``k=v,...`` in sorted order (bools as true/false), as in the runner's specs."""
     if not isinstance(options, Mapping):
         return ""
-    return ",".join(f"{k}={_option_text(v)}" for k, v in sorted(options.items()))
+    return ",".join(f"{k}={_option_text(v)}"
+                    for k, v in sorted(options.items(), key=lambda kv: str(kv[0])))
 
 
 def card_spec(card: Mapping[str, Any] | None) -> str:

@@ -422,9 +422,11 @@ def test_fuzz_encoder_init(tmp_path_factory, weights_samples):
 
 # generated objects: what a user's torch.save could hold
 _SCALAR = st.one_of(st.none(), st.booleans(), st.integers(-2**70, 2**70),
+                    st.sampled_from([10**400, -(10**400)]),
                     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=12))
+_KEY = st.one_of(st.text(max_size=6), st.integers(-3, 3), st.tuples(st.integers(0, 2)))
 _CARD_VALUE = st.recursive(_SCALAR, lambda inner: st.one_of(
-    st.lists(inner, max_size=3), st.dictionaries(st.text(max_size=6), inner, max_size=3)),
+    st.lists(inner, max_size=3), st.dictionaries(_KEY, inner, max_size=3)),
     max_leaves=8)
 _CARD_KEYS = ["card_version", "model", "options", "num_classes", "class_names",
               "evsmap_version", "git_commit", "tensors", "tensors_sha256", "val_miou",
@@ -628,6 +630,13 @@ def test_weights_regressions(tmp_path, weights_samples, capsys):
         path.write_bytes(_saved({"state_dict": _tiny_state(),
                                  "card": {"model": "tiny", "options": options}}))
         check_file("weights/regressions", lambda p=path: _read_and_load(p), path)
+    for card in ({"model": "x", "options": {1: 2, "a": 3}}, {"model": "x", "val_miou": 10**400},
+                 {(1, 2): {(3,): 4}, "model": "x"}):  # sorted mixed keys, float(), JSON keys
+        path = tmp_path / "odd-card.pt"
+        path.write_bytes(_saved({"state_dict": _tiny_state(), "card": card}))
+        for argv in (["weights", "show", str(path)], ["weights", "list", str(path), "--json"],
+                     ["weights", "show", str(path), "--json"], ["weights", "list", str(path)]):
+            check_cli("weights/regressions", argv, (path.name,), capsys)
     for dtype in (torch.complex64, torch.bool):  # cast silently before: now refused
         path = tmp_path / "complex.pt"
         path.write_bytes(_saved({k: v.to(dtype) for k, v in _tiny_state().items()}))
