@@ -376,6 +376,8 @@ INFO = "/cam/color/camera_info"
 CAM = "cam_optical"
 ENCODINGS = ["16UC1", "32FC1", "mono16", "rgb8", "bgr8", "rgba8", "bgra8", "mono8", "yuv422",
              "RGB8", "", "8UC3", "bayer_rggb8", "32FC1 ", "64FC1"]
+COLOR_ENCODINGS = ["rgb8", "bgr8", "rgba8", "bgra8", "mono8"]
+DEPTH_ENCODINGS = ["16UC1", "32FC1", "mono16"]
 BPP = {"16uc1": 2, "mono16": 2, "32fc1": 4, "rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4,
        "mono8": 1, "yuv422": 2}
 
@@ -386,7 +388,8 @@ def image_fields(draw: st.DrawFn, encodings: list[str]) -> dict[str, Any]:
     length or endianness, an odd encoding, or a huge claimed size with little data."""
     enc = draw(st.sampled_from(encodings))
     bpp = BPP.get(enc.lower(), draw(st.integers(1, 4)))
-    w, h = draw(st.integers(0, 6)), draw(st.integers(0, 5))
+    w, h = draw(st.sampled_from([(6, 5), (6, 5), (0, 5), (1, 1)])) if draw(st.booleans()) \
+        else (draw(st.integers(0, 6)), draw(st.integers(0, 5)))
     if draw(st.integers(0, 5)) == 0:
         w, h = draw(st.sampled_from([(10**5, 10**5), (2**32 - 1, 2), (1, 2**32 - 1),
                                      (70_000, 70_000), (2**31, 2**31)]))
@@ -437,14 +440,16 @@ def test_fuzz_image_messages(tmp_path_factory):
     folder = tmp_path_factory.mktemp("images")
     counter = iter(range(10**9))
 
-    @_budget(0.8)
-    @given(_fmt_strategy(), image_fields(ENCODINGS), image_fields(ENCODINGS))
-    def inner(fmt, rgb, dep):
+    @_budget(1.0)
+    @given(_fmt_strategy(), image_fields(COLOR_ENCODINGS * 3 + ENCODINGS),
+           image_fields(DEPTH_ENCODINGS * 3 + ENCODINGS), st.booleans())
+    def inner(fmt, rgb, dep, explicit):
         path = folder / f"img{next(counter)}{SUFFIX[fmt]}"
         _rgbd_bag(path, fmt, lambda b, t: b.image(COLOR, t, CAM, **rgb),
                   lambda b, t: b.image(DEPTH, t, CAM, **dep),
                   size=(rgb["width"], rgb["height"]))
-        check_file("rosbag/image", lambda: _read(path, (COLOR, DEPTH)), path)
+        options = {"rgb_topic": COLOR, "depth_topic": DEPTH} if explicit else {}
+        check_file("rosbag/image", lambda: _read(path, (COLOR, DEPTH), **options), path)
 
     inner()
 
@@ -510,7 +515,7 @@ def test_fuzz_compressed_color(tmp_path_factory):
     folder = tmp_path_factory.mktemp("compressed")
     counter = iter(range(10**9))
 
-    @_budget(0.8)
+    @_budget(1.0)
     @given(_fmt_strategy(), st.sampled_from(COLOR_FORMATS), payload(), payload())
     def inner(fmt, fmt_str, first, second):
         path = folder / f"cc{next(counter)}{SUFFIX[fmt]}"
@@ -553,7 +558,7 @@ def test_fuzz_compressed_depth(tmp_path_factory):
     folder = tmp_path_factory.mktemp("compressed_depth")
     counter = iter(range(10**9))
 
-    @_budget(0.8)
+    @_budget(1.0)
     @given(_fmt_strategy(), st.sampled_from(DEPTH_FORMATS), depth_payload(), depth_payload())
     def inner(fmt, fmt_str, first, second):
         path = folder / f"cd{next(counter)}{SUFFIX[fmt]}"
@@ -578,12 +583,17 @@ def test_fuzz_camera_info(tmp_path_factory):
     folder = tmp_path_factory.mktemp("camera_info")
     counter = iter(range(10**9))
 
-    @_budget(0.6)
-    @given(_fmt_strategy(), st.lists(FLOATS, min_size=9, max_size=9),
+    @_budget(0.8)
+    @given(_fmt_strategy(), st.one_of(
+        st.just([500.0, 0, 3, 0, 500.0, 2.5, 0, 0, 1]),
+        st.tuples(st.integers(0, 8), FLOATS).map(
+            lambda e: [500.0, 0, 3, 0, 500.0, 2.5, 0, 0, 1][: e[0]] + [e[1]] +
+            [500.0, 0, 3, 0, 500.0, 2.5, 0, 0, 1][e[0] + 1:]),
+        st.lists(FLOATS, min_size=9, max_size=9)),
            st.sampled_from([(6, 5), (0, 0), (0, 5), (5, 6), (2**32 - 1, 2**32 - 1), (1, 1)]),
            st.lists(FLOATS, max_size=14),
-           st.sampled_from([(0, 0), (1, 1), (2, 2), (0, 3)]),
-           st.sampled_from([(0, 0), (6, 5), (3, 2), (0, 5)]))
+           st.sampled_from([(0, 0), (0, 0), (1, 1), (2, 2), (0, 3)]),
+           st.sampled_from([(0, 0), (0, 0), (6, 5), (3, 2), (0, 5)]))
     def inner(fmt, k, size, d, binning, roi):
         path = folder / f"ci{next(counter)}{SUFFIX[fmt]}"
         _rgbd_bag(path, fmt,
@@ -644,7 +654,7 @@ def test_fuzz_pointcloud2(tmp_path_factory):
     folder = tmp_path_factory.mktemp("clouds")
     counter = iter(range(10**9))
 
-    @_budget(0.8)
+    @_budget(1.0)
     @given(_fmt_strategy(), cloud_fields(), cloud_fields())
     def inner(fmt, first, second):
         path = folder / f"pc{next(counter)}{SUFFIX[fmt]}"
@@ -660,11 +670,13 @@ def test_fuzz_pointcloud2(tmp_path_factory):
 
 
 FRAMES = ["world", "odom", "base", "lidar", "/base", "", "cam"]
-QUATS = st.one_of(st.sampled_from([IDENTITY_Q, (0.0, 0.0, 0.0, 0.0), (float("nan"), 0, 0, 1),
+QUATS = st.one_of(st.just(IDENTITY_Q), st.just((0.0, 0.0, 0.3827, 0.9239)),
+                  st.sampled_from([IDENTITY_Q, (0.0, 0.0, 0.0, 0.0), (float("nan"), 0, 0, 1),
                                    (0, 0, 0, float("inf")), (1e-300, 0, 0, 0),
                                    (1e300, 1e300, 0, 0), (0, 0, 0.7071, 0.7071)]),
                   st.tuples(FLOATS, FLOATS, FLOATS, FLOATS))
-VECS = st.one_of(st.just((0.0, 0.0, 0.0)), st.tuples(FLOATS, FLOATS, FLOATS))
+VECS = st.one_of(st.just((0.0, 0.0, 0.0)), st.just((1.0, -2.0, 0.5)),
+                 st.tuples(FLOATS, FLOATS, FLOATS))
 STAMPS = st.one_of(st.integers(-3, 3).map(lambda k: T0 + k * DT),
                    st.sampled_from([0, 1, T0 + DT // 2, (2**31 - 1) * 10**9, T0 + 10**9]))
 
@@ -674,10 +686,12 @@ def transforms(draw: st.DrawFn) -> list[tuple[str, int, str, str, Any, Any]]:
     """(topic, stamp, parent, child, translation, rotation) links: chains, loops, frames that
     never connect, NaN and zero quaternions, far stamps."""
     out = []
+    clean = draw(st.booleans())  # only the graph and the stamps are odd
     for _ in range(draw(st.integers(0, 8))):
         out.append((draw(st.sampled_from(["/tf", "/tf", "/tf_static"])), draw(STAMPS),
                     draw(st.sampled_from(FRAMES)), draw(st.sampled_from(FRAMES)),
-                    draw(VECS), draw(QUATS)))
+                    (0.5, 0.0, 0.0) if clean else draw(VECS),
+                    IDENTITY_Q if clean else draw(QUATS)))
     return out
 
 
@@ -693,8 +707,8 @@ def test_fuzz_tf(tmp_path_factory):
     counter = iter(range(10**9))
 
     @_budget(0.8)
-    @given(_fmt_strategy(), transforms(), st.sampled_from(FRAMES),
-           st.sampled_from([None, "world", "odom", "nowhere"]), st.booleans())
+    @given(_fmt_strategy(), transforms(), st.one_of(st.just("lidar"), st.sampled_from(FRAMES)),
+           st.sampled_from([None, None, "world", "odom", "nowhere"]), st.booleans())
     def inner(fmt, links, sensor, world, chain):
         path = folder / f"tf{next(counter)}{SUFFIX[fmt]}"
         bag = Bag(path, fmt)
@@ -719,11 +733,13 @@ def test_fuzz_tf(tmp_path_factory):
 @st.composite
 def odometry_samples(draw: st.DrawFn) -> list[tuple[int, int, str, str, Any, Any]]:
     out = []
+    clean = draw(st.booleans())  # only the frames and the stamps are odd
     for k in range(draw(st.integers(0, 6))):
         stamp = draw(st.one_of(st.just(T0 + (k - 1) * DT), STAMPS))
         log = draw(st.one_of(st.just(stamp + 300), st.integers(0, 2 * T0)))
         out.append((stamp, log, draw(st.sampled_from(FRAMES)), draw(st.sampled_from(FRAMES)),
-                    draw(VECS), draw(QUATS)))
+                    (k * 0.5, 0.0, 0.0) if clean else draw(VECS),
+                    IDENTITY_Q if clean else draw(QUATS)))
     return out
 
 
@@ -855,7 +871,7 @@ def test_fuzz_cli_on_mutated_bags(tmp_path_factory, capsys):
     folder = tmp_path_factory.mktemp("cli")
     small = ros1_variant(_small_bag_bytes("lz4"))
 
-    @_budget(0.3)
+    @_budget(0.5)
     @given(small, st.sampled_from(["info", "map"]))
     def inner(variant, command):
         path = write_variant(folder / "cli.bag", variant)

@@ -189,9 +189,10 @@ class _FramePoseMixin:
             sensor = self._sensor_of(plan)
             pose = self._tf.lookup(self._world, sensor, plan.time, gap)
         else:
-            if index is not None:  # time_source "order"
-                track = self._track
-                pose = pose_matrix(track.trans[index], track.quats[index])
+            if index is not None:  # time_source "order": the index-th message, as recorded
+                samples = self._pose_samples  # (the track merges messages sharing a stamp)
+                pose = pose_matrix(np.asarray(samples.trans[index]),
+                                   np.asarray(samples.quats[index]))
             else:
                 pose = self._track.at(plan.time, gap)
             if self._offset_chain is not None:
