@@ -495,8 +495,8 @@ def json_variants(draw, original: dict) -> str:
     non-object document."""
     values = st.recursive(
         st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=6),
-        lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner,
-                                                                    max_size=3),
+        lambda kids: st.lists(kids, max_size=3) | st.dictionaries(st.text(max_size=4), kids,
+                                                                   max_size=3),
         max_leaves=6)
     info = dict(original)
     kind = draw(st.sampled_from(["replace", "drop", "document"]))
