@@ -913,3 +913,84 @@ def test_generated_bags_read(tmp_path, fmt):
                      lambda b, t: b.image(DEPTH, t, CAM, width=6, height=5, encoding="16UC1",
                                           step=12, data=_DEPTH16.tobytes()), size=(6, 5))
     assert _read(path) == 2
+
+
+# --------------------------------------------------------------------------------------------
+# Regressions: one example of each bug the targets found
+# --------------------------------------------------------------------------------------------
+
+
+def _refused(path: Path, match: str, **options: Any) -> None:
+    with pytest.raises(EvsmapError, match=match) as err:
+        _read(path, **options)
+    assert "\n" not in str(err.value) and path.name in str(err.value)
+
+
+def test_regression_claimed_record_lengths(tmp_path):
+    """A ROS 1 record or an MCAP chunk index claiming 4 GB is refused before rosbags reads it."""
+    data = bytearray(_small_bag_bytes("lz4"))
+    chunk = next(r for r in _records(bytes(data))
+                 if dict((n, data[o: o + k]) for n, o, k in _fields(bytes(data), r[0], r[1]))
+                 .get(b"op") == b"\x05")
+    data[chunk[0]: chunk[0] + 4] = (2**32 - 1).to_bytes(4, "little")  # its header's length
+    _refused(write_variant(tmp_path / "long.bag", bytes(data)), "not a complete record")
+    mcap = bytearray(_ros2_file_bytes("mcap"))
+    pos = 8
+    while mcap[pos] != 0x08:  # the first chunk index
+        pos += 9 + int.from_bytes(mcap[pos + 1: pos + 9], "little")
+    offsets = int.from_bytes(mcap[pos + 9 + 32: pos + 9 + 36], "little")
+    name = pos + 9 + 36 + offsets + 8
+    size = name + 4 + int.from_bytes(mcap[name: name + 4], "little")
+    mcap[size: size + 8] = (2**40).to_bytes(8, "little")
+    _refused(write_variant(tmp_path / "long.mcap", bytes(mcap)), "claims 1099511627776 compressed")
+
+
+def test_regression_strides_and_sizes(tmp_path):
+    """A cloud's row_step or an image's step of 4 GB is not padded out; a PNG header claiming
+    10^10 pixels or another size than the camera's is refused before decoding; a point_step
+    beyond numpy's itemsize on an empty cloud is fine."""
+    fields, step, data = _cloud_data(4, np.random.default_rng(0))
+    bag = Bag(tmp_path / "stride.bag", "ros1")
+    bag.cloud("/points", T0, "lidar", fields=fields, point_step=step, row_step=2**32 - 1,
+              width=4, height=1, data=data)
+    bag.cloud("/points", T0 + DT, "lidar", fields=fields, point_step=2**32 - 1, row_step=0,
+              width=0, height=0, data=b"")
+    bag.odometry("/odom", T0, "odom", "lidar", (0, 0, 0), IDENTITY_Q)
+    bag.odometry("/odom", T0 + DT, "odom", "lidar", (1, 0, 0), IDENTITY_Q)
+    assert check_file("rosbag/regressions", lambda: _read(bag.close()), None) == 2
+    path = _rgbd_bag(tmp_path / "step.bag", "ros1",
+                     lambda b, t: b.image(COLOR, t, CAM, width=6, height=1, encoding="rgb8",
+                                          step=2**32 - 1, data=bytes(18)),
+                     lambda b, t: b.image(DEPTH, t, CAM, width=6, height=1, encoding="16UC1",
+                                          step=12, data=bytes(12)), size=(6, 1))
+    assert check_file("rosbag/regressions", lambda: _read(path), None) == 2
+    for name in ("png-huge", "png-big"):
+        path = _rgbd_bag(tmp_path / f"{name}.bag", "ros1",
+                         lambda b, t, n=name: b.compressed(COLOR + "/compressed", t, CAM,
+                                                           PAYLOADS[n], "png"),
+                         lambda b, t: b.compressed(DEPTH + "/compressedDepth", t, CAM,
+                                                   bytes(12) + PAYLOADS["png16"],
+                                                   "16UC1; compressedDepth"), size=(6, 5))
+        assert check_file("rosbag/regressions", lambda p=path: _read(p), None) == 0
+
+
+def test_regression_order_with_shared_pose_stamps(tmp_path):
+    """time_source='order' with two pose messages sharing a stamp: the k-th message, no
+    IndexError."""
+    bag = Bag(tmp_path / "order.bag", "ros1")
+    _cloud_frames(bag, "lidar", 3)
+    for k, stamp in enumerate((T0 - DT, T0 + DT, T0 + DT)):
+        bag.odometry("/odom", stamp, "world", "lidar", (k, 0, 0), IDENTITY_Q)
+    path = bag.close()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        seq = READERS.create("rosbag", path=str(path), time_source="order")
+        assert [seq[k].pose[0, 3] for k in range(3)] == [0.0, 1.0, 2.0]
+        seq.close()
+
+
+def test_regression_non_finite_translation(tmp_path):
+    bag = Bag(tmp_path / "nan.bag", "ros1")
+    _cloud_frames(bag, "lidar", 1)
+    bag.odometry("/odom", T0, "world", "lidar", (float("nan"), 0, 0), IDENTITY_Q)
+    _refused(bag.close(), "/odom .*non-finite translation")
