@@ -23,7 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
-from evsmap.errors import InvalidDataError
+from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.geometry import backproject, transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery
 from evsmap.mapping.kernels import depth_points, group_points
@@ -329,7 +329,10 @@ class OctreeUpdater(MapUpdater):
             DataFormatError: unreadable file, another tree type or another resolution.
         """
         kind, tree = self._read_own(path)
-        codes, values, payload = tree.expand()
+        try:
+            codes, values, payload = tree.expand()
+        except InvalidDataError as exc:  # coarse leaves covering too many voxels
+            raise DataFormatError(f"{path}: {exc}") from None
         order = np.argsort(codes, kind="stable")
         self.map = OccupancyMap.from_leaves(self.resolution, codes[order], values[order],
                                             params=self.params)
@@ -339,7 +342,6 @@ class OctreeUpdater(MapUpdater):
 
     def _read_own(self, path: str | PathLike[str]) -> tuple[str, Tree]:
         """Read an ``.ot`` of this map's node type and resolution: ``(id, tree)``."""
-        from evsmap.errors import DataFormatError
         from evsmap.mapping.octree_io import read_ot
 
         fmt = self.node_type.record

@@ -258,6 +258,26 @@ def test_fuzz_multiclass_bayes_loader(tmp_path_factory, octree_samples):
     inner()
 
 
+def test_fuzz_updater_restore(tmp_path_factory, octree_samples):
+    """``restore`` of another updater (orgb: a ColorOcTree at 0.05 m) on mutated colour maps."""
+    from evsmap.registry import UPDATERS
+
+    folder = tmp_path_factory.mktemp("restore")
+    updater = UPDATERS.create("orgb", resolution=RES)
+
+    @given(st.one_of(mutated_bytes(octree_samples["color"]),
+                     header_edits(octree_samples["color"])))
+    def inner(data):
+        path = write_variant(folder / "colour.ot", data)
+        check_file("octree/orgb-restore", lambda: updater.restore(path), path)
+
+    inner()
+    root = np.zeros(1, dtype=[("value", "<f4"), ("rgb", "u1", (3,)), ("mask", "u1")])
+    path = write_variant(folder / "root.ot", b"# Octomap OcTree file\nid ColorOcTree\nsize 1\n"
+                         b"res 0.05\ndata\n" + root.tobytes())
+    check_file("octree/orgb-restore", lambda: updater.restore(path), path)
+
+
 # ------------------------------------------------------------------------------ weights samples
 class _Tiny(nn.Module):
     """A network with an encoder (for ``--init``) and a classifier."""
