@@ -161,6 +161,8 @@ def load_systems(path: str | PathLike[str], *, taken: set[str] = frozenset()
         raise EvsmapError(f"--systems {path}: cannot read ({exc})") from None
     except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise EvsmapError(f"--systems {path}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise EvsmapError(f"--systems {path}: not valid TOML (nested too deeply)") from None
     return parse_systems(data, source=str(path), taken=taken)
 
 

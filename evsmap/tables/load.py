@@ -58,6 +58,8 @@ def load_file(path: str | PathLike[str] | None = None) -> PaperTables:
         raise TableSchemaError(f"{where}: not UTF-8 text ({exc})") from None
     except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise TableSchemaError(f"{where}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise TableSchemaError(f"{where}: not valid TOML (nested too deeply)") from None
     return parse_tables(data, source=str(where))
 
 

@@ -280,6 +280,8 @@ def _read_toml(text: str, where: str) -> dict[str, Any]:
         return tomllib.loads(text)
     except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
         raise RecipeError(f"{where}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise RecipeError(f"{where}: not valid TOML (nested too deeply)") from None
 
 
 def _source(name_or_path: str | Path) -> tuple[str, str]:

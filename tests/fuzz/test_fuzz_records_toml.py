@@ -529,3 +529,18 @@ def test_gate_baseline_refuses_nan_and_huge(tmp_path):
         check_file("gate/baseline-values", lambda p=path: read_baseline(p), path)
         with pytest.raises(DataFormatError, match="time_ratio"):
             read_baseline(path)
+
+
+def test_toml_deep_nesting(tmp_path):
+    """Arrays and inline tables nested thousands deep: tomllib recurses (RecursionError)."""
+    from evsmap.runner.systems import load_systems
+    from evsmap.tables.load import load_file
+    from evsmap.train.recipe import load_recipe
+
+    for depth in (400, 5000):
+        for value in ("[" * depth + "]" * depth, "{a = " * depth + "1" + "}" * depth):
+            text = f"lr = {value}\n"
+            for name, read in (("recipe.toml", load_recipe), ("tables.toml", load_file),
+                               ("systems.toml", load_systems)):
+                path = write_variant(tmp_path / name, text)
+                check_file("toml/deep-nesting", lambda r=read, p=path: r(p), path)
