@@ -208,12 +208,17 @@ variables are far smaller), and that is the file's fault, not a bug."""
 
 
 def loadmat_checked(path: Path, **options: Any) -> dict:
-    """``scipy.io.loadmat(path, **options)``; a damaged file is a one-line error naming it."""
+    """``scipy.io.loadmat(path, **options)``; a damaged file is a one-line error naming it
+    (its structure checked first: scipy crashes on some damaged element tags,
+    :mod:`evsmap.datasets.matv5`)."""
     import zlib
 
     import scipy.io
     from scipy.io.matlab import MatReadError
 
+    from evsmap.datasets.matv5 import check_mat5
+
+    check_mat5(path)
     try:
         return scipy.io.loadmat(str(path), **options)
     except (MatReadError, zlib.error, *MAT_ERRORS) as exc:

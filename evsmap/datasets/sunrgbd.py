@@ -359,6 +359,10 @@ def prepare_sunrgbd(source_dir: str | Path, out_dir: str | Path, *, limit: int |
             scene = data_dir / entry.scene
             rgb_path = scene / "image" / entry.rgbname
             depth_path = scene / depth_dir / entry.depthname
+            for listed, what in ((rgb_path, "image"), (depth_path, "depth image")):
+                if not listed.is_file():
+                    raise DataFormatError(f"{listed}: {what} not found (listed by "
+                                          f"SUNRGBDMeta({entry.index + 1}) in {META_MAT.name})")
             rgb = read_rgb(rgb_path)
             height, width = rgb.shape[:2]
             raw = read_uint16(depth_path)

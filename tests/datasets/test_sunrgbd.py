@@ -95,7 +95,8 @@ def test_prepare_errors_name_the_file(sun_source, tmp_path):
     with pytest.raises(DataFormatError) as err:
         prepare_sunrgbd(src, tmp_path / "o")
     assert str(err.value) == (f"{src / 'SUNRGBD' / SUN_FRAMES[3][0] / 'depth_bfx' / 'img_0003.png'}"
-                              ": file not found")
+                              ": depth image not found (listed by SUNRGBDMeta(4) in "
+                              "SUNRGBDMeta.mat)")
     assert not (tmp_path / "o").exists()
 
     (src / "SUNRGBD" / SUN_FRAMES[2][0] / "intrinsics.txt").write_text("1 2 3\n")

@@ -472,8 +472,14 @@ def test_fuzz_sunrgbd_mat(name, sun_source, tmp_path_factory):
     target = src / "SUNRGBDtoolbox" / "Metadata" / name
     original = target.read_bytes()
     out = src.parent / "out"
+    strategies = [mutated_bytes(original)]
+    if name == "SUNRGBDMeta.mat":  # the compressed form too (what MATLAB writes)
+        buf = io.BytesIO()
+        scipy.io.savemat(buf, {"SUNRGBDMeta": scipy.io.loadmat(target)["SUNRGBDMeta"]},
+                         do_compression=True)
+        strategies.append(mutated_bytes(buf.getvalue()))
 
-    @given(mutated_bytes(original))
+    @given(st.one_of(*strategies))
     def inner(data):
         write_variant(target, data)
         check_file("datasets/sunrgbd-raw", lambda: _sun_prepare(src, out), target)
@@ -689,3 +695,39 @@ def test_fuzz_cityscapes_images(rel, city_source, tmp_path_factory):
             check_file("datasets/cityscapes-images", lambda: _read_frame(src, "val"), target)
 
     inner()
+
+
+def _mat_with_tag_type(mdtype: int) -> bytes:
+    """A MATLAB v5 file (a cell holding a string, as SUNRGBDMeta's sequenceName) whose string
+    data element claims type ``mdtype``."""
+    buf = io.BytesIO()
+    cell = np.empty((1, 1), dtype=object)
+    cell[0, 0] = "kv1/NYUdata/NYU0001"
+    scipy.io.savemat(buf, {"SUNRGBDMeta": cell})
+    data = bytearray(buf.getvalue())
+    text = "kv1/NYUdata/NYU0001".encode("utf-16-le")
+    i = data.find(text)
+    if i < 0:
+        i = data.find(b"kv1/")
+    data[i - 8:i - 4] = mdtype.to_bytes(4, "little")
+    return bytes(data)
+
+
+@pytest.mark.parametrize("mdtype", [0x6410, 0, 8, 10, 11, 19, 255])
+def test_mat5_unknown_element_type_is_refused_before_scipy(mdtype, tmp_path):
+    """scipy's compiled reader crashes the interpreter (SIGSEGV) on some unknown element types:
+    the structure check refuses them first. Run in a child process, so a regression fails this
+    test instead of killing the run."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "SUNRGBDMeta.mat"
+    path.write_bytes(_mat_with_tag_type(mdtype))
+    code = ("import sys; from pathlib import Path; from evsmap.datasets.common import "
+            "loadmat_checked; from evsmap.errors import DataFormatError\n"
+            "try:\n    loadmat_checked(Path(sys.argv[1]), squeeze_me=True, "
+            "struct_as_record=False)\nexcept DataFormatError as exc:\n    print(exc)\n")
+    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == f"{path}: not a readable MATLAB file (unknown data type {mdtype})\n"
