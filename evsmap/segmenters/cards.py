@@ -153,7 +153,7 @@ def load_lazily(path: str | os.PathLike[str]) -> object:
     Raises:
         DataFormatError: missing, empty or unreadable (one line).
     """
-    from evsmap.segmenters.weights import one_line_reason, torch_load
+    from evsmap.segmenters.weights import check_nesting, one_line_reason, torch_load
 
     path = Path(path)
     if not path.is_file():
@@ -161,11 +161,13 @@ def load_lazily(path: str | os.PathLike[str]) -> object:
     if path.stat().st_size == 0:
         raise DataFormatError(f"{path}: empty file")
     try:
-        return torch_load(path, mmap=True)
+        obj = torch_load(path, mmap=True)
     except MemoryError:
         raise
     except Exception as exc:  # any file may be given: every failure is one line, no traceback
         raise DataFormatError(f"{path}: cannot read weights ({one_line_reason(exc)})") from None
+    check_nesting(obj, path)
+    return obj
 
 
 def open_weights(path: str | os.PathLike[str]) -> tuple[WeightsFile, dict[str, Any]]:

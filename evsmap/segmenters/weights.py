@@ -92,11 +92,66 @@ def read_checkpoint(path: str | PathLike[str]) -> object:
     if not path.is_file():
         raise DataFormatError(f"{path}: weights file not found")
     try:
-        return torch_load(path)
+        obj = torch_load(path)
     except MemoryError:
         raise
     except Exception as exc:  # any file may be given: every failure is one line, no traceback
         raise DataFormatError(f"{path}: cannot read weights ({one_line_reason(exc)})") from None
+    check_nesting(obj, path)
+    return obj
+
+
+MAX_NESTING = 64
+"""How deep a weights file's containers may nest (a state dict, an optimizer's state and a
+card need fewer than 10 levels)."""
+MAX_ITEMS = 10_000_000
+"""How many items a weights file's containers may hold, counting a shared container once per
+reference (what a walk over them visits)."""
+
+
+def check_nesting(obj: object, path: Path) -> None:
+    """Refuse containers nested deeper than :data:`MAX_NESTING`, holding themselves, or sharing
+    containers so that a walk over them visits more than :data:`MAX_ITEMS` items (a pickle can
+    build all three in a few bytes; every later walk over the object - a repr, JSON, the card
+    printer - would recurse without end or for ever).
+
+    Raises:
+        DataFormatError: naming the file.
+    """
+    sizes: dict[int, int] = {}
+    on_path: set[int] = set()
+
+    class _Refused(Exception):
+        pass
+
+    def walk(item: object, depth: int) -> int:
+        if isinstance(item, dict):
+            children = [*item.keys(), *item.values()]
+        elif isinstance(item, (list, tuple, set, frozenset)):
+            children = list(item)
+        else:
+            return 1
+        key = id(item)
+        if key in on_path:
+            raise _Refused("a container that holds itself")
+        if key in sizes:
+            return sizes[key]
+        if depth > MAX_NESTING:
+            raise _Refused(f"containers nested more than {MAX_NESTING} deep")
+        on_path.add(key)
+        total = 1
+        for child in children:
+            total += walk(child, depth + 1)
+            if total > MAX_ITEMS:
+                raise _Refused(f"containers that expand to more than {MAX_ITEMS:,} items")
+        on_path.discard(key)
+        sizes[key] = total
+        return total
+
+    try:
+        walk(obj, 0)
+    except _Refused as exc:
+        raise DataFormatError(f"{path}: cannot read weights (it holds {exc})") from None
 
 
 def torch_load(path: Path, *, mmap: bool = False) -> object:

@@ -563,6 +563,46 @@ class _EvalBoom:
         return (eval, (f"open({self.marker!r}, 'w').close()",))
 
 
+def _with_pickle(sample: bytes, card_value: bytes, prefix: bytes = b"") -> bytes:
+    """The zip weights file ``sample`` with its pickle replaced by one of
+    ``{"state_dict": {}, "card": {"a": <card_value opcodes>}}`` (``prefix``: opcodes run
+    before, whose objects stay below on the stack)."""
+    with zipfile.ZipFile(io.BytesIO(sample)) as z:
+        members = {i.filename: z.read(i) for i in z.infolist()}
+
+    def text(s: str) -> bytes:
+        return b"X" + len(s).to_bytes(4, "little") + s.encode()
+
+    pkl = next(n for n in members if n.endswith("data.pkl"))
+    members[pkl] = (b"\x80\x02" + prefix + b"}(" + text("state_dict") + b"}" + text("card")
+                    + b"}" + text("a") + card_value + b"su.")
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as z:
+        for name, body in members.items():
+            z.writestr(name, body)
+    return out.getvalue()
+
+
+def test_weights_nesting_cycles_and_shared_containers(tmp_path, weights_samples, capsys):
+    """Pickles a few bytes long that every walk over the object chokes on: lists nested 10^5
+    deep (RecursionError in repr, the card printer, JSON), a list holding itself, and 60 levels
+    of lists sharing their child twice (2^60 items for a walk)."""
+    deep = b"]" * 100_000 + b"a" * 99_999
+    cyclic = b"]q\x00h\x00a"
+    shared = b"]q\x00" + b"".join(b"](h" + bytes([i - 1]) + b"h" + bytes([i - 1]) + b"eq"
+                                   + bytes([i]) for i in range(1, 61))
+    for name, opcodes, prefix in (("deep", deep, b""), ("cyclic", cyclic, b""),
+                                  ("shared", b"h\x3c", shared)):
+        path = write_variant(tmp_path / f"{name}.pt", _with_pickle(weights_samples["plain"],
+                                                                  opcodes, prefix))
+        check_file("weights/nesting", lambda p=path: _read_and_load(p), path)
+        for argv in (["weights", "show", str(path)], ["weights", "show", str(path), "--json"],
+                     ["weights", "list", str(path), "--json"]):
+            check_cli("weights/nesting", argv, (path.name,), capsys)
+        with pytest.raises(DataFormatError, match="it holds"):
+            _read_and_load(path)
+
+
 def test_pickled_code_is_refused_and_not_run(tmp_path, capsys):
     from evsmap.segmenters.cards import inspect_weights
     from evsmap.train.checkpoint import load_checkpoint
