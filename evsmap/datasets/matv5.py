@@ -1,10 +1,13 @@
 """A structural check of MATLAB v5 files before scipy reads them.
 
-scipy's MATLAB v5 reader trusts the element tags of the file: a tag with an unknown data type
-makes its compiled code read out of bounds and crash the interpreter (a segmentation fault, not
-an exception), and a tag claiming more bytes than its container holds makes it allocate that
-much. :func:`check_mat5` walks every element of the file (inside compressed variables too,
-decompressed as a stream) and refuses such a file with one line naming it, before scipy sees it.
+scipy's MATLAB v5 reader trusts the element tags of the file: a tag with an unknown data type,
+or an array whose elements do not match its class (a matrix where numbers belong, fewer values
+than its dimensions and fields call for, so that it reads on into the next variable), makes its
+compiled code index a table out of bounds and crash the interpreter (a segmentation fault, not
+an exception); a tag claiming more bytes than its container holds makes it allocate that much.
+:func:`check_mat5` walks every element of the file (inside compressed variables too,
+decompressed as a stream), checks each array against its class, and refuses a file that breaks
+the layout with one line naming it, before scipy sees it.
 
 Layout (MathWorks, "MAT-File Format", v5): a 128-byte header whose last two bytes say the byte
 order (``IM`` little-endian, ``MI`` big-endian), then data elements. An element is an 8-byte tag
