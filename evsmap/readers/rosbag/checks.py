@@ -70,10 +70,10 @@ def _ros1_fields(header: bytes) -> dict[bytes, bytes]:
 
 
 def _ros1_records(fh: BinaryIO, size: int) -> tuple[list[int], dict[int, tuple[dict, int]]]:
-    """Record starts from byte 13 while their lengths fit (and, for connection and chunk-info
-    records, agree with the lengths rosbags reads their data by, so that rosbags' next read
-    starts where the next record does), with each record's header fields and data length. Data
-    is skipped, not read (a chunk's data is most of a bag)."""
+    """Record starts from byte 13 while their lengths fit (and, for chunk-info records, agree
+    with the `count` pairs rosbags reads as their data, so that rosbags' next read starts where
+    the next record does), with each record's header fields and data length. Data is skipped,
+    not read (a chunk's data is most of a bag)."""
     starts: list[int] = []
     records: dict[int, tuple[dict, int]] = {}
     pos = len(ROS1_MAGIC)
@@ -88,11 +88,7 @@ def _ros1_records(fh: BinaryIO, size: int) -> tuple[list[int], dict[int, tuple[d
             break
         fields = _ros1_fields(header)
         op = fields.get(b"op")
-        if op == b"\x07":  # a connection's data is its own header, read as one
-            (inner,) = struct.unpack("<I", fh.read(4).ljust(4, b"\xff"))
-            if inner + 4 != dlen:
-                break
-        elif op == b"\x06" and (_uint(fields, b"count", 4) or 0) * 8 != dlen:
+        if op == b"\x06" and (_uint(fields, b"count", 4) or 0) * 8 != dlen:
             break  # a chunk info's data is read as `count` pairs of uint32
         starts.append(pos)
         records[pos] = (fields, dlen)
