@@ -246,8 +246,10 @@ def _open_image(path: Path):
             raise FetchError(f"{path}: image header claims {im.width}x{im.height} pixels (at "
                              f"most {MAX_PIXELS} read; corrupt file?)")
         im.load()
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError, EOFError,
-            Image.DecompressionBombError) as exc:
+    except UnidentifiedImageError:  # its message shows the in-memory buffer, not the file
+        raise FetchError(f"{path}: unreadable image (not an image format PIL recognises)") \
+            from None
+    except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError) as exc:
         raise FetchError(f"{path}: unreadable image ({' '.join(str(exc).split())})") from None
     return im
 
