@@ -93,6 +93,12 @@ class Intrinsics:
                 "width": self.width, "height": self.height}
 
 
+MAX_TRANSLATION_M = 1e9
+"""A pose further from the origin than this (a million kilometres) is refused: no robot's map
+spans it, geodetic (UTM, ECEF) coordinates are under 1e8 m, and beyond it the points of a
+frame overflow the ``float32`` the updaters work in."""
+
+
 def _check_pose(name: str, pose: object) -> np.ndarray:
     pose = _array(name, pose, np.float64, 2)
     if pose.shape != (4, 4):
@@ -109,6 +115,9 @@ def _check_pose(name: str, pose: object) -> np.ndarray:
         raise InvalidDataError(
             f"{name} rotation block is not a proper rotation (|R R^T - I| = {err:.2e})"
         )
+    if np.abs(pose[:3, 3]).max() > MAX_TRANSLATION_M:
+        raise InvalidDataError(f"{name} translation {pose[:3, 3].tolist()} is beyond "
+                               f"{MAX_TRANSLATION_M:.0e} m from the origin")
     return pose
 
 

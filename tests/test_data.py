@@ -32,6 +32,8 @@ def test_valid_frame():
         ({"pose": np.eye(4, dtype=np.float32)}, "pose must have dtype float64"),
         ({"pose": np.eye(3)}, "pose must be 4x4"),
         ({"pose": np.diag([2.0, 1, 1, 1])}, "not a proper rotation"),
+        ({"pose": np.array([[1.0, 0, 0, 3e38], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])},
+         "beyond 1e"),
         ({"timestamp": float("inf")}, "timestamp must be finite"),
         ({"labels": np.zeros((24, 32), np.int32)}, "labels must have dtype uint8"),
         ({"intrinsics": Intrinsics(100.0, 100.0, 15.5, 11.5, 64, 48)}, "intrinsics are for 64x48"),
