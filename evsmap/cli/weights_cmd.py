@@ -318,8 +318,15 @@ def convert(source: Path, out: Path, *, model: str | None = None,
 
 
 def run_convert(args: argparse.Namespace) -> int:
-    card = convert(args.source, args.out, model=args.model, options=dict(args.option),
-                   force=args.force)
+    from evsmap.segmenters.weights import one_line
+
+    try:
+        card = convert(args.source, args.out, model=args.model, options=dict(args.option),
+                       force=args.force)
+    except EvsmapError as exc:  # names and options may come from the file: any text
+        if one_line(str(exc)) == str(exc):
+            raise
+        raise EvsmapError(one_line(str(exc))) from None
     if args.json:
         print(json.dumps({"out": str(args.out), "card": card}, indent=2))
         return 0

@@ -171,6 +171,12 @@ def torch_load(path: Path, *, mmap: bool = False) -> object:
         return torch.load(path, map_location="cpu", weights_only=True, mmap=mmap)
 
 
+def one_line(text: str) -> str:
+    """``text`` with line breaks and other unprintable characters escaped (a file's key names
+    and card values are any text)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def one_line_reason(exc: BaseException) -> str:
     """Why torch's reader refused a file, in one line: :func:`_reason` without torch's advice
     paragraphs, with the exception's type where its message alone says nothing (a bare
@@ -278,9 +284,9 @@ def load_state(module: nn.Module, converted: Converted, source: str | PathLike[s
     if dtypes:
         problems.append(f"dtype mismatch: {_listing(dtypes)}")
     if problems:
-        raise DataFormatError(
+        raise DataFormatError(one_line(
             f"{source}: weights do not fit {type(module).__name__} - " + "; ".join(problems)
-            + _context(converted, state, own))
+            + _context(converted, state, own)))
     module.load_state_dict(state, strict=True)
     return module
 

@@ -69,9 +69,12 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
             or obj["format"] != FORMAT:
         raise DataFormatError(f"{path}: not an evsmap training checkpoint (no \"format\": "
                               f"\"{FORMAT}\")")
-    if type(obj.get("version")) is not int or obj["version"] != VERSION:
-        raise DataFormatError(f"{path}: training checkpoint version {obj.get('version')!r}, "
-                              f"this evsmap reads version {VERSION}")
+    version = obj.get("version")
+    if type(version) is not int or version != VERSION:
+        shown = repr(version) if isinstance(version, (int, float, str)) or version is None \
+            else f"a {type(version).__name__}"
+        raise DataFormatError(f"{path}: training checkpoint version {shown}, this evsmap reads "
+                              f"version {VERSION}")
     problem = _structure_problem(obj)
     if problem:
         raise DataFormatError(f"{path}: a damaged training checkpoint ({problem})")

@@ -182,7 +182,7 @@ def load_encoder_weights(module: nn.Module, path: str | PathLike[str]) -> InitRe
             message says what the file holds).
     """
     from evsmap.segmenters.official import LAYOUTS
-    from evsmap.segmenters.weights import castable, read_weights
+    from evsmap.segmenters.weights import castable, one_line, read_weights
 
     converted = read_weights(path)
     state = {k: v for k, v in converted.state.items() if isinstance(v, torch.Tensor)}
@@ -233,9 +233,9 @@ def load_encoder_weights(module: nn.Module, path: str | PathLike[str]) -> InitRe
         used.update(orig for _, orig, _ in exact + summed)
     if not plans:
         sample = _listing(sorted(state)) if state else "no tensors"
-        raise EvsmapError(
+        raise EvsmapError(one_line(
             f"{path}: no tensor of the file fits an encoder of {type(module).__name__} "
-            f"({', '.join(encoders)}); the file ({LAYOUTS[converted.layout]}) holds {sample}")
+            f"({', '.join(encoders)}); the file ({LAYOUTS[converted.layout]}) holds {sample}"))
     loaded_keys: set[str] = set()
     with torch.no_grad():
         for enc, items in plans:

@@ -678,7 +678,10 @@ def test_fuzz_weights_text_garbage(tmp_path_factory, capsys):
 
 def test_weights_regressions(tmp_path, weights_samples, capsys):
     """What the fuzzer found, kept as fixed cases: a legacy pickle claiming a 4 GiB string (read
-    from a file object, the claim was allocated), a card whose options are a list."""
+    from a file object, the claim was allocated), cards with fields of the wrong type, keys and
+    card text with line breaks, complex or bool tensors."""
+    from evsmap.train.init import load_encoder_weights
+
     legacy = weights_samples["legacy"]
     at = legacy.index(b"X\x10\x00\x00\x00protocol_version")
     huge = legacy[:at + 1] + b"\xf0\xff\xff\xff" + legacy[at + 5:]
@@ -697,6 +700,16 @@ def test_weights_regressions(tmp_path, weights_samples, capsys):
         for argv in (["weights", "show", str(path)], ["weights", "list", str(path), "--json"],
                      ["weights", "show", str(path), "--json"], ["weights", "list", str(path)]):
             check_cli("weights/regressions", argv, (path.name,), capsys)
+    for obj in ({"state_dict": {**_tiny_state(), "odd\nkey": torch.zeros(1)}},
+                {"state_dict": _tiny_state(), "card": {"model": "x\ny", "options": {"a": "b\nc"}}},
+                {"state_dict": {"odd\nkey": torch.zeros(1)}, "card": {"model": "feagnet-s"}}):
+        path = tmp_path / "line-breaks.pt"  # keys and card text reach the messages
+        path.write_bytes(_saved(obj))
+        check_file("weights/regressions", lambda p=path: _read_and_load(p), path)
+        check_file("weights/regressions", lambda p=path: load_encoder_weights(_Tiny(), p), path)
+        check_cli("weights/regressions", ["weights", "convert", str(path), "--out",
+                                          str(tmp_path / "out.pt"), "--force"], (path.name,),
+                  capsys)
     for dtype in (torch.complex64, torch.bool):  # cast silently before: now refused
         path = tmp_path / "complex.pt"
         path.write_bytes(_saved({k: v.to(dtype) for k, v in _tiny_state().items()}))
