@@ -92,6 +92,11 @@ def _component(plugin: _PluginModel) -> Component:
 _PLAIN_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 
+def _one_line(text: str) -> str:
+    """``text`` (a factory's message quoting the file's values) with line breaks escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def _where(loc: tuple[Any, ...]) -> str:
     """``systems[0].updater.name``; a key that is not a plain word is quoted (``[' a\\n']``)."""
     out = ""
@@ -112,7 +117,7 @@ def parse_systems(data: dict[str, Any], *, source: str,
     except ValidationError as exc:
         first = exc.errors()[0]
         more = len(exc.errors()) - 1
-        message = " ".join(str(first["msg"]).split())
+        message = _one_line(str(first["msg"]))
         raise EvsmapError(f"{source}: {_where(first['loc']) or 'the file'}: {message}"
                           + (f" (and {more} more)" if more else "")) from None
     from evsmap.registry import SEGMENTERS, UPDATERS
@@ -140,10 +145,9 @@ def parse_systems(data: dict[str, Any], *, source: str,
                 segmenter = _component(s.segmenter)
                 network = SEGMENTERS.create(segmenter.name, **segmenter.config).module \
                     is not None
-        except EvsmapError as exc:
-            raise EvsmapError(f"{where}: {exc}") from None
-        except (TypeError, ValueError, OverflowError) as exc:  # a factory refusing an option
-            raise EvsmapError(f"{where}: {' '.join(str(exc).split())}") from None
+        # an unknown name, or a factory refusing an option (its message may quote the file)
+        except (EvsmapError, TypeError, ValueError, OverflowError) as exc:
+            raise EvsmapError(f"{where}: {_one_line(str(exc))}") from None
         systems.append(ExtraSystem(id=s.id, label=s.label or s.id, updater=updater,
                                    segmenter=segmenter, segmenter_is_network=network))
     return systems

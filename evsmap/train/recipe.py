@@ -320,7 +320,8 @@ def load_recipe(name_or_path: str | Path = "paper", *, _seen: tuple[str, ...] = 
         try:
             merged = load_recipe(base, _seen=(*_seen, where)).as_dict()
         except RecipeError as exc:  # the user gave this file: name it, then the base's problem
-            raise RecipeError(f"{where}: base {base!r}: {exc}") from None
+            inner = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(exc))
+            raise RecipeError(f"{where}: base {base!r}: {inner}") from None
         merged.update(data)
         data = merged
     for key, value in data.items():

@@ -334,7 +334,8 @@ def test_recipe_base_chains(tmp_path):
              "bad-base.toml": 'base = "garbage.toml"\n', "dir-base.toml": 'base = "folder.toml"\n',
              "name-base.toml": 'base = "no-such-recipe"\n', "abs.toml": 'base = "/"\n',
              "num-base.toml": "base = 3\n", "loop.toml": 'base = "loop-a.toml"\n',
-             "unknown.toml": 'base = "paper"\nnot_a_field = 1\n'}
+             "unknown.toml": 'base = "paper"\nnot_a_field = 1\n',
+             "newline-base.toml": 'base = "a\\nb.toml"\n'}
     for name, text in cases.items():
         path = write_variant(tmp_path / name, text)
         check_file("toml/recipe-base", lambda p=path: load_recipe(p), path)
