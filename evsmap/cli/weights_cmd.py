@@ -310,7 +310,10 @@ def convert(source: Path, out: Path, *, model: str | None = None,
                      source_file=source.name, source_sha256=file_sha256(source),
                      source_layout=converted.layout, conversion=list(converted.notes))
     out.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"state_dict": state, "card": card}, out)
+    from evsmap.fileio import atomic_write
+
+    with atomic_write(out, "wb") as fh:  # an older file of that name stays until this is whole
+        torch.save({"state_dict": state, "card": card}, fh)
     written = read_weights(out)  # the file reads back through the --weights path
     if tensors_sha256(written.state) != card["tensors_sha256"]:  # pragma: no cover
         raise EvsmapError(f"{out}: the tensors read back differ from those written")
