@@ -17,6 +17,9 @@ from evsmap.readers.rosbag.messages import _one_line
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+MAX_ROS1_HEADER = 1 << 20
+"""Longest ROS 1 record header accepted (bytes): real ones (bag, chunk, index, connection,
+chunk-info) are tens of bytes; message definitions live in a connection's data."""
 
 
 # ------------------------------------------------------------------------- ROS 2 bag folders
@@ -80,7 +83,7 @@ def _ros1_records(fh: BinaryIO, size: int) -> tuple[list[int], dict[int, tuple[d
     while pos + 4 <= size:
         fh.seek(pos)
         (hlen,) = struct.unpack("<I", fh.read(4))
-        if pos + 8 + hlen > size:
+        if pos + 8 + hlen > size or hlen > MAX_ROS1_HEADER:
             break
         header = fh.read(hlen)
         (dlen,) = struct.unpack("<I", fh.read(4))
