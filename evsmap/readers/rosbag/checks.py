@@ -18,8 +18,9 @@ from evsmap.readers.rosbag.messages import _one_line
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_ROS1_HEADER = 1 << 20
-"""Longest ROS 1 record header accepted (bytes): real ones (bag, chunk, index, connection,
-chunk-info) are tens of bytes; message definitions live in a connection's data."""
+"""Longest ROS 1 record header (and MCAP chunk index) accepted, bytes: real ones (bag, chunk,
+index, connection, chunk-info) are tens of bytes; message definitions live in a connection's
+data."""
 
 
 # ------------------------------------------------------------------------- ROS 2 bag folders
@@ -186,6 +187,9 @@ def _check_mcap(fh: BinaryIO, size: int, path: Path) -> None:
     for start, (op, length) in sorted(records.items()):
         if start < summary_start or op != 0x08:
             continue
+        if length > MAX_ROS1_HEADER:  # tens of bytes plus ten per channel
+            raise DataFormatError(f"{path}: MCAP chunk index at byte {start} claims {length} "
+                                  f"bytes")
         fh.seek(start + 9)
         content = fh.read(length)
         _check_chunk_index(content, start, records, path)
