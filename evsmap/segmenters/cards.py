@@ -153,21 +153,12 @@ def load_lazily(path: str | os.PathLike[str]) -> object:
     Raises:
         DataFormatError: missing, empty or unreadable (one line).
     """
-    from evsmap.segmenters.weights import check_nesting, one_line_reason, torch_load
+    from evsmap.segmenters.weights import read_checkpoint
 
     path = Path(path)
-    if not path.is_file():
-        raise DataFormatError(f"{path}: weights file not found")
-    if path.stat().st_size == 0:
+    if path.is_file() and path.stat().st_size == 0:
         raise DataFormatError(f"{path}: empty file")
-    try:
-        obj = torch_load(path, mmap=True)
-    except MemoryError:
-        raise
-    except Exception as exc:  # any file may be given: every failure is one line, no traceback
-        raise DataFormatError(f"{path}: cannot read weights ({one_line_reason(exc)})") from None
-    check_nesting(obj, path)
-    return obj
+    return read_checkpoint(path, mmap=True)
 
 
 def open_weights(path: str | os.PathLike[str]) -> tuple[WeightsFile, dict[str, Any]]:

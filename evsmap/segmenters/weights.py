@@ -82,8 +82,9 @@ def _reason(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
-def read_checkpoint(path: str | PathLike[str]) -> object:
-    """The object in a weights file, read with ``weights_only=True`` and the numpy allow-list.
+def read_checkpoint(path: str | PathLike[str], *, mmap: bool = False) -> object:
+    """The object in a weights file, read with ``weights_only=True`` and the numpy allow-list
+    (``mmap``: tensors left on disk where the format allows it).
 
     Raises:
         DataFormatError: the file is missing or cannot be read (one line).
@@ -92,7 +93,7 @@ def read_checkpoint(path: str | PathLike[str]) -> object:
     if not path.is_file():
         raise DataFormatError(f"{path}: weights file not found")
     try:
-        obj = torch_load(path)
+        obj = torch_load(path, mmap=mmap)
     except MemoryError:
         raise
     except Exception as exc:  # any file may be given: every failure is one line, no traceback

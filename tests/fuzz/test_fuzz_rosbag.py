@@ -25,6 +25,7 @@ from PIL import Image
 from evsmap.errors import EvsmapError
 from evsmap.registry import READERS
 from tests.fuzz.harness import check_cli, check_file, mutated_bytes, text_lines, write_variant
+from tests.readers.bag_writing import write_queued
 
 FORMATS = ("ros1", "sqlite3", "mcap")
 SUFFIX = {"ros1": ".bag", "sqlite3": "", "mcap": ""}
@@ -144,27 +145,8 @@ class Bag:
         self.add(topic, "sensor_msgs/msg/PointCloud2", msg, stamp + 1000)
 
     def close(self) -> Path:
-        from rosbags.rosbag1 import Writer as Writer1
-        from rosbags.rosbag2 import StoragePlugin
-        from rosbags.rosbag2 import Writer as Writer2
-
-        if self.fmt == "ros1":
-            writer = Writer1(self.path)
-            if self.compression != "none":
-                writer.set_compression(Writer1.CompressionFormat[self.compression.upper()])
-        else:
-            plugin = StoragePlugin.MCAP if self.fmt == "mcap" else StoragePlugin.SQLITE3
-            writer = Writer2(self.path, version=9, storage_plugin=plugin)
-        conns: dict[tuple[str, str], Any] = {}
-        with writer:
-            for log, _, topic, msgtype, msg in sorted(self.queue, key=lambda q: q[:2]):
-                if (topic, msgtype) not in conns:
-                    conns[(topic, msgtype)] = writer.add_connection(topic, msgtype,
-                                                                    typestore=self.ts)
-                raw = self.ts.serialize_ros1(msg, msgtype) if self.fmt == "ros1" else \
-                    self.ts.serialize_cdr(msg, msgtype)
-                writer.write(conns[(topic, msgtype)], log, raw)
-        return self.path
+        return write_queued(self.path, self.fmt, self.ts, self.queue,
+                            compression=self.compression)
 
 
 IDENTITY_Q = (0.0, 0.0, 0.0, 1.0)

@@ -26,6 +26,7 @@ from evsmap.readers.rosbag import (
 )
 from evsmap.readers.tum import read_list
 from evsmap.registry import READERS
+from tests.readers.bag_writing import write_queued
 
 # --------------------------------------------------------------------------------------------
 # A small bag writer on rosbags' writers (messages are buffered and written in time order)
@@ -137,26 +138,7 @@ class BagWriter:
         self.add(topic, "sensor_msgs/msg/PointCloud2", msg, stamp + 1000)
 
     def close(self) -> Path:
-        from rosbags.rosbag1 import Writer as Writer1
-        from rosbags.rosbag2 import StoragePlugin
-        from rosbags.rosbag2 import Writer as Writer2
-
-        if self.fmt == "ros1":
-            writer = Writer1(self.path)
-            writer.set_compression(Writer1.CompressionFormat.LZ4)
-        else:
-            plugin = StoragePlugin.MCAP if self.fmt == "mcap" else StoragePlugin.SQLITE3
-            writer = Writer2(self.path, version=9, storage_plugin=plugin)
-        conns: dict[tuple[str, str], object] = {}
-        with writer:
-            for log, _, topic, msgtype, msg in sorted(self.queue, key=lambda q: q[:2]):
-                if (topic, msgtype) not in conns:
-                    conns[(topic, msgtype)] = writer.add_connection(topic, msgtype,
-                                                                    typestore=self.ts)
-                raw = self.ts.serialize_ros1(msg, msgtype) if self.fmt == "ros1" else \
-                    self.ts.serialize_cdr(msg, msgtype)
-                writer.write(conns[(topic, msgtype)], log, raw)
-        return self.path
+        return write_queued(self.path, self.fmt, self.ts, self.queue)
 
 
 def ns(t: float) -> int:
