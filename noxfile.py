@@ -31,13 +31,13 @@ def tests(session: nox.Session) -> None:
 @nox.session
 def fuzz(session: nox.Session) -> None:
     """Every fuzz target under tests/fuzz with the long budget (docs/robustness.md): random
-    examples, EVSMAP_FUZZ_EXAMPLES per target (default 500), hypothesis's example database in
+    examples, EVSMAP_FUZZ_EXAMPLES per target (default 200), hypothesis's example database in
     .hypothesis/ (a failure found once is tried first next time). The examples run per target
     are printed and written to reports/fuzz.json. `nox -s fuzz -- -k rosbag` runs a subset; the
     test suite runs every target with 25 derandomised examples."""
     _install(session)
     env = {"EVSMAP_FUZZ_PROFILE": "fuzz",
-           "EVSMAP_FUZZ_EXAMPLES": os.environ.get("EVSMAP_FUZZ_EXAMPLES", "500"),
+           "EVSMAP_FUZZ_EXAMPLES": os.environ.get("EVSMAP_FUZZ_EXAMPLES", "200"),
            "EVSMAP_FUZZ_REPORT": os.environ.get("EVSMAP_FUZZ_REPORT", "reports/fuzz.json")}
     session.run("pytest", "tests/fuzz", "-q", "-p", "no:cacheprovider", *session.posargs,
                 env=env)

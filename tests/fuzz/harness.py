@@ -63,7 +63,7 @@ def _examples(default: int) -> int:
 settings.register_profile("evsmap-ci", max_examples=_examples(25), derandomize=True,
                           deadline=None, database=None, suppress_health_check=_SUPPRESS,
                           print_blob=True)
-settings.register_profile("evsmap-fuzz", max_examples=_examples(1000), deadline=None,
+settings.register_profile("evsmap-fuzz", max_examples=_examples(200), deadline=None,
                           suppress_health_check=_SUPPRESS, print_blob=True)
 
 
