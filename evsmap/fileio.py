@@ -155,7 +155,11 @@ def staging_folder(out: Path, *, overwrite: bool, source: Path | None = None,
         if dst.exists():
             old = parent / f".{dst.name}.old-{os.getpid()}"
             dst.rename(old)
-            partial.rename(dst)
+            try:
+                partial.rename(dst)
+            except BaseException:  # an interruption between the two renames: put it back
+                old.rename(dst)
+                raise
             shutil.rmtree(old, ignore_errors=True)
         else:
             partial.rename(dst)

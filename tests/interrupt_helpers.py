@@ -29,6 +29,11 @@ EVSMAP = [sys.executable, "-m", "evsmap"]
 HANG_S = 30.0
 """A stop that takes longer than this is a hang (the measured stop takes well under 2 s)."""
 
+START_S = 1.0
+"""Signals come no earlier than this into a run: before it, Python may still be starting, before
+evsmap has set its handlers (a SIGINT then ends in Python's own KeyboardInterrupt; nothing has
+been written; docs/robustness.md, "Limits")."""
+
 SEED = int(os.environ.get("EVSMAP_INTERRUPT_SEED") or random.SystemRandom().randrange(10**6))
 RNG = random.Random(SEED)
 

@@ -16,6 +16,7 @@ from tests.interrupt_helpers import (
     LINUX_ONLY,
     RNG,
     SEED,
+    START_S,
     assert_whole,
     interrupt,
     run_evsmap,
@@ -47,7 +48,7 @@ def straight_run(tmp_path_factory) -> Path:
 def test_reproduce_interrupted_and_resumed_equals_a_straight_run(straight_run, tmp_path, sig,
                                                                  group):
     out = tmp_path / "run"
-    after = RNG.uniform(1.0, 20.0)
+    after = RNG.uniform(START_S, 20.0)
     code, err = interrupt(["reproduce", "--quick", "--tables", "I", "--cells", REPRODUCE_CELLS,
                            "--workers", "2", "--out", str(out)], tmp_path, after_s=after,
                           sig=sig, group=group)
@@ -90,7 +91,7 @@ def test_map_interrupted_writes_nothing_and_a_rerun_equals_a_straight_one(straig
     target = tmp_path / "maps" / "map.ot"
     target.parent.mkdir()
     target.write_bytes(b"an older map")  # what was there stays until a new map is whole
-    after = RNG.uniform(0.5, 8.0)
+    after = RNG.uniform(START_S, 8.0)
     code, err = interrupt([*MAP, "--out", str(target)], tmp_path, after_s=after,
                           sig=signal.SIGTERM)
     assert_whole(target.parent)
@@ -108,13 +109,16 @@ def test_prepare_interrupted_leaves_nothing_and_a_rerun_completes(tmp_path):
     out = tmp_path / "data" / "synthrooms"
     argv = ["datasets", "prepare", "synthrooms", "--out", str(out), "--rooms", "6",
             "--frames-per-room", "3", "--size", "80x60"]
-    code, err = interrupt(argv, tmp_path, after_s=RNG.uniform(0.5, 6.0), sig=signal.SIGINT,
+    code, err = interrupt(argv, tmp_path, after_s=RNG.uniform(START_S, 6.0), sig=signal.SIGINT,
                           group=True)
     assert_whole(tmp_path / "data") if (tmp_path / "data").exists() else None
-    if code != 0:
-        assert not out.exists(), f"seed {SEED}: a half-prepared dataset was left"
+    if code != 0 and not out.exists():
         assert "run the same command again" in err
-    else:
+    elif out.exists():  # finished before the signal took effect: then it is whole
+        manifest = json.loads((out / "evsmap-dataset.json").read_text())
+        assert manifest["frames"] == 18, f"seed {SEED}: a half-prepared dataset was left"
+        if code == 128 + signal.SIGINT:  # (not when it had already exited, -SIGINT)
+            assert f"{out} is ready" in err, err
         shutil.rmtree(out)
     run_evsmap(argv, tmp_path)
     manifest = json.loads((out / "evsmap-dataset.json").read_text())
