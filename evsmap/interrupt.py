@@ -63,6 +63,18 @@ def resume_hint() -> str | None:
     return _hint
 
 
+def file_state(path: str | os.PathLike[str] | None) -> tuple[int, int] | None:
+    """(inode, modification time) of a file or folder, None when absent: what a command
+    compares to tell whether its output was moved into place before a signal came."""
+    if path is None:
+        return None
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns
+
+
 def _raise_interrupted(signum: int, frame: object) -> None:
     # the first signal unwinds the command; a second one (an impatient Ctrl-C) must not break
     # off that cleanup (terminating workers takes at most a second or two), so it is ignored

@@ -54,7 +54,7 @@ def test_reproduce_interrupted_and_resumed_equals_a_straight_run(straight_run, t
                           sig=sig, group=group)
     if out.exists():
         assert_whole(out)
-    if code != 0 and (out / "run.json").exists():
+    if code == 128 + sig and (out / "run.json").exists():
         assert f"evsmap reproduce --resume --out {out}" in err, err
     if not (out / "run.json").exists():  # stopped before the run began: start it again
         shutil.rmtree(out, ignore_errors=True)
@@ -95,11 +95,12 @@ def test_map_interrupted_writes_nothing_and_a_rerun_equals_a_straight_one(straig
     code, err = interrupt([*MAP, "--out", str(target)], tmp_path, after_s=after,
                           sig=signal.SIGTERM)
     assert_whole(target.parent)
-    if code == 0:
-        assert target.read_bytes() == straight_map
-    else:
-        assert target.read_bytes() == b"an older map", f"seed {SEED}"
-        assert "run the same command again" in err
+    # the old map, or the whole new one when the run finished before the signal took effect
+    now = target.read_bytes()
+    assert now in (b"an older map", straight_map), f"seed {SEED}"
+    if code == 128 + signal.SIGTERM:
+        assert ("run the same command again" in err) if now == b"an older map" else \
+            (f"{target} is written" in err), err
     run_evsmap([*MAP, "--out", str(target)], tmp_path)
     assert target.read_bytes() == straight_map
 

@@ -126,25 +126,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     fetch.set_defaults(run=run_fetch)
 
 
-def _folder_state(path: Path) -> tuple[int, int] | None:
-    """(inode, modification time) of a folder, None when absent: a folder moved into place
-    changes both."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return st.st_ino, st.st_mtime_ns
-
-
 def run_prepare(args: argparse.Namespace) -> int:
-    from evsmap.interrupt import set_resume_hint
+    from evsmap.interrupt import file_state, set_resume_hint
 
     name = args.dataset
     out = args.out if args.out is not None else DEFAULT_ROOT / name
-    before = _folder_state(out)
+    before = file_state(out)
 
     def hint() -> str:
-        if _folder_state(out) != before:  # the signal came after the dataset was moved in
+        if file_state(out) != before:  # the signal came after the dataset was moved in
             return f"the dataset was complete before that: {out} is ready"
         return (f"{out} was not touched (a dataset is prepared in a staging folder and moved "
                 f"into place at the end); run the same command again")

@@ -84,10 +84,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from evsmap.interrupt import set_resume_hint
+    from evsmap.interrupt import file_state, set_resume_hint
 
-    set_resume_hint("no map was written (a map file is written whole or not at all); run the "
-                    "same command again")
+    before = file_state(args.out)
+
+    def hint() -> str:
+        if args.out is not None and file_state(args.out) != before:
+            return f"the map was complete before that: {args.out} is written"
+        return "no map was written (a map file is written whole or not at all); run the " \
+               "same command again"
+
+    set_resume_hint(hint)
     from evsmap.measure.mapping import map_sequence
     from evsmap.measure.pipelined import stage_threads_option
     from evsmap.progress import progress
