@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evsmap.data import Frame, Intrinsics, Sequence
+from evsmap.data import MAX_TRANSLATION_M, Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.readers.images import (
     check_rgbd_shapes,
@@ -189,6 +189,9 @@ def read_pose(path: Path) -> np.ndarray:
         raise DataFormatError(f"{path}: non-finite pose ({bad} of 16 entries are nan/inf)")
     if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
         raise DataFormatError(f"{path}: pose last row must be [0 0 0 1], got {pose[3].tolist()}")
+    if np.abs(pose[:3, 3]).max() > MAX_TRANSLATION_M:
+        raise DataFormatError(f"{path}: pose translation {pose[:3, 3].tolist()} is beyond "
+                              f"{MAX_TRANSLATION_M:.0e} m from the origin")
     rot = pose[:3, :3]
     with np.errstate(all="ignore"):  # huge entries overflow to inf: refused just below
         err = float(np.abs(rot @ rot.T - np.eye(3)).max())

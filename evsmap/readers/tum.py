@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evsmap.data import Frame, Intrinsics, Sequence
+from evsmap.data import MAX_TRANSLATION_M, Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.geometry import interpolate_poses, matrix_to_quat
 from evsmap.readers.images import (
@@ -113,6 +113,10 @@ def _interpolate(path: Path, gt: np.ndarray, ts: np.ndarray) -> np.ndarray:
     if bad.any():
         raise DataFormatError(f"{path}: the pose interpolated at time {ts[bad][0]!r} is not "
                               f"finite (values too large)")
+    far = np.abs(poses[:, :3, 3]).max(axis=1) > MAX_TRANSLATION_M
+    if far.any():
+        raise DataFormatError(f"{path}: the pose at time {ts[far][0]!r} is beyond "
+                              f"{MAX_TRANSLATION_M:.0e} m from the origin")
     return poses
 
 
