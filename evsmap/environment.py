@@ -1,10 +1,38 @@
-"""Facts about the machine a measurement ran on."""
+"""Facts about the machine a measurement ran on: the one place they are read.
+
+:func:`describe` is what every record, weights card, gate baseline and quantised model carries
+about the machine; :func:`instruction_set` names the vector instruction set the numerical
+libraries pick their kernels by (and so their speed and, for int8, their rounding).
+
+The CPU's features are read through CPUID, as the process sees them, by NumPy's run-time
+dispatcher (the same detection NumPy chooses its own kernels with), not from ``/proc/cpuinfo``:
+under an emulator or a hypervisor that hides features the two differ, and the libraries follow
+CPUID. The two features NumPy does not report (``avx_vnni``, ``amx_int8``) come from
+``/proc/cpuinfo``.
+"""
 
 from __future__ import annotations
 
 import os
 import platform
+from functools import cache
 from pathlib import Path
+
+VECTOR_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512_vnni",
+                "avx_vnni", "avx512_bf16", "amx_int8", "asimd", "asimddp", "sve")
+"""CPU features that pick a library's kernels, in ``/proc/cpuinfo`` spelling."""
+
+_NUMPY_NAMES = {"SSE42": "sse4_2", "AVX": "avx", "AVX2": "avx2", "FMA3": "fma",
+                "AVX512F": "avx512f", "AVX512BW": "avx512bw", "AVX512VNNI": "avx512_vnni",
+                "AVX512BF16": "avx512_bf16", "ASIMD": "asimd", "ASIMDDP": "asimddp",
+                "SVE": "sve"}
+_PROC_ONLY = ("avx_vnni", "amx_int8")
+
+INT8_EXACT_SETS = ("avx512-amx", "avx512-vnni", "avx2-vnni", "arm64-dotprod", "arm64-neon")
+"""Instruction sets whose int8 dot products (u8 x s8) accumulate without a saturating 16-bit
+step: VNNI (``VPDPBUSD``), AMX and the ARM widening or dot-product instructions. On the other
+x86 sets ONNX Runtime's u8s8 kernels multiply through ``VPMADDUBSW``, whose sums of two u8 x s8
+products saturate at 16 bits (see :data:`evsmap.segmenters.quantize.AUTO_SCHEMES`)."""
 
 
 def cpu_model() -> str:
@@ -18,6 +46,69 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown"
 
 
-def describe() -> dict[str, str | int]:
+def _proc_flags() -> set[str]:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("flags", "Features")):
+                return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return set()
+
+
+def _numpy_features() -> dict[str, bool] | None:
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__
+    except ImportError:  # pragma: no cover - NumPy 1.x
+        try:
+            from numpy.core._multiarray_umath import __cpu_features__
+        except ImportError:
+            return None
+    return dict(__cpu_features__)
+
+
+@cache
+def cpu_flags() -> tuple[str, ...]:
+    """The :data:`VECTOR_FLAGS` this process can use, in that order (read once)."""
+    proc = _proc_flags()
+    features = _numpy_features()
+    if features is None:
+        present = proc
+    else:
+        present = {flag for name, flag in _NUMPY_NAMES.items() if features.get(name)}
+        present |= proc.intersection(_PROC_ONLY)
+        if "asimd" in proc:  # aarch64 kernels spell it so; NumPy's ASIMD is the same feature
+            present.add("asimd")
+    return tuple(f for f in VECTOR_FLAGS if f in present)
+
+
+def instruction_set(flags: tuple[str, ...] | None = None) -> str:
+    """The widest vector instruction set of ``flags`` (default: this machine's
+    :func:`cpu_flags`) as one name: ``avx512-amx``, ``avx512-vnni``, ``avx512`` (F and BW, no
+    VNNI), ``avx2-vnni``, ``avx2`` (with FMA), ``avx``, ``sse4.2``, ``arm64-dotprod``,
+    ``arm64-neon``, else the architecture (``platform.machine()``)."""
+    f = set(cpu_flags() if flags is None else flags)
+    if {"avx512f", "avx512bw"} <= f:
+        if "amx_int8" in f:
+            return "avx512-amx"
+        return "avx512-vnni" if "avx512_vnni" in f else "avx512"
+    if {"avx2", "fma"} <= f:
+        return "avx2-vnni" if "avx_vnni" in f else "avx2"
+    for flag, name in (("avx", "avx"), ("sse4_2", "sse4.2"), ("asimddp", "arm64-dotprod"),
+                       ("asimd", "arm64-neon")):
+        if flag in f:
+            return name
+    return platform.machine() or "unknown"
+
+
+def int8_exact(isa: str | None = None) -> bool:
+    """Whether u8 x s8 products accumulate without 16-bit saturation on ``isa`` (default this
+    machine's :func:`instruction_set`); see :data:`INT8_EXACT_SETS`."""
+    return (isa or instruction_set()) in INT8_EXACT_SETS
+
+
+def describe() -> dict[str, str | int | list[str]]:
+    """Python, architecture, CPU model, core count, instruction set and vector flags."""
     return {"python": platform.python_version(), "machine": platform.machine(),
-            "cpu": cpu_model(), "cpus": os.cpu_count() or 0}
+            "cpu": cpu_model(), "cpus": os.cpu_count() or 0,
+            "instruction_set": instruction_set(), "cpu_flags": list(cpu_flags())}

@@ -127,7 +127,8 @@ def format_eval(r: dict[str, Any]) -> str:
     weights = r["weights"] or ("RANDOM (scores meaningless)" if r["random_weights"] else "none")
     lines = [
         f"model            {r['model']}  (weights: {weights}"
-        + (f"; int8 {r['int8_scheme']}" if r.get("precision") == "int8" else "") + ")",
+        + (f"; int8 {r['int8_scheme']} on {r['instruction_set']}" if r.get("precision") == "int8"
+           else "") + ")",
         f"dataset          {r['dataset']}  ({r['reader']}{split}, {r['frames']} frames, "
         f"{r['pixels']:,} labelled pixels)",
         f"mIoU             {_pct(r['miou'])}  over {r['present_classes']} of "

@@ -97,6 +97,11 @@ def run(args: argparse.Namespace) -> int:
                           f"record every workload here (no --only) or use another --baseline")
     log = (lambda msg: sys.stderr.write(f"evsmap gate: {msg}\n")) if not args.json else \
         (lambda msg: None)
+    if baseline is not None:
+        their_isa = theirs.get("instruction_set", "instruction set not recorded")
+        log(f"this machine: {here['cpu']}, {here['instruction_set']}; the baseline's: "
+            f"{theirs.get('cpu', '?')}, {their_isa}"
+            + ("" if same else " (another kind: only exact counts are compared)"))
     t0 = time.perf_counter()
     context, built = discover(threads=args.threads)
     workloads = plan(context)

@@ -19,9 +19,9 @@ from evsmap.cli.options import nonnegative_int, positive_int
 from evsmap.errors import EvsmapError
 
 PRECISIONS = ("fp32", "int8")
-SCHEMES = ("u8s8", "s8s8")
-"""evsmap.segmenters.quantize.SCHEMES, spelled out so that building the parser imports
-nothing heavy."""
+SCHEMES = ("auto", "u8s8", "u8s7", "u8u8", "s8s8")
+"""``auto`` and evsmap.segmenters.quantize.SCHEMES, spelled out so that building the parser
+imports nothing heavy."""
 DEFAULT_CALIBRATION_FRAMES = 16
 
 
@@ -38,9 +38,11 @@ def add_precision_options(p: argparse.ArgumentParser, *, target: str = "the fram
     p.add_argument("--precision", choices=PRECISIONS, default="fp32",
                    help="fp32 (default) or int8: ONNX Runtime static QDQ quantisation, "
                         "calibrated first (implies --backend onnxruntime; docs/int8.md)")
-    p.add_argument("--int8-scheme", choices=SCHEMES, default="u8s8",
-                   help="int8 types: u8s8 (uint8 activations, int8 weights; default, the "
-                        "fast one on x86 with VNNI) or s8s8 (both int8)")
+    p.add_argument("--int8-scheme", choices=SCHEMES, default="auto",
+                   help="int8 types: auto (default: u8s8 where the CPU has VNNI or is ARM, "
+                        "u8s7 on x86 without VNNI, whose u8s8 kernels saturate), u8s8 (uint8 "
+                        "activations, int8 weights), u8s7 (7-bit weights), u8u8 or s8s8 "
+                        "(docs/int8.md, 'Per instruction set')")
     p.add_argument("--calibration-frames", type=positive_int,
                    default=DEFAULT_CALIBRATION_FRAMES, metavar="N",
                    help=f"int8: calibrate on N frames evenly spaced over {target} (default "
@@ -110,8 +112,11 @@ def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
         count = len(sequence) if count is None else min(count, len(sequence))
     indices = evenly_spaced(count, args.calibration_frames)
     frames = [sequence.frame(i) for i in progress(indices, desc="int8 calibration frames")]
+    from evsmap.segmenters.quantize import resolve_scheme
+
+    scheme, chosen_by = resolve_scheme(args.int8_scheme)
     if what:
-        sys.stderr.write(f"evsmap {what}: int8 ({args.int8_scheme}) calibrated on "
+        sys.stderr.write(f"evsmap {what}: int8 ({scheme}, {chosen_by}) calibrated on "
                          f"{len(frames)} frames of {label}\n")
     segmenter.calibrate(frames, scheme=args.int8_scheme, auto_exclude=args.int8_auto_exclude,
                         cache_dir=getattr(args, "cache_dir", None),

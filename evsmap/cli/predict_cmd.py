@@ -360,7 +360,8 @@ def format_record(r: dict[str, Any]) -> str:
                             if k in r["files"][0]]
     lines = [
         f"model      {r['model']}  (weights: {weights}"
-        + (f"; int8 {r['int8_scheme']}" if r.get("precision") == "int8" else "") + ")",
+        + (f"; int8 {r['int8_scheme']} on {r['instruction_set']}" if r.get("precision") == "int8"
+           else "") + ")",
         f"sequence   {r['sequence']}  ({r['frames']} frames, named by {naming})",
         f"time       {r['ms_per_frame_median']:.1f} ms per frame (median{size})",
         f"classes    {classes or 'none'}",

@@ -84,7 +84,7 @@ def format_speed(r: dict[str, Any]) -> str:
         f"roofline  {100 * r['roofline_fraction']:.1f} % of {r['roofline_gmacs']:.1f} G MAC/s "
         f"fp32 matmul  (achieved {r['achieved_gmacs']:.2f} G MAC/s, "
         f"{r['macs'] / 1e9:.2f} G MAC per frame)",
-        f"cpu       {r['cpu']}",
+        f"cpu       {r['cpu']}  ({r['instruction_set']})",
         f"versions  {versions}",
     ])
 
@@ -92,4 +92,5 @@ def format_speed(r: dict[str, Any]) -> str:
 def _precision_text(r: dict[str, Any]) -> str:
     if r.get("precision") != "int8":
         return "fp32"
-    return f"int8 {r['int8_scheme']}, {r['int8']['fp32_nodes']} nodes kept fp32"
+    return (f"int8 {r['int8_scheme']} ({r['int8_scheme_chosen_by']}), "
+            f"{r['int8']['fp32_nodes']} nodes kept fp32")

@@ -83,22 +83,6 @@ def write_baseline(path: str | os.PathLike[str], data: dict[str, Any]) -> None:
     atomic_write_text(path, json.dumps(data, indent=1, sort_keys=False) + "\n")
 
 
-VECTOR_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512_vnni",
-                "avx512_bf16", "amx_tile", "asimd", "sve")
-"""CPU flags that pick a library's kernels (and so their speed and rounding)."""
-
-
-def _cpu_flags() -> list[str]:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith(("flags", "Features")):
-                present = set(line.split(":", 1)[1].split())
-                return [f for f in VECTOR_FLAGS if f in present]
-    except OSError:
-        pass
-    return []
-
-
 def machine_info(threads: int) -> dict[str, Any]:
     """Facts about this machine and its libraries, and ``kind``: what must match for a
     baseline to hold here (CPU model, the vector extensions the kernels pick, cores, python
@@ -106,8 +90,7 @@ def machine_info(threads: int) -> dict[str, Any]:
     from evsmap.environment import describe
     from evsmap.measure.speed import library_versions
 
-    info: dict[str, Any] = {**describe(), **library_versions(), "cpu_flags": _cpu_flags(),
-                            "threads": threads}
+    info: dict[str, Any] = {**describe(), **library_versions(), "threads": threads}
     info["kind"] = machine_kind(info)
     return info
 
@@ -116,7 +99,8 @@ def machine_kind(info: dict[str, Any]) -> str:
     """A short fingerprint of what a baseline's figures depend on (see :func:`machine_info`)."""
     import hashlib
 
-    keys = ("cpu", "cpus", "machine", "cpu_flags", "python", "torch", "onnxruntime", "numpy")
+    keys = ("cpu", "cpus", "machine", "instruction_set", "cpu_flags", "python", "torch",
+            "onnxruntime", "numpy")
     text = json.dumps({k: info.get(k) for k in keys}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 

@@ -22,7 +22,7 @@ import numpy as np
 
 
 def int8_pair(make: Callable[[], Any], calibration: Sequence[Any], *,
-              schemes: Sequence[str] = ("u8s8",), source: str = "",
+              schemes: Sequence[str] = ("auto",), source: str = "",
               untrained: bool = True) -> tuple[Any, dict[str, Any]]:
     """``(fp32, {scheme: int8})``: ``make()`` builds each (a network segmenter on ONNX
     Runtime); the int8 ones load the fp32 one's state (after the BatchNorm re-estimation when

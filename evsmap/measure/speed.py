@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from evsmap.environment import cpu_model
+from evsmap.environment import cpu_model, instruction_set
 from evsmap.errors import UnknownNameError
 from evsmap.models.module_utils import as_inputs, eval_mode, image_size
 
@@ -43,6 +43,8 @@ class SpeedRecord:
         roofline_fraction: ``achieved_gmacs / roofline_gmacs``.
         versions: python and library versions.
         cpu: CPU model name.
+        instruction_set: the vector instruction set the kernels ran with
+            (:func:`evsmap.environment.instruction_set`).
         rounds: rounds of ``runs`` passes timed (more than one when repeating until stable).
         rel_iqr: ``ms_iqr / ms_median`` of the kept round.
         stable: the kept round met the requested ``stable_rel_iqr`` (None: none requested).
@@ -72,6 +74,7 @@ class SpeedRecord:
     roofline_fraction: float
     versions: dict[str, str] = field(default_factory=dict)
     cpu: str = ""
+    instruction_set: str = ""
     rounds: int = 1
     rel_iqr: float = 0.0
     stable: bool | None = None
@@ -268,7 +271,7 @@ def measure_speed(
         times_ms=times_ms, macs=int(macs),
         roofline_gmacs=roofline, achieved_gmacs=achieved,
         roofline_fraction=achieved / roofline,
-        versions=library_versions(), cpu=cpu_model(),
+        versions=library_versions(), cpu=cpu_model(), instruction_set=instruction_set(),
         rounds=rounds, rel_iqr=(q75 - q25) / median,
         stable=None if stable_rel_iqr is None else bool(kept_rel <= stable_rel_iqr),
         contention=contention(before, after, calibration_log),

@@ -16,6 +16,9 @@ of plain values (str, int, float, bool, None, lists, dicts of those), readable w
                     uncommitted changes; None outside a git checkout)
 ``tensors``         number of tensors
 ``tensors_sha256``  :func:`tensor_sha256` of the state dict
+``machine``         where it was written: ``cpu`` and ``instruction_set``
+                    (:mod:`evsmap.environment`; the kernels a trained network's arithmetic
+                    ran on). Cards written before it lack the key.
 
 plus what the writer knows: ``evsmap weights convert`` adds the source file and layout,
 ``evsmap train`` the dataset, splits, recipe, epochs and measured mIoU (see
@@ -39,6 +42,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from evsmap.environment import cpu_model, instruction_set
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.version import evsmap_version
 
@@ -90,6 +94,7 @@ def make_card(*, model: str, options: Mapping[str, Any], num_classes: int,
         "git_commit": git_commit(),
         "tensors": len(state_dict),
         "tensors_sha256": tensor_sha256(state_dict),
+        "machine": {"cpu": cpu_model(), "instruction_set": instruction_set()},
     }
     card.update(fields)
     return card

@@ -119,8 +119,9 @@ class NetworkSegmenter(Segmenter):
         precision: ``"fp32"`` or ``"int8"``. int8 runs only on ONNX Runtime (``backend=
             "torch"`` with int8 is refused, not switched) and needs :meth:`calibrate` before
             the first :meth:`predict`, which otherwise raises.
-        int8_scheme: ``"u8s8"`` (default) or ``"s8s8"``
-            (:data:`evsmap.segmenters.quantize.SCHEMES`), used by :meth:`calibrate`.
+        int8_scheme: ``"auto"`` (default: the scheme exact on this machine's instruction
+            set, :func:`evsmap.segmenters.quantize.auto_scheme`) or one of
+            :data:`evsmap.segmenters.quantize.SCHEMES`, used by :meth:`calibrate`.
     """
 
     uses_depth: ClassVar[bool] = True  # overridden per instance
@@ -140,7 +141,7 @@ class NetworkSegmenter(Segmenter):
         input_size: tuple[int, int] | None = None,
         config: dict | None = None,
         precision: str = "fp32",
-        int8_scheme: str = "u8s8",
+        int8_scheme: str = "auto",
     ) -> None:
         if backend not in BACKENDS:
             raise UnknownNameError(
@@ -149,6 +150,10 @@ class NetworkSegmenter(Segmenter):
         self._check_precision(name, precision, int8_scheme)
         self.precision = precision
         self.int8_scheme = int8_scheme
+        """The scheme asked for (``auto`` or a name) until :meth:`calibrate`, then the one
+        used."""
+        self.int8_scheme_chosen_by = ""
+        """After :meth:`calibrate`: ``"given"`` or ``"auto for <instruction set>"``."""
         self.quantization: QuantizedModel | None = None
         """The int8 model in use (settings, nodes kept in fp32, calibration) once
         :meth:`calibrate` ran; None before and for fp32."""
@@ -210,14 +215,14 @@ class NetworkSegmenter(Segmenter):
         return torch.from_numpy(session.run(None, feed)[0])
 
     def _check_precision(self, name: str, precision: str, scheme: str) -> None:
-        from evsmap.segmenters.quantize import SCHEMES
+        from evsmap.segmenters.quantize import AUTO, SCHEMES
 
         if precision not in PRECISIONS:
             raise UnknownNameError(
                 f"unknown precision {precision!r} (known: {', '.join(PRECISIONS)})")
-        if scheme not in SCHEMES:
+        if scheme != AUTO and scheme not in SCHEMES:
             raise UnknownNameError(
-                f"unknown int8 scheme {scheme!r} (known: {', '.join(SCHEMES)})")
+                f"unknown int8 scheme {scheme!r} (known: {AUTO}, {', '.join(SCHEMES)})")
         if precision == "int8" and self.backend != "onnxruntime":
             raise InvalidDataError(f"{name}: int8 runs on ONNX Runtime only: pass "
                                    f"backend='onnxruntime' (backend {self.backend!r} given)")
@@ -242,7 +247,8 @@ class NetworkSegmenter(Segmenter):
 
         Args:
             frames: calibration frames (any iterable of :class:`~evsmap.data.Frame`).
-            scheme: ``"u8s8"`` or ``"s8s8"`` (default :attr:`int8_scheme`).
+            scheme: ``"auto"`` or one of :data:`~evsmap.segmenters.quantize.SCHEMES` (default
+                :attr:`int8_scheme`); ``auto`` is resolved for this machine's instruction set.
             method: calibration method (:data:`evsmap.segmenters.quantize.METHODS`).
             auto_exclude: keep in fp32 the nodes around this many tensors of worst
                 quantisation SQNR on the calibration frames (0: the rules only).
@@ -252,10 +258,11 @@ class NetworkSegmenter(Segmenter):
         Raises:
             InvalidDataError: the backend is not onnxruntime, or no frame was given.
         """
-        from evsmap.segmenters.quantize import Int8Settings, quantize_model
+        from evsmap.segmenters.quantize import Int8Settings, quantize_model, resolve_scheme
 
         scheme = self.int8_scheme if scheme is None else scheme
         self._check_precision(self.name, "int8", scheme)
+        scheme, chosen_by = resolve_scheme(scheme)
         settings = Int8Settings(scheme=scheme, method=method, auto_exclude=auto_exclude)
         inputs = [self.preprocess(frame) for frame in frames]
         if not inputs:
@@ -267,6 +274,7 @@ class NetworkSegmenter(Segmenter):
             fp32_path=fp32, calibration=feeds, settings=settings, cache_dir=cache_dir,
             stem=self.name, source=source)
         self.precision, self.int8_scheme = "int8", scheme
+        self.int8_scheme_chosen_by = chosen_by
         self._int8_size = tuple(self.input_size)
         self._session = None
         return self.quantization
@@ -277,6 +285,8 @@ class NetworkSegmenter(Segmenter):
             return {"precision": self.precision}
         q = self.quantization
         return {"precision": "int8", "int8_scheme": self.int8_scheme,
+                "int8_scheme_chosen_by": self.int8_scheme_chosen_by,
+                "instruction_set": None if q is None else q.instruction_set,
                 "int8": None if q is None else {
                     "method": q.settings["method"], "calibration_frames": q.calibration_frames,
                     "calibration_source": q.calibration_source,

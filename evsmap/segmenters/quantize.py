@@ -1,5 +1,8 @@
 """Static int8 quantisation (QDQ) of a network's cached fp32 ONNX export, and its cache.
 
+The scheme (:data:`SCHEMES`) is chosen per instruction set by default (``auto``,
+:data:`AUTO_SCHEMES`, issue 32), and a model is cached per instruction set.
+
 Serves issue 20 ("int8 inference"): ONNX Runtime static quantisation in QDQ format after
 ``quant_pre_process``, calibrated with a :class:`~onnxruntime.quantization.CalibrationDataReader`
 over frames of the target data, per-channel weights, the nodes that lose accuracy kept in fp32,
@@ -38,10 +41,63 @@ import numpy as np
 from evsmap.errors import InvalidDataError, UnknownNameError
 from evsmap.fileio import atomic_path
 
-SCHEMES = ("u8s8", "s8s8")
-"""``u8s8``: activations uint8 (asymmetric), weights int8 (symmetric) - ORT's choice for x86
-with VNNI (no saturation, ``reduce_range`` off); ``s8s8``: both int8 (activations asymmetric,
-weights symmetric) - ORT's default and the usual choice on ARM."""
+SCHEMES = ("u8s8", "u8s7", "u8u8", "s8s8")
+"""The int8 types, activations then weights (activations asymmetric, int8 weights symmetric):
+
+* ``u8s8``: uint8 activations, int8 weights - ONNX Runtime's fast x86 kernels; exact with VNNI
+  (``VPDPBUSD`` accumulates in 32 bits), but without VNNI they multiply through ``VPMADDUBSW``,
+  whose sum of two u8 x s8 products saturates at 16 bits (255 x 127 x 2 > 32767);
+* ``u8s7``: as ``u8s8`` with 7-bit weights (ORT's ``reduce_range``): 255 x 64 x 2 fits in 16
+  bits, so the same fast kernels do not saturate, for one bit less of weight resolution;
+* ``u8u8``: uint8 weights too (asymmetric): ORT's u8u8 kernels widen to 16 bits before the
+  multiply and never saturate;
+* ``s8s8``: int8 activations - ORT's default format, the usual choice on ARM. On x86 ONNX
+  Runtime's convolution and matmul kernels take uint8 activations (int8 ones are shifted by
+  128 first: the session option ``session.qdqisint8allowed`` is off there), so s8s8 saturates
+  as u8s8 does; on the test network, whose integer nodes are all convolutions, the outputs are
+  identical.
+
+ONNX Runtime's quantisation guide gives the same advice for machines without VNNI: try
+``reduce_range`` or u8u8 when u8s8 loses accuracy. :data:`AUTO_SCHEMES` is evsmap's choice."""
+
+AUTO = "auto"
+"""The scheme name that means :func:`auto_scheme` for this machine's instruction set."""
+
+AUTO_SCHEMES = {"exact": "u8s8", "saturating": "u8s7"}
+"""``auto``: ``u8s8`` where int8 products accumulate exactly
+(:data:`evsmap.environment.INT8_EXACT_SETS`: VNNI, AMX, ARM), ``u8s7`` elsewhere (AVX2 or
+AVX-512 without VNNI): the accuracy of u8u8 there, on the fast u8s8 kernels. Measured per
+scheme and instruction set in docs/int8.md, "Per instruction set"."""
+
+
+def auto_scheme(instruction_set: str | None = None) -> str:
+    """The scheme ``auto`` means on ``instruction_set`` (default this machine's)."""
+    from evsmap.environment import int8_exact
+
+    return AUTO_SCHEMES["exact" if int8_exact(instruction_set) else "saturating"]
+
+
+def resolve_scheme(scheme: str | None, instruction_set: str | None = None) -> tuple[str, str]:
+    """``(scheme, chosen_by)``: ``auto`` (or None) becomes :func:`auto_scheme`'s and
+    ``chosen_by`` says so (``"auto for avx2"``); a named scheme is kept (``"given"``).
+
+    Raises:
+        UnknownNameError: not a scheme of :data:`SCHEMES` nor ``auto``.
+    """
+    from evsmap.environment import instruction_set as this_isa
+
+    if scheme is None or scheme == AUTO:
+        isa = instruction_set or this_isa()
+        return auto_scheme(isa), f"auto for {isa}"
+    if scheme not in SCHEMES:
+        raise UnknownNameError(f"unknown int8 scheme {scheme!r} (known: {AUTO}, "
+                               f"{', '.join(SCHEMES)})")
+    return scheme, "given"
+
+
+_SCHEME_TYPES = {"u8s8": ("QUInt8", "QInt8", False), "u8s7": ("QUInt8", "QInt8", True),
+                 "u8u8": ("QUInt8", "QUInt8", False), "s8s8": ("QInt8", "QInt8", False)}
+"""Activation type, weight type and ``reduce_range`` of each scheme (ORT's ``QuantType``)."""
 
 METHODS = ("minmax", "percentile", "entropy")
 """Calibration methods: ``minmax`` (default; ranges are the observed extremes), ``percentile``
@@ -61,12 +117,15 @@ class Int8Settings:
     """How a network is quantised (every field is part of the cache key).
 
     Args:
-        scheme: ``"u8s8"`` or ``"s8s8"`` (:data:`SCHEMES`).
+        scheme: one of :data:`SCHEMES` (resolve ``auto`` first: :func:`resolve_scheme`).
         method: calibration method (:data:`METHODS`).
         rules: keep :func:`rule_exclusions`'s nodes in fp32.
         auto_exclude: also keep in fp32 the nodes around this many tensors with the lowest
             quantisation SQNR on the calibration inputs (0: none).
         exclude: further node names (of the pre-processed graph) kept in fp32.
+        instruction_set: the instruction set the model is made for and run on (default this
+            machine's, :func:`evsmap.environment.instruction_set`): a model quantised for one
+            is not reused on another, whose kernels round differently.
     """
 
     scheme: str = "u8s8"
@@ -74,6 +133,7 @@ class Int8Settings:
     rules: bool = True
     auto_exclude: int = 0
     exclude: tuple[str, ...] = ()
+    instruction_set: str = ""
 
     def __post_init__(self) -> None:
         if self.scheme not in SCHEMES:
@@ -85,6 +145,10 @@ class Int8Settings:
         if self.auto_exclude < 0:
             raise InvalidDataError(f"auto_exclude must be >= 0, got {self.auto_exclude}")
         object.__setattr__(self, "exclude", tuple(self.exclude))
+        if not self.instruction_set:
+            from evsmap.environment import instruction_set
+
+            object.__setattr__(self, "instruction_set", instruction_set())
 
 
 @dataclass(frozen=True)
@@ -115,6 +179,11 @@ class QuantizedModel:
     auto_ranking: list[list[Any]] = field(default_factory=list)
     onnxruntime: str = ""
     cached: bool = False
+
+    @property
+    def instruction_set(self) -> str:
+        """The instruction set it was quantised for (:attr:`Int8Settings.instruction_set`)."""
+        return str(self.settings.get("instruction_set", ""))
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -230,15 +299,16 @@ def _quantize(pre: Path, out: Path, reader: Any, settings: Int8Settings,
         quantize_static,
     )
 
-    activation = QuantType.QUInt8 if settings.scheme == "u8s8" else QuantType.QInt8
+    activation, weight, reduce_range = _SCHEME_TYPES[settings.scheme]
     method = {"minmax": CalibrationMethod.MinMax, "percentile": CalibrationMethod.Percentile,
               "entropy": CalibrationMethod.Entropy}[settings.method]
     reader.rewind()
     quantize_static(
         str(pre), str(out), reader, quant_format=QuantFormat.QDQ, per_channel=True,
-        reduce_range=False, activation_type=activation, weight_type=QuantType.QInt8,
-        nodes_to_exclude=list(exclude) or None, calibrate_method=method,
-        extra_options={"ActivationSymmetric": False, "WeightSymmetric": True})
+        reduce_range=reduce_range, activation_type=getattr(QuantType, activation),
+        weight_type=getattr(QuantType, weight), nodes_to_exclude=list(exclude) or None,
+        calibrate_method=method,
+        extra_options={"ActivationSymmetric": False, "WeightSymmetric": weight == "QInt8"})
 
 
 def rank_tensors(*, fp32_path: str | os.PathLike[str], qdq_path: str | os.PathLike[str],
@@ -317,16 +387,18 @@ def _nodes_around(model: Any, tensors: Sequence[str]) -> list[str]:
 
 def cache_path(*, stem: str, fp32_digest: str, calibration_digest: str,
                settings: Int8Settings, cache_dir: str | os.PathLike[str]) -> Path:
-    """Where the int8 model of these inputs lives: ``<stem>-int8-<scheme>-<hash>.onnx``, the
-    hash over the fp32 file's digest, the calibration digest, the settings and the ORT
-    version."""
+    """Where the int8 model of these inputs lives: ``<stem>-int8-<scheme>-<instruction
+    set>-<hash>.onnx``, the hash over the fp32 file's digest, the calibration digest, the
+    settings (the instruction set among them) and the ORT version."""
     h = hashlib.sha256()
     for part in (fp32_digest, calibration_digest,
                  json.dumps(asdict(settings), sort_keys=True), metadata.version("onnxruntime")):
         h.update(part.encode())
         h.update(b"\0")
     stem = re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._") or "model"
-    return Path(cache_dir) / f"{stem[:48]}-int8-{settings.scheme}-{h.hexdigest()[:20]}.onnx"
+    isa = re.sub(r"[^A-Za-z0-9.-]+", "_", settings.instruction_set)
+    return Path(cache_dir) / (f"{stem[:48]}-int8-{settings.scheme}-{isa}-"
+                              f"{h.hexdigest()[:20]}.onnx")
 
 
 def quantize_model(

@@ -9,7 +9,9 @@ import pytest
 
 import evsmap.measure.speed as speed_module
 from evsmap.cli.main import main
+from evsmap.environment import instruction_set
 from evsmap.registry import SEGMENTERS
+from evsmap.segmenters.quantize import auto_scheme
 from tests.segmenters.int8_net import NAME, tiny_segmenter
 
 SMALL_SYNTH = ["-r", "frames=4", "-r", "width=96", "-r", "height=64"]
@@ -51,15 +53,30 @@ def test_speed_int8_record(capsys, tiny):
     assert (r["precision"], r["int8_scheme"], r["backend"]) == ("int8", "s8s8", "onnxruntime")
     assert r["int8"]["calibration_frames"] == 2 and r["int8"]["fp32_nodes"] > 0
     assert "synthetic" in r["int8"]["calibration_source"] and "synthetic" in err
+    assert r["int8_scheme_chosen_by"] == "given" and r["instruction_set"] == instruction_set()
     code, out, _ = run(capsys, "speed", tiny, "--runs", "1", "--warmup", "0", "--json")
     assert code == 0 and json.loads(out)["precision"] == "fp32"
     assert json.loads(out)["backend"] == "torch"  # the fp32 default is unchanged
 
 
+def test_speed_int8_names_the_instruction_set_and_the_scheme_auto_chose(capsys, tiny):
+    code, out, err = run(capsys, "speed", tiny, *INT8, "--runs", "1", "--warmup", "0",
+                         "--threads", "1", "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    isa = instruction_set()
+    assert (r["int8_scheme"], r["int8_scheme_chosen_by"]) == (auto_scheme(), f"auto for {isa}")
+    assert r["instruction_set"] == isa and isa in r["int8"]["model"]
+    assert f"({auto_scheme()}, auto for {isa})" in err
+    code, out, err = run(capsys, "speed", tiny, *INT8, "--runs", "1", "--warmup", "0",
+                         "--threads", "1")
+    assert code == 0 and f"auto for {isa}" in out and f"({isa})" in out, out
+
+
 @pytest.mark.parametrize("argv, words", [
     (["--precision", "int8", "--backend", "torch"], ["int8", "ONNX Runtime"]),
     (["--precision", "int4"], ["--precision"]),
-    (["--precision", "int8", "--int8-scheme", "u8u8"], ["--int8-scheme"]),
+    (["--precision", "int8", "--int8-scheme", "u4s4"], ["--int8-scheme"]),
     (["--precision", "int8", "--calibration-frames", "0"], ["--calibration-frames"]),
 ])
 def test_speed_bad_values_exit_2(capsys, tiny, argv, words):
@@ -72,7 +89,8 @@ def test_eval_int8_calibrates_on_the_scored_frames(capsys, tiny):
                          "-o", "num_classes=40", "--allow-random", *INT8, "--json")
     assert code == 0, err
     r = json.loads(out)
-    assert (r["precision"], r["int8_scheme"], r["backend"]) == ("int8", "u8s8", "onnxruntime")
+    assert (r["precision"], r["int8_scheme"], r["backend"]) == ("int8", auto_scheme(),
+                                                                "onnxruntime")
     assert r["int8"]["calibration_source"].endswith("frames 0, 3")
     assert "the frames processed" in r["int8"]["calibration_source"]
 
@@ -83,7 +101,7 @@ def test_predict_int8_held_out_calibration(capsys, tiny, tmp_path):
                          "--calibrate-on", "synthetic", "--json")
     assert code == 0, err
     r = json.loads(out)
-    assert (r["precision"], r["int8_scheme"]) == ("int8", "u8s8")
+    assert (r["precision"], r["int8_scheme"]) == ("int8", auto_scheme())
     assert "held out" in r["int8"]["calibration_source"]
     saved = json.loads((tmp_path / "pred" / "predict.json").read_text())
     assert saved["precision"] == "int8"
@@ -95,7 +113,7 @@ def test_map_int8_and_its_errors(capsys, tiny):
                          "--frames", "2", *INT8, "--json")
     assert code == 0, err
     r = json.loads(out)
-    assert (r["precision"], r["int8_scheme"]) == ("int8", "u8s8")
+    assert (r["precision"], r["int8_scheme"]) == ("int8", auto_scheme())
     code, _, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater", "orgb",
                        "--precision", "int8")
     one_line_error(code, err, "--precision int8", "no segmenter")

@@ -7,10 +7,12 @@ from dataclasses import replace
 
 import pytest
 
+from evsmap.environment import instruction_set
 from evsmap.report.int8 import int8_frame, int8_markdown
 from evsmap.runner.context import RunContext
 from evsmap.runner.int8 import int8_key, network_specs, run_int8
 from evsmap.runner.records import RecordStore
+from evsmap.segmenters.quantize import auto_scheme
 from evsmap.tables.schema import expand, load_tables
 
 
@@ -40,6 +42,9 @@ def test_the_int8_pass_measures_and_the_report_shows_it(tmp_path, v1_speed):
     assert 0.0 <= v["agreement"] <= 1.0
     assert "miou_int8" not in v  # untrained, no dataset: no mIoU
     assert rec.details["quantization"]["precision"] == "int8"
+    isa = instruction_set()
+    assert rec.details["quantization"]["int8_scheme"] == auto_scheme()
+    assert rec.details["quantization"]["instruction_set"] == isa
     assert rec.inputs["table"] == "table1"
     # stored, and kept on resume
     assert RecordStore(ctx.out).get(rec.key) is not None
@@ -51,3 +56,5 @@ def test_the_int8_pass_measures_and_the_report_shows_it(tmp_path, v1_speed):
     assert int8_markdown([rec], "table2") == []
     frame = int8_frame([rec])
     assert list(frame["input"]) == ["96x64"] and frame["speedup"].iloc[0] > 0
+    assert (frame["scheme"].iloc[0], frame["instruction_set"].iloc[0]) == (auto_scheme(), isa)
+    assert f"| {auto_scheme()} (auto for {isa}) |" in md
