@@ -7,7 +7,8 @@ trained network's scale), each scheme calibrated on evenly spaced frames of the 
 room, top-1 agreement with fp32 on held-out frames of the synthetic office, per frame (worst and
 mean), and the SQNR of the logits (int8 against fp32, dB, over all held-out frames: a deep
 untrained network's argmax flips on tiny margins, so its agreement is a floor that says little,
-while the SQNR still ranks the schemes). Run it natively, and under ``benchmarks/emulate_isa.py --python-args`` for another kind:
+while the SQNR still ranks the schemes). Run it natively, and under
+``benchmarks/emulate_isa.py --python-args`` for another kind:
 
     python benchmarks/int8_schemes.py --out reports/int8-schemes/avx512-vnni.json
     python benchmarks/emulate_isa.py --python-args benchmarks/int8_schemes.py \\
@@ -86,6 +87,26 @@ def measure(name: str, schemes: list[str], size: tuple[int, int], calibration: i
     return out
 
 
+def markdown(records: list[dict]) -> str:
+    """One table of several runs' records (e.g. two instruction sets): a row per network and
+    scheme, per run the worst-frame and mean agreement and the logits SQNR."""
+    head = "| network | scheme |" + "".join(
+        f" {r['machine']['instruction_set']}: worst / mean agreement, SQNR (dB) |"
+        for r in records)
+    lines = [head, "|---|---|" + "---:|" * len(records)]
+    for name in records[0]["networks"]:
+        for scheme in records[0]["networks"][name]["schemes"]:
+            cells = []
+            for r in records:
+                m = r["networks"].get(name, {}).get("schemes", {}).get(scheme)
+                mark = " (auto)" if r["auto_scheme"] == scheme else ""
+                cells.append("not measured" if m is None else
+                             f"{m['worst']:.3f} / {m['mean']:.3f}, {m['logits_sqnr_db']:.1f}"
+                             f"{mark}")
+            lines.append(f"| {name} | {scheme} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     from evsmap.environment import describe
     from evsmap.segmenters.quantize import SCHEMES, auto_scheme
@@ -103,7 +124,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--held-out", type=int, default=4)
     p.add_argument("--cache-dir", type=Path, default=ROOT / ".cache" / "int8-schemes")
     p.add_argument("--out", type=Path, help="write the record as JSON here")
+    p.add_argument("--table", type=Path, nargs="+", metavar="JSON",
+                   help="print the Markdown table of these records (written by --out) and "
+                        "exit")
     ns = p.parse_args(argv)
+    if ns.table:
+        print(markdown([json.loads(path.read_text()) for path in ns.table]))
+        return 0
     w, h = (int(v) for v in ns.size.lower().split("x"))
     machine = describe()
     record = {"machine": machine, "auto_scheme": auto_scheme(), "networks": {},

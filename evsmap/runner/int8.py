@@ -4,9 +4,10 @@ For each network with a speed cell in the planned tables (one record per network
 size, ``extra/int8/<segmenter>@<WxH>``), in one process, on ONNX Runtime with the run's threads:
 
 * **speed**: the network's forward pass, fp32 and int8 (static QDQ, the scheme ``auto`` picks
-  for the machine's instruction set, :mod:`evsmap.segmenters.quantize`) alternating run by run on the same input, medians and the
-  speed-up int8 / fp32. The int8 model is calibrated on 16 evenly spaced frames of the synthetic
-  room (the built-in target data; no dataset is needed for a speed figure);
+  for the machine's instruction set, :mod:`evsmap.segmenters.quantize`) alternating run by run
+  on the same input, medians and the speed-up int8 / fp32. The int8 model is calibrated on 16
+  evenly spaced frames of the synthetic room (the built-in target data; no dataset is needed
+  for a speed figure);
 * **top-1 agreement** of int8 with fp32 on held-out frames (another synthetic room): the share of
   pixels whose class does not change. Untrained (seeded) networks get BatchNorm statistics of the
   calibration frames first (with the initial ones every pixel has the same class and agreement

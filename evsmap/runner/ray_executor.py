@@ -94,28 +94,33 @@ def _timed_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> di
 
 
 def _probe(paths: list[str]) -> dict[str, Any]:
-    """What the driver checks on each node: its host, CPU model, evsmap version and which of
-    the run's ``paths`` it cannot see."""
+    """What the driver checks on each node: its host, CPU model and instruction set, evsmap
+    version and which of the run's ``paths`` it cannot see."""
     from pathlib import Path
 
-    from evsmap.environment import cpu_model
+    from evsmap.environment import cpu_model, instruction_set
     from evsmap.version import evsmap_version
 
     return {"host": socket.gethostname(), "cpu_model": cpu_model(),
-            "evsmap": evsmap_version(), "missing": [p for p in paths if not Path(p).exists()]}
+            "instruction_set": instruction_set(), "evsmap": evsmap_version(),
+            "missing": [p for p in paths if not Path(p).exists()]}
 
 
 # ------------------------------------------------------------------------------ the driver
 def timing_nodes(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The nodes that time: those with the head node's CPU model and CPU count; when the head
-    is not among ``nodes`` (it has no CPUs), the largest group of alike nodes (ties: the most
-    CPUs, then the first listed). Each node: ``cpu_model``, ``cpus``, ``head``."""
-    groups: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    """The nodes that time: those with the head node's CPU model, instruction set and CPU
+    count; when the head is not among ``nodes`` (it has no CPUs), the largest group of alike
+    nodes (ties: the most CPUs, then the first listed). Each node: ``cpu_model``, ``cpus``,
+    ``head`` and (optional) ``instruction_set``."""
+    def kind(node: dict[str, Any]) -> tuple[str, str, int]:
+        return node["cpu_model"], node.get("instruction_set", ""), node["cpus"]
+
+    groups: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
     for node in nodes:
-        groups.setdefault((node["cpu_model"], node["cpus"]), []).append(node)
+        groups.setdefault(kind(node), []).append(node)
     head = next((n for n in nodes if n["head"]), None)
     if head is not None:
-        return groups[(head["cpu_model"], head["cpus"])]
+        return groups[kind(head)]
     return max(groups.values(), key=lambda g: (len(g), g[0]["cpus"]))
 
 
@@ -249,6 +254,7 @@ class RayExecutor(CellExecutor):
                     f"machine {mine}: install the same evsmap on every node")
         self._nodes = [
             {"node_id": n["NodeID"], "host": p["host"], "cpu_model": p["cpu_model"],
+             "instruction_set": p["instruction_set"],
              "cpus": int(n["Resources"]["CPU"]), "head": HEAD_RESOURCE in n["Resources"]}
             for n, p in zip(nodes, probes, strict=True)]
         self._max_cpus = max(n["cpus"] for n in self._nodes)
@@ -298,6 +304,7 @@ class RayExecutor(CellExecutor):
         where = self.address or ("a local cluster" if self._own_session
                                  else "the Ray this process had joined")
         first = timing[0] if timing else None
-        kind = f"{first['cpu_model']}, {first['cpus']} CPUs" if first else "none"
+        kind = (f"{first['cpu_model']}, {first['instruction_set']}, {first['cpus']} CPUs"
+                if first else "none")
         return (f"ray ({where}): {len(self._nodes)} node(s), {cpus} CPUs; timed cells on "
                 f"{len(timing)} node(s) ({kind}), each alone on its node")

@@ -16,6 +16,7 @@ from tests.segmenters.int8_net import NAME, tiny_segmenter
 
 SMALL_SYNTH = ["-r", "frames=4", "-r", "width=96", "-r", "height=64"]
 INT8 = ["--precision", "int8", "--calibration-frames", "2"]
+pytestmark = pytest.mark.isa  # the scheme auto picks depends on the instruction set
 
 
 @pytest.fixture

@@ -64,6 +64,15 @@ def test_timing_nodes_are_alike():
     assert [n["host"] for n in timing_nodes([_node("a", "X", 4), _node("b", "Y", 8)])] == ["b"]
 
 
+def test_timing_nodes_share_the_instruction_set():
+    # the same model name on hosts that expose different vector sets (a hypervisor that hides
+    # AVX-512) is two kinds: the head's times alone
+    nodes = [{**_node("head", "EPYC", 16, head=True), "instruction_set": "avx512-vnni"},
+             {**_node("w1", "EPYC", 16), "instruction_set": "avx2"},
+             {**_node("w2", "EPYC", 16), "instruction_set": "avx512-vnni"}]
+    assert [n["host"] for n in timing_nodes(nodes)] == ["head", "w2"]
+
+
 def test_local_is_the_default_and_keeps_its_pools(tmp_path):
     from evsmap.runner.context import RunContext
 

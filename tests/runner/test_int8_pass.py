@@ -32,6 +32,7 @@ def test_one_record_per_network_and_size(v1_speed):
                                              "extra/int8/feagnet-v1@128x96"]
 
 
+@pytest.mark.isa
 def test_the_int8_pass_measures_and_the_report_shows_it(tmp_path, v1_speed):
     ctx = RunContext.create(tmp_path / "run", data_root=tmp_path, quick=True)
     [rec] = run_int8(ctx, [v1_speed], say=lambda *_: None)

@@ -127,6 +127,7 @@ def test_the_node_probe_names_what_a_node_cannot_see(tmp_path):
     probe = _probe([str(tmp_path), str(tmp_path / "elsewhere")])
     assert probe["missing"] == [str(tmp_path / "elsewhere")]
     assert probe["evsmap"] == evsmap_version() and probe["cpu_model"]
+    assert probe["instruction_set"]
 
 
 def test_unknown_executor_and_address_without_ray():

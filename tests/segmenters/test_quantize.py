@@ -47,6 +47,7 @@ def network(state, **options):
     return net
 
 
+@pytest.mark.isa
 def test_calibrate_quantises_and_caches(frames, state, tmp_path):
     cal = frames[0::2]
     first = network(state).calibrate(cal, cache_dir=tmp_path, source="test frames")
