@@ -277,10 +277,15 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     env = run.get("environment") or {}
     if env:
         out += ["## Environment", "", "| | |", "|---|---|"]
-        for key, name in (("cpu", "CPU"), ("cpus", "CPU cores"), ("threads", "threads"),
-                          ("python", "Python"), ("host", "host"), ("git_commit", "git commit")):
-            if env.get(key) not in (None, ""):
-                out.append(f"| {name} | {_md(env[key])} |")
+        for key, name in (("cpu", "CPU"), ("instruction_set", "instruction set"),
+                          ("cpu_flags", "vector flags"), ("cpus", "CPU cores"),
+                          ("threads", "threads"), ("python", "Python"), ("host", "host"),
+                          ("git_commit", "git commit")):
+            value = env.get(key)
+            if isinstance(value, list):
+                value = ", ".join(map(str, value))
+            if value not in (None, ""):
+                out.append(f"| {name} | {_md(value)} |")
         versions = env.get("versions") or {}
         if isinstance(versions, Mapping):
             for lib, version in versions.items():
@@ -289,8 +294,8 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
         if isinstance(lock, Mapping):
             out.append(f"| lock | {_lock_text(lock)} |")
         for key, value in env.items():
-            if key not in ("cpu", "cpus", "threads", "python", "host", "git_commit", "versions",
-                           "lock"):
+            if key not in ("cpu", "instruction_set", "cpu_flags", "cpus", "threads", "python",
+                           "host", "git_commit", "versions", "lock"):
                 out.append(f"| {_md(key)} | {_md(value)} |")
         out.append("")
 

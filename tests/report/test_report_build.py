@@ -54,6 +54,8 @@ def test_index(built_run):
     root, _ = built_run
     index = (root / "index.md").read_text()
     assert "run 20250101-120000" in index and "Test CPU @ 3 GHz" in index
+    assert "| instruction set | avx2 |" in index and "| vector flags | sse4_2, avx, avx2, fma |" \
+        in index
     assert "| octomap-python | not installed |" in index
     assert "`dataset:tum`" in index and "/data" in index
     # ok / n/a / error / not run / no value / paper only for Table I: every row is implemented
