@@ -124,7 +124,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="with --train: training recipe (default synth-proxy)")
     p.add_argument("--precision", choices=("fp32", "int8"), default=None,
                    help="int8: also measure every network with a speed cell in int8 beside "
-                        "fp32 (ONNX Runtime static QDQ u8s8: speed-up, top-1 agreement, mIoU "
+                        "fp32 (ONNX Runtime static QDQ, the scheme auto picks for this CPU: "
+                        "speed-up, top-1 agreement, mIoU "
                         "where weights and data are here), in an 'int8 beside fp32' section of "
                         "Tables I-III and int8.csv; the paper's cells stay fp32 (default fp32; "
                         "with --resume, the run's)")
