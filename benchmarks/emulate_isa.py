@@ -8,7 +8,9 @@ pick their kernels by - reports only what the emulated CPU has:
 
     python benchmarks/emulate_isa.py                        # pytest -m isa on AVX2
     python benchmarks/emulate_isa.py --isa avx -- -k quantize
-    python benchmarks/emulate_isa.py --python-args benchmarks/int8_schemes.py --out x.json
+    python benchmarks/emulate_isa.py --python-args -- benchmarks/int8_schemes.py --out x.json
+    python benchmarks/emulate_isa.py --python-args -- -m evsmap speed feagnet-v1 \
+        --precision int8 --json
 
 Before running, it checks under the emulator that :func:`evsmap.environment.instruction_set`
 names the set asked for, and refuses otherwise. Emulation is exact for integer arithmetic (the
@@ -46,9 +48,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--python-args", action="store_true",
                    help="the arguments are a Python command line (default: pytest's, after "
                         "'-m isa tests')")
-    p.add_argument("args", nargs=argparse.REMAINDER,
-                   help="arguments after --: pytest's (default '-m isa tests -q') or, with "
-                        "--python-args, the interpreter's")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    rest: list[str] = []
+    if "--" in argv:
+        at = argv.index("--")
+        argv, rest = argv[:at], argv[at + 1:]
+    p.epilog = ("Arguments after -- go to pytest (after '-m isa tests -q') or, with "
+                "--python-args, to the interpreter.")
     ns = p.parse_args(argv)
     qemu = shutil.which("qemu-x86_64")
     if qemu is None:
@@ -61,11 +67,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"emulate_isa: qemu -cpu {model} gives instruction set {seen!r}, not "
               f"{ns.isa!r}", file=sys.stderr)
         return 2
-    args = [a for a in ns.args if a != "--"] if ns.args[:1] == ["--"] else list(ns.args)
     if ns.python_args:
-        command = args
+        if not rest:
+            print("emulate_isa: --python-args needs a command after --", file=sys.stderr)
+            return 2
+        command = rest
     else:
-        command = ["-m", "pytest", "-p", "no:cacheprovider", "-m", "isa", "tests", "-q", *args]
+        command = ["-m", "pytest", "-p", "no:cacheprovider", "-m", "isa", "tests", "-q", *rest]
     print(f"emulate_isa: {ns.isa} (qemu -cpu {model}): python {' '.join(command)}",
           file=sys.stderr, flush=True)
     env = {**os.environ, "EVSMAP_EMULATED_ISA": ns.isa}

@@ -8,10 +8,10 @@ room, top-1 agreement with fp32 on held-out frames of the synthetic office, per 
 mean), and the SQNR of the logits (int8 against fp32, dB, over all held-out frames: a deep
 untrained network's argmax flips on tiny margins, so its agreement is a floor that says little,
 while the SQNR still ranks the schemes). Run it natively, and under
-``benchmarks/emulate_isa.py --python-args`` for another kind:
+``benchmarks/emulate_isa.py --python-args --`` for another kind:
 
     python benchmarks/int8_schemes.py --out reports/int8-schemes/avx512-vnni.json
-    python benchmarks/emulate_isa.py --python-args benchmarks/int8_schemes.py \\
+    python benchmarks/emulate_isa.py --python-args -- benchmarks/int8_schemes.py \\
         --out reports/int8-schemes/avx2.json
 
 The test network of ``tests/segmenters`` is ``tiny`` (its frames: 96x64, as the test uses them).
