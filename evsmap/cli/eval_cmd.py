@@ -102,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     result = scored.results["confusion"]
     frames = scored.frames
     seconds = sum(scored.predict_ms) / 1000.0
+    from evsmap.environment import describe
+
     record = {
         "model": args.model, "options": {k: v for k, v in config.items() if k != "weights"},
         "weights": weights, "random_weights": random_weights,
@@ -110,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
         "frames": frames, "skipped": scored.skipped.as_dict() if args.skip_bad else None,
         "seconds_per_frame": seconds / frames if frames else None,
         **result.as_dict(),
+        "machine": describe(),
     }
     if args.json:
         print(json.dumps(record, indent=2))

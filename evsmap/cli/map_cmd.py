@@ -159,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
                           f"--segmenter NAME, a network)")
     precision = {} if segmenter is None else apply_precision(
         args, segmenter, sequence, count=args.frames, what="map")
+    from evsmap.environment import describe
+
     record = map_sequence(
         sequence, updater, updater_name=args.updater, segmenter=segmenter,
         segmenter_name=seg_name, frames=args.frames, out=args.out,
@@ -168,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
     result = record.as_dict()
     result.update(precision)
     result["stage_ms_median"] = record.stage_medians()
+    result["machine"] = describe()
     truth = _ground_truth(sequence, args.resolution)
     if truth is not None and updater.has_leaf_map:
         from evsmap.metrics import evaluate_map
@@ -230,7 +233,8 @@ def format_record(r: dict[str, Any]) -> str:
             f"  ({r['map_file']})" if r["map_file"] else "") + _other_size(r),
         f"map          {r['nodes']:,} nodes, {r['leaves']:,} leaves",
         "memory       " + _memory_text(r),
-    ] + ply + ([f"note         {r['extra']['segmenter_not_run']}"]
+    ] + ([f"machine      {r['machine']['cpu']} ({r['machine']['instruction_set']}, "
+          f"{r['machine']['cpus']} CPUs)"] if r.get("machine") else []) + ply + ([f"note         {r['extra']['segmenter_not_run']}"]
                 if r.get("extra", {}).get("segmenter_not_run") else [])
         + _quality_lines(r.get("quality")))
 

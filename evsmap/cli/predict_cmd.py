@@ -231,6 +231,8 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"evsmap predict: warning: {args.model} runs with RANDOM weights "
                          f"(no --weights): its labels are noise\n")
     precision = apply_precision(args, segmenter, sequence, count=total, what="predict")
+    from evsmap.environment import describe
+
     header = {
         "model": args.model,
         "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in config.items()
@@ -238,7 +240,8 @@ def run(args: argparse.Namespace) -> int:
         "weights": weights, "random_weights": random_weights,
         "backend": segmenter.backend, **precision,
         "input_size": list(args.size) if args.size is not None else
-        ("frame" if network else None)}
+        ("frame" if network else None),
+        "machine": describe()}
     record = predict_sequence(
         sequence, segmenter, args.out, model=args.model, count=total,
         follow_frame_size=network and args.size is None, overlay=args.overlay,

@@ -93,6 +93,7 @@ def test_eval_int8_calibrates_on_the_scored_frames(capsys, tiny):
     assert (r["precision"], r["int8_scheme"], r["backend"]) == ("int8", auto_scheme(),
                                                                 "onnxruntime")
     assert r["int8"]["calibration_source"].endswith("frames 0, 3")
+    assert r["machine"]["instruction_set"] == r["instruction_set"] == instruction_set()
     assert "the frames processed" in r["int8"]["calibration_source"]
 
 
@@ -104,6 +105,7 @@ def test_predict_int8_held_out_calibration(capsys, tiny, tmp_path):
     r = json.loads(out)
     assert (r["precision"], r["int8_scheme"]) == ("int8", auto_scheme())
     assert "held out" in r["int8"]["calibration_source"]
+    assert r["machine"]["instruction_set"] == r["instruction_set"] == instruction_set()
     saved = json.loads((tmp_path / "pred" / "predict.json").read_text())
     assert saved["precision"] == "int8"
 

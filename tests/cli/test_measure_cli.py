@@ -181,6 +181,9 @@ def test_map_synthetic_json_has_the_record_keys(tmp_path):
     assert rec["map_nbytes"] > 0 and rec["peak_scope"] == "run"
     assert rec["peak_rss_bytes"] >= rec["start_rss_bytes"] > 10e6
     assert rec["frames"] == 2 and rec["segmenter"] == "oracle"
+    from evsmap.environment import describe
+
+    assert rec["machine"] == describe()  # the rates are this machine's: it says which
     assert rec["map_bytes"] == out.stat().st_size
     assert rec["hz_end_to_end"] <= rec["hz_median"]
     assert rec["hz_end_to_end"] == pytest.approx(rec["frames"] / rec["wall_s"])
