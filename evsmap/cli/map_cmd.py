@@ -233,10 +233,16 @@ def format_record(r: dict[str, Any]) -> str:
             f"  ({r['map_file']})" if r["map_file"] else "") + _other_size(r),
         f"map          {r['nodes']:,} nodes, {r['leaves']:,} leaves",
         "memory       " + _memory_text(r),
-    ] + ([f"machine      {r['machine']['cpu']} ({r['machine']['instruction_set']}, "
-          f"{r['machine']['cpus']} CPUs)"] if r.get("machine") else []) + ply + ([f"note         {r['extra']['segmenter_not_run']}"]
-                if r.get("extra", {}).get("segmenter_not_run") else [])
+    ] + _machine_lines(r.get("machine")) + ply
+        + ([f"note         {r['extra']['segmenter_not_run']}"]
+           if r.get("extra", {}).get("segmenter_not_run") else [])
         + _quality_lines(r.get("quality")))
+
+
+def _machine_lines(m: dict[str, Any] | None) -> list[str]:
+    if not m:
+        return []
+    return [f"machine      {m['cpu']} ({m['instruction_set']}, {m['cpus']} CPUs)"]
 
 
 def _memory_text(r: dict[str, Any]) -> str:
