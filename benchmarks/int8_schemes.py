@@ -54,7 +54,7 @@ def _make(name: str, size: tuple[int, int]):
 
 
 def measure(name: str, schemes: list[str], size: tuple[int, int], calibration: int,
-            held_out: int, cache_dir: Path) -> dict:
+            held_out: int, cache_dir: Path | None) -> dict:
     """Agreement per scheme of network ``name`` at ``size`` (H, W)."""
     import numpy as np
 
@@ -122,7 +122,9 @@ def main(argv: list[str] | None = None) -> int:
                         "needs multiples of 32)")
     p.add_argument("--calibration-frames", type=int, default=8)
     p.add_argument("--held-out", type=int, default=4)
-    p.add_argument("--cache-dir", type=Path, default=ROOT / ".cache" / "int8-schemes")
+    p.add_argument("--cache-dir", type=Path, metavar="DIR",
+                   help="where the exports and int8 models go (default: evsmap's ONNX cache, "
+                        "$EVSMAP_CACHE_DIR/onnx or ~/.cache/evsmap/onnx)")
     p.add_argument("--out", type=Path, help="write the record as JSON here")
     p.add_argument("--table", type=Path, nargs="+", metavar="JSON",
                    help="print the Markdown table of these records (written by --out) and "
