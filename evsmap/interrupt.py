@@ -75,6 +75,30 @@ def file_state(path: str | os.PathLike[str] | None) -> tuple[int, int] | None:
     return st.st_ino, st.st_mtime_ns
 
 
+def interruption_behind(exc: BaseException | None) -> KeyboardInterrupt | None:
+    """The interruption an exception stands for, if any: itself, or one in its cause/context
+    chain. A signal that lands while compiled code calls back into Python (numba loading a
+    cached function, a torch op) comes out as ``SystemError(... returned a result with an
+    exception set)`` with the :class:`Interrupted` as its cause; an import broken off by
+    Ctrl-C can come out as an :class:`ImportError`."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def reraise_interruption(exc: BaseException) -> None:
+    """Raise the interruption behind ``exc`` (:func:`interruption_behind`), if any: called
+    first by every handler that records an error and goes on, so that a signal seen through
+    compiled code still stops the command instead of becoming a failed cell."""
+    interrupt = interruption_behind(exc)
+    if interrupt is not None:
+        raise interrupt
+
+
 def _raise_interrupted(signum: int, frame: object) -> None:
     # the first signal unwinds the command; a second one (an impatient Ctrl-C) must not break
     # off that cleanup (terminating workers takes at most a second or two), so it is ignored

@@ -95,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import warnings
 
     warnings.formatwarning = _format_warning
-    from evsmap.interrupt import handle_signals
+    from evsmap.interrupt import handle_signals, interruption_behind
 
     with handle_signals():  # before the parser: building it imports for half a second
         try:
@@ -106,7 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             return int(args.run(args) or 0)
         except EvsmapError as exc:
-            interrupt = _interrupt_behind(exc)
+            interrupt = interruption_behind(exc)
             if interrupt is not None:  # e.g. an import broken off by Ctrl-C, seen as missing
                 return _interrupted(interrupt, f"evsmap {args.command}", leave=argv is None)
             sys.stderr.write(f"evsmap {args.command}: error: {exc}\n")
@@ -121,17 +121,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise
             sys.stderr.write(f"evsmap {args.command}: error: {message}\n")
             return 2
-
-
-def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
-    """The interruption an error was raised while handling, if any (its context chain)."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        seen.add(id(exc))
-        if isinstance(exc, KeyboardInterrupt):
-            return exc
-        exc = exc.__cause__ or exc.__context__
-    return None
+        except Exception as exc:
+            # e.g. a signal seen through compiled code (numba, torch) as a SystemError
+            interrupt = interruption_behind(exc)
+            if interrupt is None:
+                raise
+            return _interrupted(interrupt, f"evsmap {args.command}", leave=argv is None)
 
 
 def _interrupted(exc: KeyboardInterrupt, prog: str, *, leave: bool) -> int:

@@ -15,6 +15,7 @@ import torch
 
 from evsmap.errors import EvsmapError
 from evsmap.fileio import atomic_path
+from evsmap.interrupt import reraise_interruption
 from evsmap.models.module_utils import as_inputs, eval_mode
 
 OPSET = 17
@@ -69,6 +70,7 @@ def export_onnx(
                 )
                 break
             except Exception as exc:  # any exporter failure is reported, not a crash
+                reraise_interruption(exc)
                 errors.append(f"{'dynamo' if dynamo else 'torchscript'} exporter: "
                               f"{type(exc).__name__}: {_first_line(exc)}")
         else:

@@ -14,6 +14,7 @@ import time
 import traceback
 
 from evsmap.errors import EvsmapError
+from evsmap.interrupt import reraise_interruption
 from evsmap.runner.cell_base import (
     RETRY_PAUSE_S,
     STRICT_PAUSE_S,
@@ -58,8 +59,10 @@ def execute_spec(spec: CellSpec, ctx: RunContext) -> CellRecord:
     try:
         record = RUNNERS[spec.kind](spec, ctx)
     except EvsmapError as exc:
+        reraise_interruption(exc)
         record = CellRecord(**base_fields(spec), status="error", error=str(exc))
     except Exception as exc:  # a bug: keep the traceback in the record, go on with the run
+        reraise_interruption(exc)
         record = CellRecord(**base_fields(spec), status="error",
                             error=f"{type(exc).__name__}: {exc}",
                             details={"traceback": traceback.format_exc()})
@@ -78,8 +81,10 @@ def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
     try:
         record = mapping_record(run, ctx)
     except EvsmapError as exc:
+        reraise_interruption(exc)
         record = CellRecord(**base, status="error", error=str(exc))
     except Exception as exc:
+        reraise_interruption(exc)
         record = CellRecord(**base, status="error", error=f"{type(exc).__name__}: {exc}",
                             details={"traceback": traceback.format_exc()})
     record.started, record.seconds = started, time.perf_counter() - t0

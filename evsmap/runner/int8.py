@@ -28,6 +28,7 @@ import traceback
 from typing import Any
 
 from evsmap.errors import EvsmapError
+from evsmap.interrupt import reraise_interruption
 from evsmap.runner.cell_base import now
 from evsmap.runner.context import RunContext
 from evsmap.runner.records import CellRecord, RecordStore
@@ -151,6 +152,7 @@ def int8_record(ctx: RunContext, spec: CellSpec, specs: list[CellSpec]) -> CellR
         return CellRecord(**base, status="ok", values=values, notes=notes, details=details,
                           seconds=time.perf_counter() - t0)
     except Exception as exc:  # one network's failure does not stop the others
+        reraise_interruption(exc)
         text = str(exc) if isinstance(exc, EvsmapError) else f"{type(exc).__name__}: {exc}"
         return CellRecord(**base, status="error", error=text,
                           details={"traceback": traceback.format_exc()},

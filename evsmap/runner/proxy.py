@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from evsmap.errors import EvsmapError
+from evsmap.interrupt import reraise_interruption
 from evsmap.paths import REPO_ROOT
 from evsmap.runner.context import RunContext
 from evsmap.runner.records import CellRecord, RecordStore
@@ -115,6 +116,7 @@ def train_missing(ctx: RunContext, models: list[str], recipe: str, data: Path,
             train(RunOptions(model=model, dataset=str(data), out=folder, recipe=recipe,
                              overrides=overrides, resume=resume))
         except Exception as exc:  # the run goes on; the model's records say it has no weights
+            reraise_interruption(exc)
             text = str(exc) if isinstance(exc, EvsmapError) else f"{type(exc).__name__}: {exc}"
             failed[model] = text
             say(f"  training {model} failed: {text}")
@@ -239,6 +241,7 @@ def _guarded(make: Callable[[], list[CellRecord]], keys: list[tuple[str, str, st
     try:
         records = make()
     except Exception as exc:  # recorded, the run goes on
+        reraise_interruption(exc)
         text = str(exc) if isinstance(exc, EvsmapError) else f"{type(exc).__name__}: {exc}"
         records = [_record(key, row, label, kind, status="error", error=text,
                            details={"traceback": traceback.format_exc()})

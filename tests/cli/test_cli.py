@@ -155,3 +155,39 @@ def test_reproduce_quick_table_iv_then_resume_and_report(capsys, tmp_path, data_
     (out_dir / "table4.md").unlink()
     code, out, _ = run(capsys, "report", str(out_dir))
     assert code == 0 and (out_dir / "table4.md").read_text() == md
+
+
+@pytest.mark.parametrize("wrapped", [True, False], ids=["inside-compiled-code", "plain"])
+def test_a_signal_seen_through_compiled_code_is_still_an_interruption(capsys, monkeypatch,
+                                                                      wrapped):
+    # numba (loading a cached function) and torch turn an exception raised by a signal handler
+    # in their callbacks into SystemError("... returned a result with an exception set")
+    import signal
+
+    from evsmap.cli import cache_cmd
+    from evsmap.interrupt import Interrupted
+
+    def interrupted_run(args):
+        try:
+            raise Interrupted(signal.SIGTERM)
+        except Interrupted as exc:
+            if not wrapped:
+                raise
+            raise SystemError("CPUDispatcher returned a result with an exception set") from exc
+
+    monkeypatch.setattr(cache_cmd, "run_info", interrupted_run)
+    code, _, err = run(capsys, "cache", "info")
+    assert code == 128 + signal.SIGTERM
+    assert "Traceback" not in err and "SystemError" not in err
+    assert "interrupted" in err.lower()
+
+
+def test_an_unrelated_system_error_is_not_called_an_interruption(capsys, monkeypatch):
+    from evsmap.cli import cache_cmd
+
+    def broken_run(args):
+        raise SystemError("a real bug")
+
+    monkeypatch.setattr(cache_cmd, "run_info", broken_run)
+    with pytest.raises(SystemError, match="a real bug"):
+        main(["cache", "info"])

@@ -113,6 +113,33 @@ def test_a_failing_cell_is_recorded_and_the_run_goes_on(ctx, fake):
     assert calls and all("esanet-r34" in k for k in calls)
 
 
+@pytest.mark.parametrize("kind", ["complexity", "mapping"])
+def test_a_signal_seen_through_compiled_code_stops_the_run_not_just_the_cell(ctx, monkeypatch,
+                                                                             kind):
+    # numba and torch hand an exception raised by the signal handler back as a SystemError
+    import signal
+
+    import evsmap.runner.execute as execute
+    from evsmap.interrupt import Interrupted
+
+    def measured(*args, **kw):
+        try:
+            raise Interrupted(signal.SIGINT)
+        except Interrupted as exc:
+            raise SystemError("returned a result with an exception set") from exc
+
+    if kind == "mapping":
+        monkeypatch.setattr(execute, "mapping_record", measured)
+        run = matrix.plan(ctx, ["table4"]).runs[0]
+        with pytest.raises(Interrupted):
+            execute.execute_mapping(run, ctx)
+    else:
+        monkeypatch.setitem(execute.RUNNERS, "complexity", measured)
+        spec = next(s for s in matrix.plan(ctx, ["table1"]).specs if s.kind == "complexity")
+        with pytest.raises(Interrupted):
+            execute.execute_spec(spec, ctx)
+
+
 def _run_record(row, seq, status="ok", **values):
     return CellRecord(key=f"extra/mapping/{row}/{seq}@0.05m", table="extra", row=row,
                       label=row, kind="mapping", metrics=[], status=status,
