@@ -51,6 +51,12 @@ from baselines.semantic_slam_node import (
 )
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import DataFormatError, InvalidDataError
+from evsmap.mapping.generator import (
+    as_float_parameter,
+    camera_points,
+    sensor_distance,
+    to_world,
+)
 from evsmap.mapping.keys import pack, unpack
 from evsmap.mapping.occupancy import OccupancyMap
 from evsmap.mapping.raycast import octomap_keys, scan_keys
@@ -58,6 +64,12 @@ from evsmap.mapping.tree import Tree
 from evsmap.updaters.base import OctreeUpdater, check_observation
 
 WHITE = k.WHITE
+
+ROS_DEFAULTS = {"resolution": 0.05, "max_range": 5.0, "prob_hit": 0.7, "prob_miss": 0.4,
+                "clamp_min": 0.12, "clamp_max": 0.97, "occupancy_threshold": 0.5}
+"""semantic_slam's ``params/octomap_generator.yaml`` but for the resolution (its 0.02 m; evsmap's
+updaters default to 0.05 m and Table IV sets its own), each rounded to ``float`` as the node
+reads them."""
 
 
 class SemanticSlamMap(OctreeUpdater):
@@ -83,13 +95,18 @@ class SemanticSlamMap(OctreeUpdater):
         self.fusion_rule = fusion_rule
         self.bayes = fusion_rule == "bayes"
         self.slots = 3 if self.bayes else 1
-        self.raycast_range = float(raycast_range)
+        self.raycast_range = as_float_parameter(raycast_range)
         self.default_conf = np.float32(1.0 if self.bayes else 0.0)
         self._leaves: OccupancyMap | None = None
         self._tree: Tree | None = None
         self.num_classes = 256
         self.fusions = 0
         self.centroids = 0
+        # the ROS node keeps every parameter in a float member (evsmap.mapping.generator)
+        for name, default in ROS_DEFAULTS.items():
+            value = kwargs.get(name, default)
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                kwargs[name] = as_float_parameter(value)
         super().__init__(node_type=NODE_TYPES_BY_RULE[fusion_rule],
                          name="classic-semantic" if self.bayes else "classic-semantic-max",
                          **kwargs)
@@ -198,7 +215,7 @@ class SemanticSlamMap(OctreeUpdater):
         observation = check_observation(frame, observation, self.name)
         self.num_classes = max(self.num_classes if self.frames else 0,
                                int(observation.num_classes))
-        cam, pixels = self._camera_points(frame)
+        cam, pixels = camera_points(frame, self.name)
         # the cloud's float fields: packed class colours (as float bits) and confidences
         slots = self.slots
         palette = pack_rgb(voc_colormap(self.num_classes))
@@ -212,9 +229,9 @@ class SemanticSlamMap(OctreeUpdater):
         inverse = np.float32(np.float32(1.0) / np.float32(self.resolution))
         cent, avg, cent_rgb = k.voxel_grid(cam, inverse, fields, rgb)
         self.centroids += len(cent)
-        world, origin = self._to_world(cent, frame.pose)
+        world, origin = to_world(cent, frame.pose)
         d = world - origin
-        dist = np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
+        dist = sensor_distance(world, origin)
         inside = dist.astype(np.float64) <= self.max_range
         near = inside & (dist.astype(np.float64) <= self.raycast_range)
         far = inside & ~near
@@ -245,28 +262,6 @@ class SemanticSlamMap(OctreeUpdater):
         self.frames += 1
         self._stale()
 
-    def _camera_points(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
-        """(float32 camera-frame points of the valid depth pixels, their flat indices)."""
-        if frame.is_cloud:
-            raise InvalidDataError(f"{self.name}: semantic_slam builds its cloud from a depth "
-                                   f"image; frame {frame.name!r} is a point cloud")
-        from evsmap.geometry import backproject
-
-        valid = np.isfinite(frame.depth) & (frame.depth > 0)
-        return (backproject(frame.depth, frame.intrinsics, mask=valid).astype(np.float32),
-                np.flatnonzero(valid))
-
-    @staticmethod
-    def _to_world(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``pcl::transformPointCloud`` with a ``Matrix4f``: each coordinate summed left to
-        right in ``float``; and the origin as ``point3d``."""
-        m = np.asarray(pose, dtype=np.float64).astype(np.float32)
-        out = np.empty_like(points)
-        for a in range(3):
-            out[:, a] = ((m[a, 0] * points[:, 0] + m[a, 1] * points[:, 1])
-                         + m[a, 2] * points[:, 2]) + m[a, 3]
-        return out, m[:3, 3].copy()
-
     # ---- the tree, files
     def tree(self) -> Tree:
         if self._tree is None:
@@ -287,7 +282,8 @@ class SemanticSlamMap(OctreeUpdater):
                                                                self.node_type.record})
         if kind != self.tree_type:
             raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
-        if not np.isclose(resolution, self.resolution, rtol=1e-9, atol=0):
+        # OctoMap writes "res" with 6 significant digits: 0.1f comes back as 0.1
+        if as_float_parameter(resolution) != self.resolution:
             raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "
                                   f"{self.resolution} m")
         n = tree.num_nodes

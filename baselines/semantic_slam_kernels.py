@@ -1,9 +1,8 @@
 """Compiled pieces of semantic_slam's ``octomap_generator`` (floatlazer/semantic_slam, against
 OctoMap 1.8 and PCL 1.8), ported from reading its C++ for :mod:`baselines.semantic_slam`.
 
-* :func:`voxel_grid` - PCL's ``VoxelGrid<PCLPointCloud2>`` with ``downsample_all_data`` (its
-  default): every float field of the points in one leaf is summed in ``float`` and divided by the
-  count, the ``rgb`` field through its r/g/b/a bytes.
+* :func:`~evsmap.mapping.voxel_grid.voxel_grid` - PCL's ``VoxelGrid<PCLPointCloud2>`` (shared
+  with SSMI's generator, so it lives in :mod:`evsmap.mapping.voxel_grid`).
 * :func:`fuse_bayes` / :func:`fuse_max` - ``SemanticsBayesian::semanticFusion`` and
   ``SemanticsMax::semanticFusion`` in ``float`` with the ``double`` constants ALPHA 0.8 and
   EPSILON 0.001, and libstdc++'s ``std::sort`` (an insertion sort below 17 elements: stable
@@ -27,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from evsmap.mapping.voxel_grid import voxel_grid  # noqa: F401 - the generator's filter
+
 ALPHA = 0.8
 EPSILON = 0.001
 WHITE = 0xFFFFFF
@@ -38,99 +39,7 @@ HEADROOM = 16 * 8 + 16
 """Nodes one ``updateNode`` can create at most (an expansion of 8 on each of 16 levels)."""
 
 
-# ----------------------------------------------------------------------------- voxel grid
-DENSE_CELLS = 1 << 24
-"""Largest voxel-grid box numbered through a dense table; larger boxes are sorted."""
-
-
-@njit(cache=True, nogil=True)
-def voxel_grid(points, inverse_leaf, fields, rgb):
-    """PCL ``VoxelGrid`` of float32 ``points`` (N, 3), leaf ``1 / inverse_leaf`` (float32).
-
-    Args:
-        fields: float32 (N, F) further float fields, averaged as floats (semantic_slam's packed
-            semantic colours are floats whose bits are ``0x00RRGGBB``: tiny denormals, whose
-            float sum behaves like an integer sum of the packed value).
-        rgb: uint8 (N, 3) colours (the ``rgb`` field: its r, g, b and a = 0 bytes averaged as
-            floats and truncated).
-
-    Returns:
-        ``(centroids (M, 3) float32, fields (M, F) float32, rgb (M, 3) uint8)`` in PCL's output
-        order (leaf index ``i + j * nx + k * nx * ny`` ascending). PCL sorts with ``std::sort``,
-        which leaves the order of one leaf's points unspecified; here each leaf sums its points
-        in input order.
-    """
-    n = points.shape[0]
-    f = fields.shape[1]
-    if n == 0:
-        return (np.zeros((0, 3), np.float32), np.zeros((0, f), np.float32),
-                np.zeros((0, 3), np.uint8))
-    lo0, lo1, lo2 = points[0, 0], points[0, 1], points[0, 2]
-    hi0, hi1, hi2 = lo0, lo1, lo2
-    for i in range(n):
-        lo0, hi0 = min(lo0, points[i, 0]), max(hi0, points[i, 0])
-        lo1, hi1 = min(lo1, points[i, 1]), max(hi1, points[i, 1])
-        lo2, hi2 = min(lo2, points[i, 2]), max(hi2, points[i, 2])
-    b0 = np.int64(np.floor(np.float32(lo0 * inverse_leaf)))
-    b1 = np.int64(np.floor(np.float32(lo1 * inverse_leaf)))
-    b2 = np.int64(np.floor(np.float32(lo2 * inverse_leaf)))
-    d0 = np.int64(np.floor(np.float32(hi0 * inverse_leaf))) - b0 + 1
-    d1 = np.int64(np.floor(np.float32(hi1 * inverse_leaf))) - b1 + 1
-    d2 = np.int64(np.floor(np.float32(hi2 * inverse_leaf))) - b2 + 1
-    idx = np.empty(n, np.int64)
-    for i in range(n):
-        i0 = np.int64(np.floor(np.float32(points[i, 0] * inverse_leaf))) - b0
-        i1 = np.int64(np.floor(np.float32(points[i, 1] * inverse_leaf))) - b1
-        i2 = np.int64(np.floor(np.float32(points[i, 2] * inverse_leaf))) - b2
-        idx[i] = i0 + i1 * d0 + i2 * d0 * d1
-    # number the occupied leaves in index order
-    cell = np.empty(n, np.int64)
-    size = d0 * d1 * d2
-    if size <= DENSE_CELLS:
-        table = np.zeros(size, np.int32)
-        for i in range(n):
-            table[idx[i]] = 1
-        m = 0
-        for c in range(size):
-            if table[c]:
-                m += 1
-                table[c] = m
-        for i in range(n):
-            cell[i] = table[idx[i]] - 1
-    else:
-        order = np.argsort(idx, kind="mergesort")
-        m = 0
-        for t in range(n):
-            if t > 0 and idx[order[t]] != idx[order[t - 1]]:
-                m += 1
-            cell[order[t]] = m
-        m += 1
-    width = 3 + f + 3
-    acc = np.zeros((m, width), np.float32)
-    count = np.zeros(m, np.int64)
-    for i in range(n):  # each leaf's sums run over its points in input order
-        c = cell[i]
-        count[c] += 1
-        for a in range(3):
-            acc[c, a] = np.float32(acc[c, a] + points[i, a])
-        for q in range(f):
-            acc[c, 3 + q] = np.float32(acc[c, 3 + q] + fields[i, q])
-        for q in range(3):
-            acc[c, 3 + f + q] = np.float32(acc[c, 3 + f + q] + np.float32(rgb[i, q]))
-    out_p = np.empty((m, 3), np.float32)
-    out_f = np.empty((m, f), np.float32)
-    out_rgb = np.empty((m, 3), np.uint8)
-    for j in range(m):
-        cnt = np.float32(count[j])
-        for a in range(3):
-            out_p[j, a] = np.float32(acc[j, a] / cnt)
-        for q in range(f):
-            out_f[j, q] = np.float32(acc[j, 3 + q] / cnt)
-        for q in range(3):
-            out_rgb[j, q] = np.uint8(np.int64(np.float32(acc[j, 3 + f + q] / cnt)) & 0xFF)
-    return out_p, out_f, out_rgb
-
-
+# ----------------------------------------------------------------------------- cloud
 @njit(cache=True, nogil=True)
 def cloud_fields(pixels, classes, probs, slots, palette, colours_hw3):
     """semantic_cloud.py's per-point fields for the points at flat ``pixels``: float32 (N,

@@ -266,7 +266,10 @@ def test_rays_are_cut_at_the_raycast_range():
     z = axis[:, 2]
     assert np.all(state[(z > 0.2) & (z < 1.9)] == 0)  # free up to 2 m
     assert np.all(state[(z > 2.15) & (z < 2.95)] == -1)  # never cleared beyond it
-    assert state[np.argmin(np.abs(z - 3.05))] == 1  # the wall: a hit without a ray
+    # the wall, a hit without a ray: 3 m at the node's resolution 0.1f (0.10000000149) is key
+    # floor(29.9999995) = 29, the voxel below 3 m (with a double 0.1 it would be the one above)
+    assert m.resolution == float(np.float32(0.1))
+    assert state[np.argmin(np.abs(z - 2.95))] == 1
     # evsmap's classwise variant casts to max range, clearing the whole way
     c = UPDATERS.create("classic-semantic", resolution=0.1, front_end="classwise")
     c.integrate(frame, obs)
@@ -284,7 +287,7 @@ def test_labels_read_back_through_the_colour_map():
     frame, obs = _wall_frame(1.5, label=6)
     m = UPDATERS.create("classic-semantic", resolution=0.1)
     m.integrate(frame, obs)
-    q = m.query(np.array([[0.05, 0.05, 1.55]]))
+    q = m.query(np.array([[0.05, 0.05, 1.45]]))  # 1.5 m at 0.1f: the voxel below 1.5 m
     assert q.state[0] == 1 and q.label[0] == 6
     codes = np.array([WHITE, pack_rgb(voc_colormap(10))[4]], np.uint32)
     assert m.colour_classes(codes).tolist() == [-1, 4]
@@ -333,3 +336,39 @@ def test_unpack_inverts_pack():
     rgb = voc_colormap(40)
     assert np.array_equal(unpack_rgb(pack_rgb(rgb)), rgb)
     assert voc_colormap(3).tolist() == [[0, 0, 0], [128, 0, 0], [0, 128, 0]]
+
+
+def test_parameters_reach_octomap_as_the_ros_node_rounds_them():
+    # octomap_generator keeps them in float members and passes them through float setters
+    m = UPDATERS.create("classic-semantic")
+    assert m.resolution == 0.05000000074505806
+    assert np.float32(m.params.hit_logodds) == np.float32(0.847297788)
+    assert np.float32(m.params.clamp_max_logodds) == np.float32(3.47609973)
+    assert m.max_range == float(np.float32(5.0)) and m.raycast_range == float(np.float32(2.0))
+
+
+def test_voxel_grid_sums_a_leaf_in_pcls_sorted_order():
+    from evsmap.mapping.stdsort import std_sort_order
+
+    rng = np.random.default_rng(3)
+    # 60 points in two leaves, interleaved: std::sort leaves each leaf's points in an order of
+    # its own, and float sums of these values depend on it
+    n = 60
+    pts = np.empty((n, 3), np.float32)
+    pts[:, 0] = np.where(np.arange(n) % 2 == 0, 0.01, 0.11) + rng.uniform(0, 0.08, n)
+    pts[:, 1:] = rng.uniform(0.0, 0.0999, (n, 2)).astype(np.float32) + np.float32(1.0)
+    pts = pts.astype(np.float32)
+    none = np.zeros((n, 0), np.float32)
+    rgb = np.zeros((n, 3), np.uint8)
+    inv = f32(1) / f32(0.1)
+    cent, _, _ = k.voxel_grid(pts, inv, none, rgb)
+    idx = np.floor(pts[:, 0] * inv).astype(np.int64)
+    order = std_sort_order(idx)
+    for leaf, row in zip(np.unique(idx), cent):
+        acc = np.zeros(3, np.float32)
+        members = order[idx[order] == leaf]
+        for i in members:
+            acc = (acc + pts[i]).astype(np.float32)
+        assert np.array_equal(row, (acc / f32(len(members))).astype(np.float32))
+    input_order, _, _ = k.voxel_grid(pts, inv, none, rgb, False)
+    assert not np.array_equal(cent, input_order)  # the order shows in the last bits

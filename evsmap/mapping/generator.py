@@ -1,0 +1,84 @@
+"""The ``octomap_generator`` front end that semantic_slam (floatlazer/semantic_slam) and SSMI
+(ExistentialRobotics/SSMI, ``SSMI-Mapping``) share: how one RGB-D frame becomes the centroids a
+semantic octree is updated with.
+
+Both ROS nodes read their parameters into ``float`` members and pass them through ``float``
+setters (``octomap_generator_ros.h``: ``float resolution_``, ``prob_hit_``, ...;
+``octomap_generator.h``: ``setResolution(float)``, ``float max_range_``, ``raycast_range_``), so
+OctoMap sees e.g. the resolution ``0.05f`` = 0.05000000074505806 and the hit log-odds of
+``0.7f``; :func:`as_float_parameter` applies that rounding. Then, per frame
+(``OctomapGenerator::insertPointCloud``):
+
+1. the camera-frame cloud of the valid depth pixels (the semantic cloud node's), its fields
+   (colour, packed class colours) filtered by PCL's ``VoxelGrid`` at the map resolution
+   (:func:`evsmap.mapping.voxel_grid.voxel_grid`);
+2. the centroids moved to the world frame with a ``Matrix4f`` (:func:`to_world`);
+3. each centroid's distance to the sensor in ``float``; the node's own rules decide what a
+   centroid within ``max_range`` updates and what is ray cast up to ``raycast_range``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evsmap.data import Frame
+from evsmap.errors import InvalidDataError
+
+FRONT_ENDS = ("generator", "direct")
+"""How a frame becomes hits and misses, selectable on every semantic updater (``-o
+front_end=...``): ``generator`` - the ROS nodes' ``octomap_generator`` (this module; the default
+of the semantic rows of Table IV); ``direct`` - evsmap's: every valid pixel a point, OctoMap's
+``insertPointCloud`` to ``max_range``, one observation per leaf and frame."""
+
+
+def check_front_end(updater: str, front_end: str) -> str:
+    """``front_end`` if it is one of :data:`FRONT_ENDS`.
+
+    Raises:
+        InvalidDataError: another value (one line naming the updater and the choices).
+    """
+    if front_end not in FRONT_ENDS:
+        raise InvalidDataError(f"{updater}: front_end must be one of {', '.join(FRONT_ENDS)}; "
+                               f"got {front_end!r}")
+    return front_end
+
+
+def as_float_parameter(value: float) -> float:
+    """A parameter as the ROS node hands it to OctoMap: rounded to ``float`` (and widened back
+    to ``double`` where OctoMap takes one)."""
+    return float(np.float32(value))
+
+
+def camera_points(frame: Frame, updater: str) -> tuple[np.ndarray, np.ndarray]:
+    """(float32 camera-frame points of the valid depth pixels, their flat pixel indices): the
+    semantic cloud; invalid depth is NaN in the ROS ``32FC1`` image and dropped by the filter.
+
+    Raises:
+        InvalidDataError: ``frame`` is a point cloud (the nodes build their cloud from depth).
+    """
+    if frame.is_cloud:
+        raise InvalidDataError(f"{updater}: the octomap_generator front end builds its cloud "
+                               f"from a depth image; frame {frame.name!r} is a point cloud "
+                               f"(use -o front_end=direct)")
+    from evsmap.geometry import backproject
+
+    valid = np.isfinite(frame.depth) & (frame.depth > 0)
+    return (backproject(frame.depth, frame.intrinsics, mask=valid).astype(np.float32),
+            np.flatnonzero(valid))
+
+
+def to_world(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``pcl::transformPointCloud`` with a ``Matrix4f``: each coordinate summed left to right in
+    ``float``; and the origin as ``point3d``."""
+    m = np.asarray(pose, dtype=np.float64).astype(np.float32)
+    out = np.empty_like(points)
+    for a in range(3):
+        out[:, a] = ((m[a, 0] * points[:, 0] + m[a, 1] * points[:, 1])
+                     + m[a, 2] * points[:, 2]) + m[a, 3]
+    return out, m[:3, 3].copy()
+
+
+def sensor_distance(world: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """``sqrt`` of the ``float`` sum of squared differences, as both nodes compute ``dist``."""
+    d = world - origin
+    return np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
