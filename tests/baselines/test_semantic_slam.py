@@ -364,7 +364,7 @@ def test_voxel_grid_sums_a_leaf_in_pcls_sorted_order():
     cent, _, _ = k.voxel_grid(pts, inv, none, rgb)
     idx = np.floor(pts[:, 0] * inv).astype(np.int64)
     order = std_sort_order(idx)
-    for leaf, row in zip(np.unique(idx), cent):
+    for leaf, row in zip(np.unique(idx), cent, strict=True):
         acc = np.zeros(3, np.float32)
         members = order[idx[order] == leaf]
         for i in members:

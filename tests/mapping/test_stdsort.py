@@ -47,5 +47,6 @@ def test_fresh_cases_against_the_compiler_here(tmp_path):
     rng = np.random.default_rng(11)
     items = [(rng.integers(0, d, n), depth) for n, d, depth in
              ((5000, 40, -1), (777, 700, -1), (64, 3, -1), (900, 90, 2), (300, 5, 0))]
-    for (keys, depth), expected in zip(items, reference_orders(build(tmp_path), items)):
+    for (keys, depth), expected in zip(items, reference_orders(build(tmp_path), items),
+                                       strict=True):
         np.testing.assert_array_equal(std_sort_order(keys.astype(np.int64), depth), expected)
