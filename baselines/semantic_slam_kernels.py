@@ -26,11 +26,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from evsmap.mapping.generator import WHITE
 from evsmap.mapping.voxel_grid import voxel_grid  # noqa: F401 - the generator's filter
 
 ALPHA = 0.8
 EPSILON = 0.001
-WHITE = 0xFFFFFF
 TREE_DEPTH = 16
 
 # node-pool state slots

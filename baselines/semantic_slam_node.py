@@ -16,38 +16,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from evsmap.mapping.generator import WHITE, pack_rgb, unpack_rgb, voc_colormap  # noqa: F401
 from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.tree import Tree
 
 FUSION_RULES = ("bayes", "max")
 
-WHITE = 0xFFFFFF
-"""A packed colour that is no class (semantic_slam's unset semantic colour)."""
-
-
-def voc_colormap(n: int) -> np.ndarray:
-    """semantic_slam's ``color_map``: the PASCAL VOC colours of classes ``0..n-1`` (bits of the
-    class id spread over the high bits of r, g, b), ``uint8`` (n, 3)."""
-    ids = np.arange(int(n), dtype=np.int64)
-    out = np.zeros((len(ids), 3), dtype=np.int64)
-    c = ids.copy()
-    for j in range(8):
-        for ch in range(3):
-            out[:, ch] |= ((c >> ch) & 1) << (7 - j)
-        c >>= 3
-    return out.astype(np.uint8)
-
-
-def pack_rgb(rgb: np.ndarray) -> np.ndarray:
-    """``uint32`` ``0x00RRGGBB`` of (..., 3) ``uint8`` colours (the cloud's bgr0 bytes)."""
-    rgb = np.asarray(rgb).astype(np.uint32)
-    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
-
-
-def unpack_rgb(packed: np.ndarray) -> np.ndarray:
-    """(..., 3) ``uint8`` r, g, b of ``0x00RRGGBB`` values (``getSemanticColor``)."""
-    p = np.asarray(packed).astype(np.uint32)
-    return np.stack([(p >> 16) & 0xFF, (p >> 8) & 0xFF, p & 0xFF], axis=-1).astype(np.uint8)
 
 
 def _publish(updater, tree: Tree):

@@ -24,11 +24,40 @@ import numpy as np
 from evsmap.data import Frame
 from evsmap.errors import InvalidDataError
 
+WHITE = 0xFFFFFF
+"""A packed colour that is no class: both nodes' unset semantic colour (255, 255, 255)."""
+
 FRONT_ENDS = ("generator", "direct")
 """How a frame becomes hits and misses, selectable on every semantic updater (``-o
 front_end=...``): ``generator`` - the ROS nodes' ``octomap_generator`` (this module; the default
 of the semantic rows of Table IV); ``direct`` - evsmap's: every valid pixel a point, OctoMap's
 ``insertPointCloud`` to ``max_range``, one observation per leaf and frame."""
+
+
+def voc_colormap(n: int) -> np.ndarray:
+    """semantic_slam's ``color_map`` (the class colours of both nodes' clouds): the PASCAL VOC
+    colours of classes ``0..n-1`` (bits of the class id spread over the high bits of r, g, b),
+    ``uint8`` (n, 3)."""
+    ids = np.arange(int(n), dtype=np.int64)
+    out = np.zeros((len(ids), 3), dtype=np.int64)
+    c = ids.copy()
+    for j in range(8):
+        for ch in range(3):
+            out[:, ch] |= ((c >> ch) & 1) << (7 - j)
+        c >>= 3
+    return out.astype(np.uint8)
+
+
+def pack_rgb(rgb: np.ndarray) -> np.ndarray:
+    """``uint32`` ``0x00RRGGBB`` of (..., 3) ``uint8`` colours (the cloud's bgr0 bytes)."""
+    rgb = np.asarray(rgb).astype(np.uint32)
+    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+
+
+def unpack_rgb(packed: np.ndarray) -> np.ndarray:
+    """(..., 3) ``uint8`` r, g, b of ``0x00RRGGBB`` values (``getSemanticColor``)."""
+    p = np.asarray(packed).astype(np.uint32)
+    return np.stack([(p >> 16) & 0xFF, (p >> 8) & 0xFF, p & 0xFF], axis=-1).astype(np.uint8)
 
 
 def check_front_end(updater: str, front_end: str) -> str:
