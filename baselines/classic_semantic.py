@@ -144,16 +144,16 @@ def _node_type(rule: str) -> NodeType:
         node_bytes=48 if rule == "bayes" else 32,
         label="sem_classes", colour="rgb", encode=encode, decode=decode, publish=_publish,
         uses_semantics=True,
-        description=f"[14] classwise variant, {rule} fusion: RGB + {slots} x (class, conf)"))
+        description=f"[14] direct-front-end variant, {rule} fusion: RGB + {slots} x (class, conf)"))
 
 
 NODE_TYPES_BY_RULE = {"bayes": _node_type("bayes"), "max": _node_type("max")}
-"""The classwise variant's node types: colour, semantics (top 3 or top 1), strongest child for
+"""The direct front end's node types: colour, semantics (top 3 or top 1), strongest child for
 inner nodes, pruning on equal occupancy and semantics (colour ignored)."""
 
 
 class ClassicSemanticMap(OctreeUpdater):
-    """semantic_slam's semantic octree (Bayesian or max fusion), the classwise variant.
+    """semantic_slam's semantic octree (Bayesian or max fusion) on the direct front end (evsmap's cleaner variant).
 
     Args:
         fusion_rule: ``"bayes"`` (top-3) or ``"max"`` (top-1).
@@ -172,30 +172,29 @@ class ClassicSemanticMap(OctreeUpdater):
                          else "classic-semantic-max", **kwargs)
 
 
-FRONT_ENDS = ("voxel-grid", "classwise")
-"""``voxel-grid``: semantic_slam as it runs (:mod:`baselines.semantic_slam`); ``classwise``:
-evsmap's cleaner variant (:class:`ClassicSemanticMap`: a class-wise mean fused once per voxel and
-frame, OctoMap's ray casting to ``max_range``, the earlier candidate winning ties)."""
+FRONT_ENDS = {"generator": "semantic_slam as it runs (:mod:`baselines.semantic_slam`)",
+              "direct": "evsmap's cleaner variant (:class:`ClassicSemanticMap`: a class-wise "
+                        "mean fused once per voxel and frame, OctoMap's ray casting to "
+                        "``max_range``, the earlier candidate winning ties)"}
+"""classic-semantic's two front ends (:data:`evsmap.mapping.generator.FRONT_ENDS`)."""
 
 
 def _factory(rule: str):
     def factory(*, resolution: float = 0.05, max_range: float = 5.0, discretize: bool = True,
-                front_end: str = "voxel-grid", raycast_range: float = 2.0,
+                front_end: str = "generator", raycast_range: float = 2.0,
                 prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float | None = None,
                 clamp_max: float | None = None):
-        if front_end not in FRONT_ENDS:
-            from evsmap.errors import InvalidDataError
+        from evsmap.mapping.generator import check_front_end
 
-            raise InvalidDataError(f"classic-semantic: front_end must be one of "
-                                   f"{', '.join(FRONT_ENDS)}; got {front_end!r}")
-        if front_end == "voxel-grid":
+        check_front_end("classic-semantic", front_end)
+        if front_end == "generator":
             from baselines.semantic_slam import make
 
             if not discretize:
                 from evsmap.errors import InvalidDataError
 
                 raise InvalidDataError("classic-semantic: semantic_slam always inserts with "
-                                       "discretize on; use -o front_end=classwise for "
+                                       "discretize on; use -o front_end=direct for "
                                        "discretize=false")
 
             # semantic_slam's octomap_generator.yaml clamps at 0.12 / 0.97
@@ -213,7 +212,7 @@ def _factory(rule: str):
 
 UPDATERS.add("classic-semantic", _factory("bayes"),
              description="[14] semantic_slam: top-3 Bayesian semantic fusion + RGB (TESAMap, "
-                         "TFEAGMap); -o front_end=classwise for evsmap's cleaner variant")
+                         "TFEAGMap); -o front_end=direct for evsmap's cleaner variant")
 UPDATERS.add("classic-semantic-max", _factory("max"),
              description="[14] semantic_slam: max semantic fusion + RGB; -o "
-                         "front_end=classwise for evsmap's cleaner variant")
+                         "front_end=direct for evsmap's cleaner variant")

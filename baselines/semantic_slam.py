@@ -73,7 +73,8 @@ reads them."""
 
 
 class SemanticSlamMap(OctreeUpdater):
-    """semantic_slam's semantic octree, Bayesian (top 3) or max fusion.
+    """semantic_slam's semantic octree, Bayesian (top 3) or max fusion, on the
+    ``octomap_generator`` front end (:mod:`evsmap.mapping.generator`).
 
     Args:
         fusion_rule: ``"bayes"`` (``SemanticsOcTree<SemanticsBayesian>``) or ``"max"``.
@@ -83,6 +84,8 @@ class SemanticSlamMap(OctreeUpdater):
         (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`; ``discretize`` is
         always on, as semantic_slam calls ``insertPointCloud``)
     """
+
+    front_end = "generator"
 
     def __init__(self, *, fusion_rule: str = "bayes", raycast_range: float = 2.0,
                  **kwargs) -> None:
@@ -259,6 +262,8 @@ class SemanticSlamMap(OctreeUpdater):
         conf = np.ascontiguousarray(avg[:, slots:])
         self.fusions += int(k.fuse_points(ck, cok, cent_rgb, sem, conf, colors is not None,
                                           *self._pool(), self.bayes))
+        self.count_front_end(centroids=len(cent), hits=int(np.count_nonzero(inside)),
+                             rays=len(cloud))
         self.frames += 1
         self._stale()
 

@@ -42,7 +42,8 @@ def _node_type(rule: str) -> NodeType:
                  Column("sem_classes", np.int16, (slots,), fill=-1)),
         # semantic_slam's node in RAM: a max node 32 B, a Bayesian node 48 B
         node_bytes=48 if rule == "bayes" else 32,
-        label="sem_classes", colour="rgb", publish=_publish, uses_semantics=True,
+        label="sem_classes", colour="rgb", publish=_publish, colour_only=_publish,
+        uses_semantics=True,
         description=f"[14] semantic_slam's node, {rule} fusion: RGB + {slots} x (packed class "
                     f"colour, conf)"))
 

@@ -25,7 +25,7 @@ from evsmap.registry import READERS, SEGMENTERS, UPDATERS
 SYSTEMS = {
     "multiclass-bayes (EVSMap)": ("multiclass-bayes", {}),
     "classic-semantic (semantic_slam as it runs)": ("classic-semantic", {}),
-    "classic-semantic front_end=classwise": ("classic-semantic", {"front_end": "classwise"}),
+    "classic-semantic front_end=direct": ("classic-semantic", {"front_end": "direct"}),
     "classic-semantic-max (semantic_slam as it runs)": ("classic-semantic-max", {}),
     "orgb (OctoMap ColorOcTree)": ("orgb", {}),
 }

@@ -118,6 +118,13 @@ class PointQuery:
     label: np.ndarray
 
 
+FILE_FORMATS = ("full", "published", "colour")
+"""A map's file formats: ``full`` - the resumable state; ``published`` - what the compared system
+itself writes; ``colour`` - a ``ColorOcTree`` (log-odds and one colour a node, the top class's
+colour for semantic maps) that any OctoMap tool opens (see
+:meth:`~evsmap.updaters.base.OctreeUpdater.write`)."""
+
+
 class MapUpdater(abc.ABC):
     """Integrates frames (and optionally their semantics) into a volumetric map.
 
@@ -151,6 +158,21 @@ class MapUpdater(abc.ABC):
     @abc.abstractmethod
     def query(self, points: np.ndarray) -> PointQuery:
         """Occupancy and label at ``points`` (N x 3 world coordinates, metres)."""
+
+    front_end: ClassVar[str | None] = None
+    """How a frame becomes hits and misses (:data:`evsmap.mapping.generator.FRONT_ENDS`), or
+    None for an updater that does not say (a C++ library's ``insertPointCloud``)."""
+
+    def front_end_counts(self) -> dict[str, list[int]]:
+        """Per integrated frame, what the front end produced: ``centroids`` (the filtered cloud's
+        points, or the voxels holding the points), ``hits`` (occupied updates) and ``rays`` (the
+        points ray cast); empty where the updater does not count."""
+        return {}
+
+    def file_formats(self) -> tuple[str, ...]:
+        """The :data:`FILE_FORMATS` this updater writes (an updater without ``file_format``
+        writes one file, its full and its published one)."""
+        return ("full", "published")
 
     def memory_nbytes(self) -> int | None:
         """Bytes of the arrays that hold the map (measured from their ``nbytes``), or None where

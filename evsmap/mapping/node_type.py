@@ -105,6 +105,9 @@ class NodeType:
         encode: ``encode(columns, n) -> records``; default by field name.
         decode: ``decode(records) -> {column: array}``; default by field name.
         publish: the compared system's own file, or None (the full file is what it writes).
+        colour_only: its ``ColorOcTree`` form (log-odds and one colour a node), or None: the
+            VOC colour of the label column's first slot for a semantic type, the colour column
+            otherwise (:meth:`~evsmap.updaters.base.OctreeUpdater.colour_only`).
         uses_semantics: ``update`` needs a segmenter's observation.
         description: one line for listings.
     """
@@ -122,6 +125,7 @@ class NodeType:
     encode: Callable[[Mapping[str, np.ndarray], int], np.ndarray] | None = None
     decode: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None
     publish: PublishRule | None = None
+    colour_only: PublishRule | None = None
     uses_semantics: bool = False
     description: str = ""
     _names: tuple[str, ...] = field(default=(), init=False, repr=False)

@@ -329,7 +329,8 @@ def ot_bytes(tree: Tree, resolution: float, *, tree_type: str = "OcTree",
     if tree_type == "OcTree":
         fmt = None
     elif tree_type == "ColorOcTree":
-        fmt = COLOR_FORMAT
+        # a system may write more under this id (SSMI's writeData), as OctoMap lets it
+        fmt = COLOR_FORMAT if payload_format is None else np.dtype(payload_format)
     elif payload_format is not None:
         fmt = np.dtype(payload_format)
     elif tree_type in NODE_TYPES:

@@ -35,11 +35,7 @@ import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import EvsmapError, InvalidDataError
-from evsmap.interfaces import MapUpdater
-
-FILE_FORMATS = ("full", "published")
-"""``full``: the resumable state; ``published``: what the compared system itself writes (see
-:meth:`~evsmap.updaters.base.OctreeUpdater.write`)."""
+from evsmap.interfaces import FILE_FORMATS, MapUpdater
 
 
 class SegmentationEvaluator(abc.ABC):
@@ -157,7 +153,11 @@ def write_map(updater: MapUpdater, path: str | PathLike[str], file_format: str =
     """``updater.write(path, file_format)``; a plug-in whose ``write`` takes no file format
     writes one file, which is both its full and its published one. Returns the bytes written."""
     if file_format not in FILE_FORMATS:
-        raise InvalidDataError(f"file format must be full or published, got {file_format!r}")
+        raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, got "
+                               f"{file_format!r}")
+    if file_format not in updater.file_formats():
+        raise InvalidDataError(f"{type(updater).__name__} writes no {file_format} file (it "
+                               f"writes {', '.join(updater.file_formats())})")
     if file_format != "full" and "file_format" in inspect.signature(updater.write).parameters:
         return int(updater.write(path, file_format=file_format))
     return int(updater.write(path))
@@ -193,7 +193,8 @@ class MapFiles(MapEvaluator):
                  name: str = "files") -> None:
         for fmt in (*formats, file_format):
             if fmt not in FILE_FORMATS:
-                raise InvalidDataError(f"file format must be full or published, got {fmt!r}")
+                raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, "
+                                       f"got {fmt!r}")
         self.formats = tuple(formats)
         self.out = None if out is None else Path(out)
         self.file_format = file_format
@@ -202,7 +203,7 @@ class MapFiles(MapEvaluator):
     def evaluate(self, updater: MapUpdater) -> MapFileSizes:
         with tempfile.TemporaryDirectory() as tmp:
             sizes = {fmt: write_map(updater, Path(tmp) / f"{fmt}.ot", fmt)
-                     for fmt in self.formats}
+                     for fmt in self.formats if fmt in updater.file_formats()}
         file = None
         if self.out is not None:
             sizes[self.file_format] = write_map(updater, self.out, self.file_format)

@@ -49,7 +49,7 @@ class MappingRun:
 
 
 VARIANT_ROWS = {"tfeagmap": ("-classwise", "TFEAGMap, classwise variant",
-                              {"front_end": "classwise"})}
+                              {"front_end": "direct"})}
 """Table IV rows also mapped with a named variant of their updater (row suffix, label, options):
 TFEAGMap with evsmap's classwise classic-semantic beside semantic_slam's own pipeline, so the
 report shows what semantic_slam's front end, ray casting and fusion details cost."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import replace
 from os import PathLike
 from pathlib import Path
 from typing import ClassVar
@@ -25,7 +26,7 @@ import numpy as np
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.geometry import backproject, transform_points
-from evsmap.interfaces import MapStats, MapUpdater, PointQuery
+from evsmap.interfaces import FILE_FORMATS, MapStats, MapUpdater, PointQuery
 from evsmap.mapping.kernels import depth_points, group_points
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 from evsmap.mapping.node_type import OCTREE, NodeType
@@ -33,9 +34,6 @@ from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams
 from evsmap.mapping.raycast import scan_keys
 from evsmap.mapping.threads import kernel_threads
 from evsmap.mapping.tree import Tree
-
-FILE_FORMATS = ("full", "published")
-"""``write``'s file formats (``evsmap map --file-format``)."""
 
 OCTOMAP_BASE_BYTES = 320
 """``sizeof(OcTreeBaseImpl)`` that OctoMap's ``memoryUsage`` adds once per tree (x86-64)."""
@@ -181,6 +179,7 @@ class OctreeUpdater(MapUpdater):
     name: ClassVar[str] = ""
     node_type: ClassVar[NodeType] = OCTREE
     has_leaf_map: ClassVar[bool] = True
+    front_end: ClassVar[str | None] = "direct"
 
     def __init__(self, *, node_type: NodeType | None = None, name: str | None = None,
                  resolution: float = 0.05, max_range: float = 5.0,
@@ -210,6 +209,7 @@ class OctreeUpdater(MapUpdater):
         self.max_range = float(max_range)
         self.discretize = bool(discretize)
         self.frames = 0
+        self._front_end_counts: dict[str, list[int]] = {"centroids": [], "hits": [], "rays": []}
         self._init_payloads()
 
     @property
@@ -262,7 +262,42 @@ class OctreeUpdater(MapUpdater):
             update = self.map.apply(keys.free, keys.occupied)
             if self.node_type.update is not None:
                 self.node_type.update(self, frame, points, update, observation)
+        self.count_front_end(centroids=len(points.voxel_codes), hits=len(keys.occupied),
+                             rays=len(points.rays))
         self.frames += 1
+
+    def count_front_end(self, *, centroids: int, hits: int, rays: int) -> None:
+        """Record one frame's front-end counts (:meth:`front_end_counts`)."""
+        for name, value in (("centroids", centroids), ("hits", hits), ("rays", rays)):
+            self._front_end_counts[name].append(int(value))
+
+    def front_end_counts(self) -> dict[str, list[int]]:
+        return {k: list(v) for k, v in self._front_end_counts.items()}
+
+    def file_formats(self) -> tuple[str, ...]:
+        has_colour = (self.node_type.colour_only is not None or self.tree_type == "ColorOcTree"
+                      or self.node_type.label is not None or self.node_type.colour is not None)
+        return FILE_FORMATS if has_colour else ("full", "published")
+
+    def colour_only(self, tree: Tree) -> tuple[str, Tree, None]:
+        """The map as a ``ColorOcTree``: the node type's rule, else the VOC colour of each node's
+        most likely class (white without one) for a semantic type, else its colour column."""
+        from evsmap.mapping.generator import pack_rgb, unpack_rgb, voc_colormap
+
+        nt = self.node_type
+        if nt.colour_only is not None:
+            return nt.colour_only(self, tree)
+        if self.tree_type == "ColorOcTree" or tree.payload is None:
+            return "ColorOcTree", tree, None
+        columns = nt.from_record(tree.payload)
+        if nt.label is not None:
+            labels = np.asarray(columns[nt.label]).reshape(tree.num_nodes, -1)[:, 0]
+            table = pack_rgb(voc_colormap(max(int(labels.max(initial=0)) + 1, 1)))
+            packed = np.where(labels >= 0, table[np.maximum(labels, 0)], 0xFFFFFF)
+            colours = unpack_rgb(packed)
+        else:
+            colours = np.asarray(columns[nt.colour], dtype=np.uint8)
+        return "ColorOcTree", replace(tree, payload=colours), None
 
     def endpoint_voxels(self, points: FramePoints
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -300,7 +335,8 @@ class OctreeUpdater(MapUpdater):
             file_format: ``"full"`` - the whole state, which :meth:`restore` reads back so
                 mapping can continue; ``"published"`` - what the compared system itself writes
                 (the node type's ``publish``; the same as ``full`` where that is what it
-                writes). ``.bt`` files are the same in both.
+                writes); ``"colour"`` - a ``ColorOcTree`` (:meth:`colour_only`). ``.bt`` files
+                are the same in all.
         """
         from evsmap.mapping.octree_io import write_bt, write_ot
 
@@ -315,6 +351,12 @@ class OctreeUpdater(MapUpdater):
             return write_bt(path, tree, self.resolution, tree_type=kind,
                             occupancy_thres=p.occupancy_threshold, clamp_min=p.clamp_min,
                             clamp_max=p.clamp_max)
+        if file_format == "colour":
+            if file_format not in self.file_formats():
+                raise InvalidDataError(f"{self.name}: its {self.tree_type} nodes have no colour "
+                                       f"to write a colour file with")
+            kind, tree, fmt = self.colour_only(tree)
+            return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
         if file_format == "published" and self.node_type.publish is not None:
             kind, tree, fmt = self.node_type.publish(self, tree)
             return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
@@ -349,7 +391,8 @@ class OctreeUpdater(MapUpdater):
                                          else {self.tree_type: fmt})
         if kind != self.tree_type:
             raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
-        if not math.isclose(resolution, self.resolution, rel_tol=1e-9):
+        # OctoMap writes "res" with 6 digits: a float resolution (0.05f) comes back as 0.05
+        if np.float32(resolution) != np.float32(self.resolution):
             raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "
                                   f"{self.resolution} m")
         return kind, tree

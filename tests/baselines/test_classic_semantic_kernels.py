@@ -117,7 +117,7 @@ def test_kernel_equals_numpy_on_real_frames(monkeypatch, tmp_path, tum_observed,
     maps, files = [], []
     for use in (True, False):
         monkeypatch.setattr(cs, "USE_KERNEL", use)
-        m = UPDATERS.create(name, resolution=resolution, max_range=4.0, front_end="classwise")
+        m = UPDATERS.create(name, resolution=resolution, max_range=4.0, front_end="direct")
         for frame, obs in zip(frames, observations, strict=True):
             m.integrate(frame, obs)
         maps.append(m)

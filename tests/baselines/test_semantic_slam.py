@@ -271,7 +271,7 @@ def test_rays_are_cut_at_the_raycast_range():
     assert m.resolution == float(np.float32(0.1))
     assert state[np.argmin(np.abs(z - 2.95))] == 1
     # evsmap's classwise variant casts to max range, clearing the whole way
-    c = UPDATERS.create("classic-semantic", resolution=0.1, front_end="classwise")
+    c = UPDATERS.create("classic-semantic", resolution=0.1, front_end="direct")
     c.integrate(frame, obs)
     assert np.all(c.query(axis).state[(z > 0.2) & (z < 2.95)] == 0)
 
@@ -329,7 +329,7 @@ def test_bad_options_are_one_clear_error():
         UPDATERS.create("classic-semantic", raycast_range=-1.0)
     with pytest.raises(InvalidDataError, match="discretize"):
         UPDATERS.create("classic-semantic-max", discretize=False)
-    UPDATERS.create("classic-semantic", discretize=False, front_end="classwise")
+    UPDATERS.create("classic-semantic", discretize=False, front_end="direct")
 
 
 def test_unpack_inverts_pack():

@@ -139,7 +139,7 @@ def test_custom_node_type_round_trips_through_write_and_restore(visits, frames, 
 def test_registered_types_pickle_by_id(visits):
     import pickle
 
-    updater = UPDATERS.create("classic-semantic", front_end="classwise")
+    updater = UPDATERS.create("classic-semantic", front_end="direct")
     assert pickle.loads(pickle.dumps(updater)).node_type is updater.node_type
     assert pickle.loads(pickle.dumps(visits)) is visits
     with pytest.raises(TypeError, match="not registered"):

@@ -47,8 +47,8 @@ def test_orgb_occupancy_equals_octomap_cpp(tum_frames, tmp_path):
 
 
 @pytest.mark.parametrize("name, options", [
-    ("multiclass-bayes", {}), ("classic-semantic", {"front_end": "classwise"}),
-    ("classic-semantic-max", {"front_end": "classwise"})])
+    ("multiclass-bayes", {}), ("classic-semantic", {"front_end": "direct"}),
+    ("classic-semantic-max", {"front_end": "direct"})])
 def test_semantic_maps_label_the_scene(synthetic, name, options):
     seq, frames, observations = synthetic
     updater = UPDATERS.create(name, resolution=0.05, **options)

@@ -1,0 +1,310 @@
+"""``multiclass-bayes`` on the ``octomap_generator`` front end: EVSMaP's update as SSMI's
+generator runs it (ExistentialRobotics/SSMI, ``SSMI-Mapping``), the default of the MESAMap and
+EVSMap rows of Table IV.
+
+The paper builds its map on [13], whose code is SSMI, and defines Table IV's rows by one
+difference: TESAMap and MESAMap use "the traditional voxel node update strategy from [14] and
+our update strategy", "all other aspects remain consistent". SSMI's ``octomap_generator.cpp`` is
+semantic_slam's with the node swapped, so this updater runs the same front end as
+``classic-semantic`` (:mod:`evsmap.mapping.generator`) and SSMI's node rules
+(:mod:`evsmap.mapping.ssmi_kernel`). Per frame (``OctomapGenerator::insertPointCloud``):
+
+1. The semantic cloud: every valid depth pixel with its colour and its top class's colour packed
+   in a float field (SSMI's ``semantic_sensor.py`` publishes one class colour per point), PCL's
+   ``VoxelGrid`` at the map resolution in the camera frame - the packed colours are averaged as
+   floats, so a leaf mixing classes carries a colour that is no class's, which SSMI then keeps as
+   a class of its own -, the centroids moved to the world frame.
+2. Every centroid within ``max_range``: ``updateNode(x, y, z, true, class_obs, color_obs,
+   false)`` in the voxel grid's order (a world voxel holding two centroids is observed twice).
+3. ``insertPointCloud(all centroids, origin, raycast_range, discretize=true)``, SSMI's override:
+   only the free set is updated (``updateNode(key, false)``), the occupied set is left to step 2.
+
+Where the paper changes SSMI, the paper wins: an inner node's semantics are its children's merged
+with Algorithm 1 (theta 0.6, the paper's punishment) instead of SSMI's ``semanticFusion``
+average, in child order over the children that have semantics (SSMI's
+``getFusedChildSemantics``), its occupancy ``getOccFromSem`` of the result, its colour the
+average of its children's. Pruning is SSMI's ``isNodeCollapsible``: 8 leaf children with equal
+value and equal semantics, or equal value when the first child is free (``value <=
+minOccupancyLogOdds``); the pruned node is child 0's copy with the children's average colour.
+
+The map is kept as leaf arrays expanded to the finest level (evsmap's octree updaters); SSMI's
+tree expands a pruned node before updating one of its voxels, so the two agree, with one
+difference: when SSMI prunes 8 free leaves whose semantics differ it keeps child 0's, and a later
+hit on the block starts its 7 siblings from child 0's free semantics, where here each keeps its
+own (both free, their classes floored).
+
+Files: ``full`` keeps the whole node (value, colour, 3 x (class colour, log-odds), others) and
+restores; ``published`` is SSMI's ``writeData`` with its defaults (``use_semantic_color``,
+``write_semantics``): value, the top semantic colour and the raw ``SemanticsLogOdds`` struct
+(28 bytes with its padding), 36 bytes a node with the child mask, under the id ``ColorOcTree``
+that SSMI's ``getTreeType`` reports (so OctoMap's own tools misread it); ``colour`` is the same
+without the semantics (``setWriteSemantics(false)``), a ``ColorOcTree`` any OctoMap tool opens.
+In memory a node is 48 bytes (children pointer, float value, colour, the 28-byte semantics and
+two flags, 8-byte aligned).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from evsmap.data import Frame, SemanticObservation
+from evsmap.errors import InvalidDataError
+from evsmap.mapping import fusion
+from evsmap.mapping.fusion import MCBState
+from evsmap.mapping.generator import (
+    WHITE,
+    as_float_parameter,
+    camera_points,
+    pack_rgb,
+    sensor_distance,
+    to_world,
+    unpack_rgb,
+    voc_colormap,
+)
+from evsmap.mapping.keys import pack
+from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
+from evsmap.mapping.raycast import octomap_keys, scan_keys
+from evsmap.mapping.ssmi_kernel import LOGINIT, frame_update, occupancies, tree_constants
+from evsmap.mapping.tree import Tree, octomap_colour_average, octomap_colour_prune
+from evsmap.mapping.voxel_grid import voxel_grid
+from evsmap.updaters.base import OctreeUpdater, check_observation
+
+TREE_TYPE = "MultiClassBayesGeneratorOcTree"
+
+RECORD = np.dtype([("rgb", "u1", (3,)), ("colors", "<u4", (3,)), ("logodds", "<f4", (3,)),
+                   ("others", "<f4")])
+"""The ``full`` file's node payload after the float value: the node's colour, its 3 class
+colours (``0x00RRGGBB``, white = unset), their log-odds and others."""
+
+SEMANTICS_STRUCT = np.dtype([("color", "u1", (3,)), ("pad", "u1"), ("logodds", "<f4")])
+PUBLISHED = np.dtype([("color", "u1", (3,)), ("slots", SEMANTICS_STRUCT, (3,)),
+                      ("others", "<f4")])
+"""SSMI's ``writeData`` after the value: ``Color`` (3 bytes) and ``sizeof(SemanticsLogOdds)`` =
+3 x ``ColorWithLogOdds`` (3 colour bytes, 1 padding byte, float) + float others = 28 bytes."""
+
+NODE_BYTES = 48
+"""``sizeof(SemanticOcTreeNode<SemanticsLogOdds>)`` on x86-64: children pointer 8, value 4,
+colour 3, semantics 28 (4-aligned), two bools, padded to 8."""
+
+ROS_DEFAULTS = {"max_range": 5.0, "raycast_range": 2.0, "clamp_min": 1e-4, "clamp_max": 0.9999}
+"""The generator's ranges as semantic_slam's ``octomap_generator.yaml`` sets them (TESAMap's, so
+that the rows differ only by the node), and SSMI's clamping (its yaml: 0.0001 / 0.9999, which
+SSMI's ``setClampingThresMin/Max`` also make the semantic log-odds' bounds). SSMI's own yaml sets
+max_range 15 and raycast_range 10 for 0.5 m outdoor maps."""
+
+
+def _columns() -> tuple[Column, ...]:
+    return (Column("rgb", np.uint8, (3,), fill=255),
+            Column("sem_colors", np.uint32, (3,), fill=WHITE),
+            Column("class_logodds", np.float32, (3,), fill=LOGINIT),
+            Column("others", np.float32, (), fill=LOGINIT),
+            Column("classes", np.int16, (3,), fill=-1))
+
+
+def _encode(columns, n: int) -> np.ndarray:
+    rec = np.empty(n, dtype=RECORD)
+    rec["rgb"] = columns["rgb"]
+    rec["colors"] = columns["sem_colors"]
+    rec["logodds"] = columns["class_logodds"]
+    rec["others"] = columns["others"]
+    return rec
+
+
+def _decode(record: np.ndarray) -> dict[str, np.ndarray]:
+    colours = np.asarray(record["colors"], dtype=np.uint32)
+    return {"rgb": record["rgb"], "sem_colors": colours, "class_logodds": record["logodds"],
+            "others": record["others"], "classes": colour_classes(colours, 256)}
+
+
+def colour_classes(colours: np.ndarray, num_classes: int) -> np.ndarray:
+    """Class ids of packed class colours under the VOC colour map; -1 for white and for colours
+    that are no class's (an averaged colour)."""
+    table = pack_rgb(voc_colormap(max(int(num_classes), 1)))
+    order = np.argsort(table, kind="stable")
+    sorted_table = table[order]
+    c = np.asarray(colours, dtype=np.uint32)
+    pos = np.clip(np.searchsorted(sorted_table, c), 0, len(table) - 1)
+    return np.where(sorted_table[pos] == c, order[pos], -1).astype(np.int16)
+
+
+def _semantics_state(payload: np.ndarray) -> tuple[MCBState, np.ndarray]:
+    """The records' semantics as an :class:`MCBState` whose class ids number the colours
+    (Algorithm 1 compares classes by identity only), and the colour of each id."""
+    colours = np.asarray(payload["colors"], dtype=np.uint32)
+    palette, ids = np.unique(colours, return_inverse=True)
+    ids = ids.reshape(colours.shape).astype(np.int64)
+    ids[colours == WHITE] = fusion.EMPTY
+    return MCBState(ids, np.asarray(payload["logodds"], np.float32),
+                    np.asarray(payload["others"], np.float32)), palette
+
+
+def _inner(updater: GeneratorMultiClassBayesMap, child: np.ndarray, group: np.ndarray,
+           n_groups: int) -> np.ndarray:
+    """An inner node: Algorithm 1 over the children that have semantics, in child order (SSMI
+    skips the others; a parent with none keeps the unset semantics), the average child colour."""
+    out = np.zeros(n_groups, dtype=RECORD)
+    out["colors"] = WHITE
+    out["logodds"] = LOGINIT
+    out["others"] = LOGINIT
+    has = (np.asarray(child["colors"]) != WHITE).any(axis=1)
+    if has.any():
+        state, palette = _semantics_state(child[has])
+        g = group[has]
+        owners = np.unique(g)
+        local = np.searchsorted(owners, g)
+        merged = fusion.fold_algorithm1(state, local, len(owners), updater.theta,
+                                        pairing=updater.pairing)
+        cls = merged.classes.astype(np.int64)
+        out["colors"][owners] = np.where(cls >= 0, palette[np.maximum(cls, 0)], WHITE)
+        out["logodds"][owners] = np.where(cls >= 0, merged.logodds, LOGINIT)
+        out["others"][owners] = merged.others
+    out["rgb"] = octomap_colour_average(child["rgb"], group, n_groups)
+    return out
+
+
+def _pruned(updater: GeneratorMultiClassBayesMap, child: np.ndarray, group: np.ndarray,
+            n_groups: int) -> np.ndarray:
+    """SSMI's ``pruneNode``: child 0's copy, the colour averaged over the children."""
+    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    out = child[first].copy()
+    out["rgb"] = octomap_colour_prune(child["rgb"], group, n_groups)
+    return out
+
+
+def _publish(updater: GeneratorMultiClassBayesMap, tree: Tree):
+    """SSMI's ``writeData`` (semantic colour and semantics) under ``getTreeType()``'s id."""
+    rec = np.zeros(tree.num_nodes, dtype=PUBLISHED)
+    pay = tree.payload
+    rec["color"] = unpack_rgb(pay["colors"][:, 0])
+    rec["slots"]["color"] = unpack_rgb(pay["colors"])
+    rec["slots"]["logodds"] = pay["logodds"]
+    rec["others"] = pay["others"]
+    return "ColorOcTree", replace(tree, payload=rec), PUBLISHED
+
+
+def _colour_only(updater: GeneratorMultiClassBayesMap, tree: Tree):
+    """``writeData`` with ``write_semantics`` off: value and the top semantic colour."""
+    colours = unpack_rgb(tree.payload["colors"][:, 0])
+    return "ColorOcTree", replace(tree, payload=colours), None
+
+
+NODE_TYPE = NODE_TYPES.add(NodeType(
+    TREE_TYPE, record=RECORD, columns=_columns(), inner=_inner, pruned=_pruned,
+    prune_on=("sem_colors", "class_logodds", "others"), node_bytes=NODE_BYTES,
+    label="classes", colour="rgb", encode=_encode, decode=_decode, publish=_publish,
+    colour_only=_colour_only, uses_semantics=True,
+    description="EVSMaP's node as SSMI keeps it: colour + 3 x (class colour, log-odds) + others"))
+
+
+class GeneratorMultiClassBayesMap(OctreeUpdater):
+    """EVSMaP's multi-class Bayesian map on SSMI's ``octomap_generator`` (see the module notes).
+
+    Args:
+        psi, phi: SSMI's hit and miss log-odds steps (its yaml: 1 and -0.1).
+        theta: Algorithm 1's punishment where nodes merge (the paper's 0.6).
+        pairing: Algorithm 1's pairing (:class:`~evsmap.updaters.multiclass_bayes.
+            MultiClassBayesMap`).
+        raycast_range: free space is cast up to here (semantic_slam's 2 m).
+        max_range: centroids within it are hits (5 m).
+        clamp_min, clamp_max: SSMI's clamping probabilities, for the occupancy floor and the
+            semantic log-odds (1e-4 / 0.9999).
+        resolution: the leaf size; like every parameter it reaches the tree as a ``float``.
+    """
+
+    name = "multiclass-bayes"
+    node_type = NODE_TYPE
+    front_end = "generator"
+
+    def __init__(self, *, psi: float = fusion.PSI, phi: float = fusion.PHI,
+                 theta: float = fusion.THETA, pairing: str = "printed",
+                 raycast_range: float = ROS_DEFAULTS["raycast_range"],
+                 resolution: float = 0.05, max_range: float = ROS_DEFAULTS["max_range"],
+                 clamp_min: float = ROS_DEFAULTS["clamp_min"],
+                 clamp_max: float = ROS_DEFAULTS["clamp_max"],
+                 occupancy_threshold: float = 0.5) -> None:
+        if pairing not in fusion.PAIRINGS:
+            raise InvalidDataError(f"multiclass-bayes: pairing must be one of "
+                                   f"{', '.join(fusion.PAIRINGS)}; got {pairing!r}")
+        if not (isinstance(raycast_range, (int, float)) and np.isfinite(raycast_range)
+                and raycast_range >= 0):
+            raise InvalidDataError(f"multiclass-bayes: raycast_range must be a number of metres "
+                                   f">= 0, got {raycast_range!r}")
+        self.theta, self.pairing = float(theta), pairing
+        self.raycast_range = as_float_parameter(raycast_range)
+        self.num_classes = 0
+        super().__init__(resolution=as_float_parameter(resolution),
+                         max_range=as_float_parameter(max_range), discretize=True,
+                         clamp_min=as_float_parameter(clamp_min),
+                         clamp_max=as_float_parameter(clamp_max),
+                         occupancy_threshold=as_float_parameter(occupancy_threshold))
+        self.psi, self.phi, self.min_logodds, self.max_logodds, self.min_occupancy = \
+            tree_constants(psi=psi, phi=phi, clamp_min=clamp_min, clamp_max=clamp_max)
+
+    # ---- one frame
+    def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
+        observation = check_observation(frame, observation, self.name)
+        if int(observation.num_classes) > self.num_classes:  # the colour map grew: relabel
+            self.num_classes = int(observation.num_classes)
+            self.map.payload("classes")[:] = colour_classes(self.map.payload("sem_colors"),
+                                                            self.num_classes)
+        cam, pixels = camera_points(frame, self.name)
+        palette = pack_rgb(voc_colormap(max(self.num_classes, 1)))
+        top = observation.classes.reshape(-1, observation.k)[pixels, 0].astype(np.int64)
+        packed = np.where(top >= 0, palette[np.maximum(top, 0)], WHITE).astype(np.uint32)
+        colours = frame.colors()
+        rgb = (np.zeros((len(pixels), 3), np.uint8) if colours is None
+               else np.ascontiguousarray(colours.reshape(-1, 3)[pixels], np.uint8))
+        inverse = np.float32(np.float32(1.0) / np.float32(self.resolution))
+        cent, fields, cent_rgb = voxel_grid(cam, inverse, packed.view(np.float32)[:, None], rgb)
+        world, origin = to_world(cent, frame.pose)
+        valid = np.all(np.isfinite(world), axis=1)
+        inside = valid & (sensor_distance(world, origin).astype(np.float64) <= self.max_range)
+        hit_keys, hit_ok = octomap_keys(world[inside], self.resolution)
+        hit_codes = pack(hit_keys[hit_ok])
+        hit_colour = np.ascontiguousarray(fields[inside][hit_ok, 0]).view(np.uint32)
+        hit_rgb = np.ascontiguousarray(cent_rgb[inside][hit_ok])
+        keys = scan_keys(world[valid], origin.astype(np.float64), self.resolution,
+                         max_range=self.raycast_range, discretize=True)
+        codes = np.union1d(hit_codes, keys.free)
+        index = self.map.insert_leaves(codes)
+        hit_index = index[np.searchsorted(codes, hit_codes)]
+        free_index = index[np.searchsorted(codes, keys.free)]
+        m = self.map
+        frame_update(m.payload("sem_colors"), m.payload("class_logodds"), m.payload("others"),
+                     m.logodds_for_writing(), m.payload("rgb"), hit_index, hit_colour, hit_rgb,
+                     free_index, self.psi, self.phi, self.min_logodds, self.max_logodds,
+                     self.min_occupancy)
+        touched = np.unique(hit_index)
+        m.payload("classes")[touched] = colour_classes(m.payload("sem_colors")[touched],
+                                                       self.num_classes)
+        self.count_front_end(centroids=len(cent), hits=len(hit_index),
+                             rays=int(np.count_nonzero(valid)))
+        self.frames += 1
+
+    # ---- the tree
+    def _equal_columns(self) -> list[np.ndarray]:
+        """SSMI's ``isNodeCollapsible``: equal value and semantics, or equal value with the
+        first child free - the semantics of free leaves are left out of the comparison."""
+        m = self.map
+        free = m.logodds <= self.min_occupancy
+        cols = np.where(free[:, None], 0, m.payload("sem_colors"))
+        lo = np.where(free[:, None], 0, m.payload("class_logodds"))
+        ot = np.where(free, 0, m.payload("others"))
+        return [m.logodds, cols, lo, ot]
+
+    def tree(self) -> Tree:
+        """The pruned tree; an inner node's value is ``getOccFromSem`` of its merged semantics
+        (-0.1 for the unset semantics of a parent of free leaves only)."""
+        tree = super().tree()
+        if tree.num_nodes:
+            inner = np.flatnonzero(tree.child_mask != 0)
+            pay = tree.payload[inner]
+            value = tree.value.copy()
+            value[inner] = occupancies(np.ascontiguousarray(pay["colors"], np.uint32),
+                                       np.ascontiguousarray(pay["logodds"], np.float32),
+                                       np.ascontiguousarray(pay["others"], np.float32))
+            tree = replace(tree, value=value)
+        return tree
+
