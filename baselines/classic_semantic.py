@@ -153,7 +153,8 @@ inner nodes, pruning on equal occupancy and semantics (colour ignored)."""
 
 
 class ClassicSemanticMap(OctreeUpdater):
-    """semantic_slam's semantic octree (Bayesian or max fusion) on the direct front end (evsmap's cleaner variant).
+    """semantic_slam's semantic octree (Bayesian or max fusion) on the direct front end
+    (evsmap's cleaner variant).
 
     Args:
         fusion_rule: ``"bayes"`` (top-3) or ``"max"`` (top-1).
