@@ -12,6 +12,7 @@ from evsmap.cli.options import key_value, positive_float, positive_int
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 from evsmap.cli.sequence_args import add_sequence_options
 from evsmap.errors import EvsmapError
+from evsmap.interfaces import FILE_FORMATS
 from evsmap.readers.detect import open_sequence
 from evsmap.readers.skipping import SkippedFrames
 
@@ -52,11 +53,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=positive_int, metavar="N", help="first N frames only")
     p.add_argument("--out", type=Path, metavar="FILE",
                    help="write the map here (.ot full state; .bt occupancy only)")
-    p.add_argument("--file-format", choices=("full", "published"), default="full",
-                   metavar="full|published",
+    p.add_argument("--file-format", choices=FILE_FORMATS, default="full",
+                   metavar="|".join(FILE_FORMATS),
                    help="--out .ot content: full (the whole state; reloads and mapping "
-                        "continues) or published (what the compared system itself writes: "
-                        "semantic_slam's ColorOcTree for classic-semantic); default full")
+                        "continues), published (what the compared system itself writes: "
+                        "semantic_slam's ColorOcTree for classic-semantic, SSMI's writeData "
+                        "for multiclass-bayes) or colour (a ColorOcTree any OctoMap tool "
+                        "opens: one colour a node, the top class's); default full")
     p.add_argument("--ply", type=Path, metavar="FILE",
                    help="also write the occupied voxel centres as a binary PLY point cloud")
     p.add_argument("--ply-color", choices=("rgb", "class"), metavar="rgb|class",
@@ -202,9 +205,18 @@ def _ground_truth(sequence, resolution: float):
 
 
 def _other_size(r: dict[str, Any]) -> str:
-    other = "published" if r["file_format"] == "full" else "full"
-    size = r.get(f"map_bytes_{other}")
-    return "" if size is None else f"; {other} .ot {size / 1e6:.3f} MB"
+    sizes = [(fmt, r.get(f"map_bytes_{fmt}")) for fmt in FILE_FORMATS
+             if fmt != r["file_format"]]
+    return "".join(f"; {fmt} .ot {size / 1e6:.3f} MB" for fmt, size in sizes
+                   if size is not None)
+
+
+def _front_end_line(fe: dict[str, Any] | None) -> list[str]:
+    if not fe or not fe.get("name"):
+        return []
+    per = [(k, fe.get(k) or []) for k in ("centroids", "hits", "rays")]
+    text = ", ".join(f"{k} {sum(v) / len(v):,.0f}" for k, v in per if v)
+    return [f"front end    {fe['name']}" + (f" ({text} a frame, means)" if text else "")]
 
 
 def _pct(x) -> str:
@@ -233,7 +245,7 @@ def format_record(r: dict[str, Any]) -> str:
             f"  ({r['map_file']})" if r["map_file"] else "") + _other_size(r),
         f"map          {r['nodes']:,} nodes, {r['leaves']:,} leaves",
         "memory       " + _memory_text(r),
-    ] + _machine_lines(r.get("machine")) + ply
+    ] + _front_end_line(r.get("front_end")) + _machine_lines(r.get("machine")) + ply
         + ([f"note         {r['extra']['segmenter_not_run']}"]
            if r.get("extra", {}).get("segmenter_not_run") else [])
         + _quality_lines(r.get("quality")))

@@ -52,8 +52,12 @@ class MappingRecord:
         map_file: where it was written (``None`` when written to a temporary file).
         file_format: ``"full"`` (the resumable state) or ``"published"`` (what the compared
             system itself writes), see :meth:`OctreeUpdater.write`.
-        map_bytes_full, map_bytes_published: the ``.ot`` size in each format (both always
-            measured; equal where the system writes its full state).
+        map_bytes_full, map_bytes_published, map_bytes_colour: the ``.ot`` size in each format
+            (always measured; full and published are equal where the system writes its full
+            state; colour ``None`` for a map without a colour form).
+        front_end: how frames became hits and misses: ``name`` (``generator``, ``direct`` or
+            ``None``) and, per frame, ``centroids``, ``hits`` and ``rays``
+            (:meth:`~evsmap.interfaces.MapUpdater.front_end_counts`).
         nodes, leaves: the map's octree counts.
         octomap_memory_bytes: OctoMap's ``memoryUsage()`` formula over the tree's nodes in the
             compared system's C++ node type (a model of the C++ memory, not a measurement).
@@ -83,6 +87,8 @@ class MappingRecord:
     file_format: str = "full"
     map_bytes_full: int | None = None
     map_bytes_published: int | None = None
+    map_bytes_colour: int | None = None
+    front_end: dict[str, Any] = field(default_factory=dict)
     stages_ms: dict[str, list[float]] = field(default_factory=dict)
     map_nbytes: int | None = None
     peak_rss_bytes: int | None = None
@@ -125,7 +131,8 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
     before the timed loop.
     """
     if file_format not in FILE_FORMATS:
-        raise InvalidDataError(f"file format must be full or published, got {file_format!r}")
+        raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, got "
+                               f"{file_format!r}")
     warm = int(segmenter is not None and not is_oracle(segmenter))
     run = run_mapping(sequence, updater, segmenter=segmenter, frames=frames, skip_bad=skip_bad,
                       progress=progress, pipeline=pipeline, warmup=warm, threads=threads,
@@ -149,6 +156,8 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,
         leaves=stats.leaves, file_format=file_format,
         map_bytes_full=files.sizes["full"], map_bytes_published=files.sizes["published"],
+        map_bytes_colour=files.sizes.get("colour"),
+        front_end={"name": updater.front_end, **updater.front_end_counts()},
         stages_ms=_record_stages(run.times.stages), map_nbytes=stats.map_nbytes,
         peak_rss_bytes=memory.peak_rss_bytes, start_rss_bytes=memory.start_rss_bytes,
         peak_scope="run" if memory.scope == "block" else "process", extra=extra)

@@ -48,10 +48,13 @@ def frames():
 def test_builtin_types_are_registered_by_their_ot_id():
     UPDATERS.get("multiclass-bayes")  # loads the plug-ins, which register their types
     assert NODE_TYPES.get("OcTree") is OCTREE and NODE_TYPES.get("ColorOcTree") is COLOR_OCTREE
-    assert {"MultiClassBayesOcTree", "SemanticOcTreeBayes", "SemanticOcTreeMax",
-            "SemanticSlamOcTreeBayes", "SemanticSlamOcTreeMax"} <= set(NODE_TYPES.names())
+    assert {"MultiClassBayesOcTree", "MultiClassBayesGeneratorOcTree", "SemanticOcTreeBayes",
+            "SemanticOcTreeMax", "SemanticSlamOcTreeBayes",
+            "SemanticSlamOcTreeMax"} <= set(NODE_TYPES.names())
     assert UPDATERS.create("orgb").node_type is COLOR_OCTREE
-    assert UPDATERS.create("multiclass-bayes").tree_type == "MultiClassBayesOcTree"
+    assert UPDATERS.create("multiclass-bayes").tree_type == "MultiClassBayesGeneratorOcTree"
+    assert UPDATERS.create("multiclass-bayes",
+                           front_end="direct").tree_type == "MultiClassBayesOcTree"
 
 
 def test_duplicate_id_raises_and_the_first_stays(visits):

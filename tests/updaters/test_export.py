@@ -40,16 +40,16 @@ def frames():
     return out
 
 
-def mapped(name: str, frames):
-    updater = UPDATERS.create(name, resolution=RES)
+def mapped(name: str, frames, **options):
+    updater = UPDATERS.create(name, resolution=RES, **options)
     for frame, observation in frames:
         updater.integrate(frame, observation if updater.uses_semantics else None)
     return updater
 
 
 @pytest.fixture(scope="module")
-def mcb(frames):
-    return mapped("multiclass-bayes", frames)
+def mcb(frames):  # the direct front end's node keeps no colour
+    return mapped("multiclass-bayes", frames, front_end="direct")
 
 
 @pytest.fixture(scope="module")
@@ -178,7 +178,7 @@ def test_rgb_without_colours_and_class_without_classes(mcb, orgb, tmp_path):
     with pytest.raises(InvalidDataError, match="'orgb' stores no classes"):
         export_ply(orgb, tmp_path / "x.ply", color_by="class")
     with pytest.raises(InvalidDataError, match="stores no colours"):
-        check_color_by(UPDATERS.create("multiclass-bayes"), "rgb")
+        check_color_by(UPDATERS.create("multiclass-bayes", front_end="direct"), "rgb")
 
 
 def test_not_an_octree_updater(tmp_path):
@@ -237,8 +237,8 @@ def test_cli_map_ply_class_colours_text_output(tmp_path):
 
 def test_cli_map_ply_errors_are_one_line_and_early(tmp_path):
     cases = [
-        (("--updater", "multiclass-bayes", "--ply", str(tmp_path / "a.ply"), "--ply-color",
-          "rgb"), "stores no colours"),
+        (("--updater", "multiclass-bayes", "-o", "front_end=direct", "--ply",
+          str(tmp_path / "a.ply"), "--ply-color", "rgb"), "stores no colours"),
         (("--updater", "orgb", "--ply", str(tmp_path / "no" / "a.ply")), "does not exist"),
         (("--updater", "orgb", "--ply", str(tmp_path / "a.ply"), "--ply-color", "depth"),
          "invalid choice"),

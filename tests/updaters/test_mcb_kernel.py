@@ -21,7 +21,8 @@ def _maps(monkeypatch, frames, observations, resolution, **options):
     out = []
     for use in (True, False):
         monkeypatch.setattr(mb, "USE_KERNEL", use)
-        m = UPDATERS.create("multiclass-bayes", resolution=resolution, max_range=4.0, **options)
+        m = UPDATERS.create("multiclass-bayes", front_end="direct", resolution=resolution,
+                            max_range=4.0, **options)
         for frame, obs in zip(frames, observations, strict=True):
             m.integrate(frame, obs)
         out.append(m)
@@ -83,7 +84,8 @@ def test_growing_the_leaf_arrays_with_and_without_the_kernel(monkeypatch, tum_ob
     grown = []
     for kernel in (occupancy.grow_rows, None):
         monkeypatch.setattr(occupancy, "grow_rows", kernel)
-        m = UPDATERS.create("multiclass-bayes", resolution=0.05, max_range=4.0)
+        m = UPDATERS.create("multiclass-bayes", front_end="direct", resolution=0.05,
+                            max_range=4.0)
         for frame, obs in zip(frames[:3], observations[:3], strict=True):
             m.integrate(frame, obs)
         grown.append(m)

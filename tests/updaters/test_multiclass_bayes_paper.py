@@ -23,7 +23,8 @@ def observed():
 
 
 def _mapped(observed, **options):
-    m = UPDATERS.create("multiclass-bayes", resolution=0.1, max_range=4.0, **options)
+    m = UPDATERS.create("multiclass-bayes", front_end="direct", resolution=0.1, max_range=4.0,
+                        **options)
     for frame, obs in zip(*observed, strict=True):
         m.integrate(frame, obs)
     return m
@@ -56,12 +57,12 @@ def test_the_variants_give_different_maps(observed):
                                            ("occupancy", "both")])
 def test_bad_options_are_named(option, value):
     with pytest.raises(InvalidDataError, match=f"{option} must be one of"):
-        UPDATERS.create("multiclass-bayes", **{option: value})
+        UPDATERS.create("multiclass-bayes", front_end="direct", **{option: value})
 
 
 def _siblings_map(states: list[fu.MCBState]):
     """A map whose leaves are the 8 children of one parent (plus their states)."""
-    m = UPDATERS.create("multiclass-bayes", resolution=0.1)
+    m = UPDATERS.create("multiclass-bayes", front_end="direct", resolution=0.1)
     base = np.array([KEY_OFFSET, KEY_OFFSET, KEY_OFFSET])
     keys = np.array([base + [i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)])
     codes = pack(keys)

@@ -33,7 +33,8 @@ def observed():
 def _map(observed, n, **options):
     threads.set_update_threads(n)
     frames, observations = observed
-    m = UPDATERS.create("multiclass-bayes", resolution=0.05, max_range=4.0, **options)
+    m = UPDATERS.create("multiclass-bayes", front_end="direct", resolution=0.05, max_range=4.0,
+                        **options)
     for frame, obs in zip(frames, observations, strict=True):
         m.integrate(frame, obs)
     return m

@@ -47,7 +47,7 @@ def test_orgb_occupancy_equals_octomap_cpp(tum_frames, tmp_path):
 
 
 @pytest.mark.parametrize("name, options", [
-    ("multiclass-bayes", {}), ("classic-semantic", {"front_end": "direct"}),
+    ("multiclass-bayes", {"front_end": "direct"}), ("classic-semantic", {"front_end": "direct"}),
     ("classic-semantic-max", {"front_end": "direct"})])
 def test_semantic_maps_label_the_scene(synthetic, name, options):
     seq, frames, observations = synthetic
@@ -62,9 +62,10 @@ def test_semantic_maps_label_the_scene(synthetic, name, options):
     assert accuracy > 0.8, f"{name}: {accuracy:.3f}"
 
 
-@pytest.mark.parametrize("name", ["classic-semantic", "classic-semantic-max"])
+@pytest.mark.parametrize("name", ["classic-semantic", "classic-semantic-max", "multiclass-bayes"])
 def test_semantic_slams_averaged_colours_leave_voxels_without_a_class(synthetic, name):
-    # semantic_slam's voxel grid averages the packed class colours of a leaf's points, so
+    # the generator front end (semantic_slam's, and SSMI's for multiclass-bayes) averages the
+    # packed class colours of a voxel-grid leaf's points, so
     # leaves mixing classes (and noisy oracle pixels) carry colours that are no class: those
     # voxels read back unlabelled, the labelled ones are mostly right
     seq, frames, observations = synthetic
@@ -88,7 +89,7 @@ def test_semantic_updater_needs_an_observation(synthetic):
 
 def test_multiclass_bayes_file_reloads_and_mapping_continues(synthetic, tmp_path):
     _, frames, observations = synthetic
-    a = UPDATERS.create("multiclass-bayes", resolution=0.05)
+    a = UPDATERS.create("multiclass-bayes", front_end="direct", resolution=0.05)
     for frame, obs in zip(frames[:3], observations[:3], strict=True):
         a.integrate(frame, obs)
     size = a.write(tmp_path / "m.ot")
