@@ -266,7 +266,7 @@ def test_classic_semantic_published_file_is_semantic_slams_color_octree(tmp_path
     assert len(seen & colours) >= 3 and (255, 255, 255) in seen
     # full (the default) reloads into evsmap; on the direct front end multiclass-bayes writes
     # the same file either way; on SSMI's generator it publishes SSMI's writeData (36 B a
-    # node: no rgb, the raw SemanticsLogOdds), 19 B smaller than its full file in all
+    # node: value, the semantic colour and the padded SemanticsLogOdds struct)
     r = _evsmap("map", "synthetic", "--updater", "multiclass-bayes", "-o", "front_end=direct",
                 "--frames", "1", "--resolution", "0.1", "--json")
     rec = json.loads(r.stdout)
