@@ -278,7 +278,7 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
                 indices: Iterable[int] | None = None, frames: int | None = None,
                 skip_bad: bool = False, measure_memory: bool = True,
                 progress: Callable[[Any], Any] | None = None, pipeline: bool = False,
-                warmup: int = 0, threads: Any = None) -> MappingPass:
+                warmup: int = 0, threads: Any = None, growth: Any = None) -> MappingPass:
     """Integrate frames of ``sequence`` into a map, timing each stage.
 
     Args:
@@ -300,6 +300,9 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
         threads: a :class:`~evsmap.measure.pipelined.StageThreads` set for the warm-up and
             the loop, then restored (default: ``PIPELINED`` with ``pipeline``, else
             ``SEQUENTIAL``: the libraries' defaults).
+        growth: a :class:`~evsmap.measure.growth.MapGrowth`, called after every frame outside
+            the timed update (its time is left out of ``wall_s``); its snapshots are
+            ``results["growth"]``.
     """
     if not sequence.has_poses:
         raise EvsmapError(f"{sequence.name}: {sequence.meta.get('layout', 'this dataset')} has no "
@@ -330,9 +333,11 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
         with settings.applied(segmenter) as used:
             wall_s = _loop(sequence, order, the_map, segmenter, observations, semantic, times,
                            update_times, skipped, done, skip_bad=skip_bad, progress=progress,
-                           pipeline=pipeline, warmup=warmup)
+                           pipeline=pipeline, warmup=warmup, growth=growth)
         times.stages["update"] = update_times.get("update")
         results = {ev.name: ev.evaluate(the_map) for ev in evaluators}
+        if growth is not None:
+            results["growth"] = growth.finish(len(done), the_map)
     finally:
         if memory is not None:
             memory.__exit__(None, None, None)
@@ -346,8 +351,10 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
           segmenter: Segmenter | None, observations: list[SemanticObservation] | None,
           semantic: bool, times: StageTimes, update_times: StageTimes,
           skipped: SkippedFrames, done: list[int], *, skip_bad: bool,
-          progress: Callable[[Any], Any] | None, pipeline: bool, warmup: int) -> float:
-    """:func:`run_mapping`'s warm-up and timed loop; returns the loop's wall seconds."""
+          progress: Callable[[Any], Any] | None, pipeline: bool, warmup: int,
+          growth: Any = None) -> float:
+    """:func:`run_mapping`'s warm-up and timed loop; returns the loop's wall seconds (without
+    the ``growth`` snapshots' time)."""
     if warmup and segmenter is not None and order:
         first = sequence.frame(order[0])
         for _ in range(int(warmup)):
@@ -357,6 +364,14 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
         if observations is None or not semantic:
             return None
         return observations[order.index(index) if skipped.frames else position]
+
+    aside = [0.0]
+
+    def after(the_map: MapUpdater) -> None:
+        if growth is not None:
+            t0 = time.perf_counter()
+            growth.after_frame(len(done), the_map)
+            aside[0] += time.perf_counter() - t0
 
     t_start = time.perf_counter()
     if pipeline:
@@ -371,6 +386,7 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
                 observation = observation_at(position, index)
             timed_update(the_map, frame, observation, update_times)
             done.append(index)
+            after(the_map)
         for stage, values in segment_times.stages.items():
             times.stages[stage] = values
     else:
@@ -381,7 +397,8 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
                 if segmenter is not None else observation_at(position, index)
             timed_update(the_map, frame, observation, update_times)
             done.append(index)
-    return time.perf_counter() - t_start
+            after(the_map)
+    return time.perf_counter() - t_start - aside[0]
 
 
 def in_memory(frames: list[Frame], name: str = "frames") -> Sequence:

@@ -48,50 +48,63 @@ class MappingRun:
         return f"extra/mapping/{self.row}/{self.sequence}@{self.voxel_size:g}m"
 
 
-VARIANT_ROWS = {"tfeagmap": ("-classwise", "TFEAGMap, classwise variant",
-                              {"front_end": "direct"})}
+VARIANT_ROWS = {
+    "tfeagmap": ("-direct", "TFEAGMap, direct front end", {"front_end": "direct"}),
+    "evsmap": ("-direct", "EVSMap, direct front end", {"front_end": "direct"}),
+}
 """Table IV rows also mapped with a named variant of their updater (row suffix, label, options):
-TFEAGMap with evsmap's classwise classic-semantic beside semantic_slam's own pipeline, so the
-report shows what semantic_slam's front end, ray casting and fusion details cost."""
+TFEAGMap and EVSMap on evsmap's direct front end beside the ``octomap_generator`` both ROS nodes
+run (:mod:`evsmap.mapping.generator`), so the report shows what the front end changes, apart
+from the node update."""
 
 
-def mapping_runs(sequences: list[str], voxel_size: float,
+def mapping_runs(sequences: list[str], voxel_sizes: Sequence[float],
                  systems: Sequence[ExtraSystem] = ()) -> list[MappingRun]:
     """Table IV's systems (and :data:`VARIANT_ROWS`) plus the C++ OctoMap reference, then the
-    user's ``systems`` (``--systems``), on each of ``sequences``."""
+    user's ``systems`` (``--systems``), on each of ``sequences`` at each of ``voxel_sizes``."""
     table = load_tables()["table4"]
     runs = []
-    for seq in sequences:
-        for system in table.rows:
-            if system.implemented and system.updater is not None:
-                segmenter = system.segmenter_for(MAPPING_WEIGHTS)
-                runs.append(MappingRun(system.id, system.label, segmenter, system.updater,
-                                       seq, voxel_size))
-                if system.id in VARIANT_ROWS:
-                    suffix, label, options = VARIANT_ROWS[system.id]
-                    runs.append(MappingRun(system.id + suffix, label, segmenter,
-                                           system.updater.with_options(options), seq,
-                                           voxel_size))
-        runs.append(MappingRun(REFERENCE_ROW, "OctoMap (C++)", None, Component("octomap-cpp"),
-                               seq, voxel_size))
-        for extra in systems:
-            runs.append(MappingRun(extra.id, extra.label, extra.segmenter, extra.updater, seq,
-                                   voxel_size, own_labels=extra.segmenter is not None
-                                   and not extra.segmenter_is_network))
+    for voxel_size in voxel_sizes:
+        for seq in sequences:
+            for system in table.rows:
+                if system.implemented and system.updater is not None:
+                    segmenter = system.segmenter_for(MAPPING_WEIGHTS)
+                    runs.append(MappingRun(system.id, system.label, segmenter, system.updater,
+                                           seq, voxel_size))
+                    if system.id in VARIANT_ROWS:
+                        suffix, label, options = VARIANT_ROWS[system.id]
+                        runs.append(MappingRun(system.id + suffix, label, segmenter,
+                                               system.updater.with_options(options), seq,
+                                               voxel_size))
+            runs.append(MappingRun(REFERENCE_ROW, "OctoMap (C++)", None,
+                                   Component("octomap-cpp"), seq, voxel_size))
+            for extra in systems:
+                runs.append(MappingRun(extra.id, extra.label, extra.segmenter, extra.updater,
+                                       seq, voxel_size, own_labels=extra.segmenter is not None
+                                       and not extra.segmenter_is_network))
     return runs
+
+
+SYNTHETIC_SEQUENCES = ("synthetic", "synthetic-long")
+"""The built-in sequences (rendered, with ground truth): the room's one lap, and its long run."""
+
+
+def synthetic_options(ctx: RunContext, name: str) -> dict[str, Any]:
+    """The :class:`~evsmap.synth.sequence.SyntheticSequence` options of a built-in sequence."""
+    return dict(ctx.synthetic if name == "synthetic" else ctx.synthetic_long or {})
 
 
 def open_mapping_sequence(ctx: RunContext, name: str):
     from evsmap.registry import READERS
     from evsmap.runner.context import MAPPING_SEQUENCES
 
-    if name == "synthetic":
+    if name in SYNTHETIC_SEQUENCES:
         # rendered once into the cache shared across runs (TUM layout, read back
         # bit-identical, keyed by the options and the renderer's source), so the mapping runs,
         # the segmentation cache and the timings all read the same frames cheaply
         from evsmap.synth.cached import rendered_folder
 
-        return READERS.create("tum", path=str(rendered_folder(dict(ctx.synthetic))))
+        return READERS.create("tum", path=str(rendered_folder(synthetic_options(ctx, name))))
     path = ctx.dataset_path(name)
     if path is None:
         raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")
@@ -167,7 +180,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) \
         if semantic and not run.own_labels else None
     weights = choice.path if choice is not None else None
-    if run.sequence != "synthetic" and ctx.dataset_path(run.sequence) is None:
+    if run.sequence not in SYNTHETIC_SEQUENCES and ctx.dataset_path(run.sequence) is None:
         return CellRecord(**base, status="na", needs=[f"dataset:{run.sequence}"],
                           reason=needs_text([f"dataset:{run.sequence}"]), started=now())
     sequence = open_mapping_sequence(ctx, run.sequence)
@@ -245,6 +258,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                               f"ground-truth labels for the oracle)", started=now())
     from evsmap.measure.engine import rates, run_mapping
     from evsmap.measure.evaluators import MapFiles, MapStatistics, pruned_share
+    from evsmap.measure.growth import MapGrowth, growth_every
 
     # the map's own memory: from before the updater is made to its files (the observations
     # were computed beforehand)
@@ -252,7 +266,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         sequence, lambda: UPDATERS.create(run.updater.name, resolution=run.voxel_size,
                                           **run.updater.config),
         observations=observations, indices=indices,
-        evaluators=[MapStatistics(), MapFiles()])
+        evaluators=[MapStatistics(), MapFiles()],
+        growth=MapGrowth(every=growth_every(n)))
     updater, memory = mapped.updater, mapped.memory
     stats, sizes = mapped.results["stats"], mapped.results["files"].sizes
     update_ms = list(mapped.update_ms)
@@ -268,6 +283,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         "leaves": float(stats.leaves),
         "peak_rss_bytes": float(memory.peak_rss_bytes),
         "rss_added_bytes": float(memory.added_bytes)}
+    if "colour" in sizes:
+        values["map_bytes_colour"] = float(sizes["colour"])
     if stats.octomap_memory_bytes is not None:
         values["octomap_memory_bytes"] = float(stats.octomap_memory_bytes)
     if stats.map_nbytes is not None:
@@ -277,7 +294,9 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         values["pruned_share"] = float(share)
     details: dict[str, Any] = {
         "update_ms": update_ms, "segment_ms": segment_ms, "nodes": stats.nodes,
-        "leaves": stats.leaves, "sequence_name": sequence.name, **values}
+        "leaves": stats.leaves, "sequence_name": sequence.name, **values,
+        "front_end": {"name": updater.front_end, **updater.front_end_counts()},
+        "growth": mapped.results["growth"]}
     notes.append(f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians "
                  f"over frames (update only; end to end = segmentation + update)")
     details["contention"] = machine
@@ -289,11 +308,12 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         flag = describe(machine) + " around this mapping run"
         details["timing_flag"] = flag
         notes.append(f"timing flagged - {flag}")
-    if run.sequence == "synthetic" and updater.has_leaf_map:
+    if run.sequence in SYNTHETIC_SEQUENCES and updater.has_leaf_map:
         from evsmap.measure.evaluators import MapQualityEvaluator
         from evsmap.synth.sequence import SyntheticSequence
 
-        truth = SyntheticSequence(**ctx.synthetic).ground_truth(run.voxel_size)
+        truth = SyntheticSequence(**synthetic_options(ctx, run.sequence)).ground_truth(
+            run.voxel_size)
         quality = MapQualityEvaluator(truth).evaluate(updater)  # outside the memory scope
         q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
         details["quality"] = q
@@ -301,7 +321,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                      "map_miou"):
             if q.get(name) is not None and np.isfinite(q[name]):
                 values[name] = float(q[name])
-        _save_map_artifact(updater, run, ctx)
+        if run.voxel_size == ctx.voxel_size:  # the views show Table IV's maps
+            _save_map_artifact(updater, run, ctx)
         if observations is not None:
             _save_segmentation_artifact(sequence, indices[len(indices) // 2],
                                         observations[len(indices) // 2], run, ctx,

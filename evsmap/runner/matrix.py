@@ -104,10 +104,10 @@ def plan(ctx: RunContext, tables: Iterable[str] = TABLES,
         specs = keep
     sequences = []
     if "table4" in tables:
-        sequences = ["synthetic"] + [
+        sequences = ["synthetic"] + (["synthetic-long"] if ctx.synthetic_long else []) + [
             d for d in ("tum", "rtabmap", "asl", "ours1", "ours2")
             if ctx.dataset_path(d) is not None]
-    runs = mapping_runs(sequences, ctx.voxel_size, systems) if sequences else []
+    runs = mapping_runs(sequences, ctx.voxel_sizes(), systems) if sequences else []
     if cells is not None:
         from fnmatch import fnmatchcase
 

@@ -33,11 +33,14 @@ class SyntheticSequence(Sequence):
         width: image width in pixels.
         height: image height in pixels.
         noise: add Kinect-like depth noise and holes (labels and poses stay exact).
+        laps: times the camera goes round the room over the ``frames`` (revisits; see
+            :func:`~evsmap.synth.trajectory.room_trajectory`).
     """
 
     def __init__(self, *, scene: str = DEFAULT_SCENE, seed: int = 0, frames: int = 60,
-                 width: int = 640, height: int = 480, noise: bool = False) -> None:
-        for name, value, lo in (("frames", frames, 1), ("width", width, 8), ("height", height, 8)):
+                 width: int = 640, height: int = 480, noise: bool = False, laps: int = 1) -> None:
+        for name, value, lo in (("frames", frames, 1), ("width", width, 8), ("height", height, 8),
+                                ("laps", laps, 1)):
             if isinstance(value, bool) or not isinstance(value, int) or value < lo:
                 raise EvsmapError(
                     f"synthetic option {name} must be an integer >= {lo}, got {value!r}")
@@ -46,15 +49,17 @@ class SyntheticSequence(Sequence):
                 f"synthetic option seed must be a non-negative integer, got {seed!r}")
         self.room = build_room(scene, seed=seed)
         super().__init__(
-            f"synthetic-{scene}-s{seed}", default_intrinsics(width, height),
+            f"synthetic-{scene}-s{seed}" + (f"-{laps}laps" if laps > 1 else ""),
+            default_intrinsics(width, height),
             {"layout": "synthetic", "scene": scene, "seed": seed, "noise": noise,
              "room_size": list(self.room.size), "generator_version": GENERATOR_VERSION},
         )
         self.scene, self.seed, self.noise = scene, seed, noise
         self.num_classes = len(NYU40_CLASSES)
         self.class_names = NYU40_CLASSES
+        self.laps = laps
         self.timestamps, self.translations, self.quaternions = room_trajectory(
-            self.room.size, frames, seed=seed)
+            self.room.size, frames, seed=seed, laps=laps)
         self._renderer: RoomRenderer | None = None
 
     @property

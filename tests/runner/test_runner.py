@@ -213,6 +213,7 @@ def test_mapping_run_on_the_synthetic_sequence(ctx):
     from evsmap.runner.execute import execute_mapping
 
     ctx.synthetic.update(frames=3, width=80, height=60)
+    ctx.voxel_size = 0.1  # Table IV's: its map is kept for the report's views
     run = MappingRun("evsmap", "EVSMap", Component("oracle"), Component("multiclass-bayes"),
                      "synthetic", 0.1)
     # the oracle stands for a network here: its "timing" is the oracle's own
@@ -222,6 +223,14 @@ def test_mapping_run_on_the_synthetic_sequence(ctx):
     assert 0.5 < rec.values["precision"] <= 1.0
     assert (Path(ctx.out) / "artifacts" / "map-evsmap-synthetic.npz").is_file()
     assert rec.environment["cpu"]
+    # the front end's counts per frame, the size under each reading, the growth every frame
+    fe = rec.details["front_end"]
+    assert fe["name"] == "generator" and len(fe["centroids"]) == 3
+    assert rec.values["map_bytes_colour"] < rec.values["map_bytes"]
+    growth = rec.details["growth"]
+    assert [g["frames"] for g in growth] == [1, 2, 3]
+    assert growth[-1]["nodes"] == rec.values["nodes"]
+    assert growth[-1]["colour_bytes"] == rec.values["map_bytes_colour"]
 
 
 def test_accuracy_cell_with_a_dataset_and_weights(tmp_path, nyuv2_samples_dir):
