@@ -40,11 +40,13 @@ RUN_FILE = "run.json"
 PLOTS = {
     "networks.png": "speed against parameters and FLOPs (Tables I and II)",
     "mapping.png": "mapping rate and map size per sequence and system",
+    "map_growth.png": "map size with the frames integrated, per sequence, system and reading",
     "qualitative.png": "segmentation overlays and top-down semantic maps",
 }
 _NO_DATA = {
     "networks.png": "no network of Table I or II has a measured speed and complexity",
     "mapping.png": "no mapping system was measured",
+    "map_growth.png": "no mapping run recorded its growth",
     "qualitative.png": "the run stored no segmentation or map artifacts",
 }
 
@@ -181,6 +183,7 @@ def build_report(run_dir: str | Path) -> list[Path]:
     for name, draw in (
         ("networks.png", lambda p: plots.networks_plot(frames, p, records)),
         ("mapping.png", lambda p: plots.mapping_plot(records, p, tables)),
+        ("map_growth.png", lambda p: plots.growth_plot(records, p)),
         ("qualitative.png", lambda p: plots.qualitative_plot(run_dir / "artifacts", p, labels)),
     ):
         path = run_dir / name
@@ -244,6 +247,10 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     run_id = run.get("run") or "unknown"
     out = [f"# evsmap report - run {run_id}", ""]
     out += claims_markdown(frames, extras)
+    from evsmap.report.map_size import consistency_markdown
+    from evsmap.runner.mapping_cells import TABLE4_READING
+
+    out += consistency_markdown(extras, TABLE4_READING)
     finished = run.get("finished") or "not finished (interrupted, or still running)"
     out += [f"- Started: {run.get('started') or 'unknown'}", f"- Finished: {finished}"]
     if run.get("quick"):

@@ -151,7 +151,9 @@ def claims_markdown(frames: Mapping[str, pd.DataFrame],
         paper = "-" if r["paper"] is None else f"{r['paper']:.2f}x"
         verdict = r["verdict"] + (f" ({_short(r['why'])})" if r["why"] else "")
         out.append(f"| {r['claim']} | {measured} | {paper} | {verdict} |")
-    out += _map_size_rows(extras)
+    from evsmap.report.map_size import verdict_rows
+
+    out += verdict_rows(extras)
     out.append("")
     return out
 
@@ -159,26 +161,6 @@ def claims_markdown(frames: Mapping[str, pd.DataFrame],
 def _short(text: str, limit: int = 140) -> str:
     text = " ".join(text.split()).replace("|", "\\|")
     return text if len(text) <= limit else text[:limit - 3] + "..."
-
-
-def _map_size_rows(extras: Iterable[CellRecord]) -> list[str]:
-    """The map-size claim ("EVSMap's map smaller than TESAMap's", the paper's up to 2.6x) on each
-    extra sequence where TFEAGMap (semantic_slam) and EVSMap were both mapped."""
-    by = {(r.row, str(r.inputs.get("sequence"))): r for r in extras
-          if r.status == "ok" and r.key.startswith("extra/mapping/")}
-    out = []
-    for (row, seq), ev in sorted(by.items()):
-        if row != "evsmap" or ("tfeagmap", seq) not in by:
-            continue
-        other = by[("tfeagmap", seq)]
-        a, b = ev.values.get("map_bytes"), other.values.get("map_bytes")
-        if not a or not b:
-            continue
-        ratio = a / b
-        out.append(f"| EVSMap's map is smaller than TFEAGMap's (semantic_slam), on {seq} "
-                   f"(not a paper sequence; the files each system writes) | {ratio:.2f}x | "
-                   f"up to 1/2.6 = 0.38x | {'holds' if ratio < 1 else 'does not hold'} |")
-    return out
 
 
 def relative_markdown(table: PaperTable, frame: pd.DataFrame) -> list[str]:

@@ -674,3 +674,47 @@ def _class_legend(fig, ids: list[int]) -> None:
     fig.legend(handles=handles, loc="outside lower center", ncol=ncol, fontsize=7,
                title="classes (in the ground truth, or on at least 1 % of a prediction or "
                      "map; grey in a map: no class)", title_fontsize=7, frameon=False)
+
+
+# ------------------------------------------------------------------------------- growth
+GROWTH_READINGS = (("nodes", "nodes", 1.0), ("memory_bytes", "C++ memory (MB, model)", 1e6),
+                   ("colour_bytes", "colour-only file (MB)", 1e6))
+
+
+def growth_plot(records: Iterable[CellRecord], path: Path) -> bool:
+    """The map's growth with the frames integrated: one column per (sequence, voxel size), one
+    row per reading (:data:`GROWTH_READINGS`), a line per system, from the mapping runs'
+    ``details["growth"]`` snapshots. ``False`` without any."""
+    series: dict[tuple[str, float], dict[str, tuple[str, list[dict[str, Any]]]]] = {}
+    for rec in records:
+        growth = (rec.details or {}).get("growth") if rec.status == "ok" else None
+        if rec.key.startswith("extra/mapping/") and growth:
+            where = (str(rec.inputs.get("sequence")), float(rec.inputs.get("voxel_size") or 0))
+            series.setdefault(where, {})[rec.row] = (rec.label or rec.row, growth)
+    if not series:
+        return False
+    places = sorted(series)
+    order = {r: i for i, r in enumerate(MAP_ROWS)}
+    fig = _figure(max(6.0, 4.2 * len(places)), 2.6 * len(GROWTH_READINGS) + 0.8,
+                  layout="constrained")
+    axes = np.asarray(fig.subplots(len(GROWTH_READINGS), len(places), squeeze=False))
+    for col, (seq, voxel) in enumerate(places):
+        systems = sorted(series[(seq, voxel)].items(),
+                         key=lambda kv: (order.get(kv[0], len(order)), kv[0]))
+        for row, (key, title, div) in enumerate(GROWTH_READINGS):
+            ax = axes[row, col]
+            for i, (sys_row, (label, points)) in enumerate(systems):
+                pts = [(p["frames"], p[key] / div) for p in points if p.get(key) is not None]
+                if pts:
+                    xs, ys = zip(*pts, strict=True)
+                    style = "--" if sys_row.endswith("-direct") else "-"
+                    ax.plot(xs, ys, style, marker="o", markersize=2.5, linewidth=1.2,
+                            color=f"C{i % 10}", label=label)
+            ax.set_title(f"{seq}, {voxel * 100:g} cm: {title}", fontsize=8)
+            ax.tick_params(labelsize=7)
+            ax.grid(alpha=0.3)
+            if row == len(GROWTH_READINGS) - 1:
+                ax.set_xlabel("frames integrated", fontsize=8)
+        axes[0, col].legend(fontsize=6, loc="upper left")
+    _save(fig, path)
+    return True

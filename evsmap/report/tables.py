@@ -30,12 +30,13 @@ STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
 missing); the run failed; no record; a record without a value for the column; a row evsmap does
 not implement."""
 
-EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "map_bytes_full",
+EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "map_bytes_full", "map_bytes_colour",
                 "octomap_memory_bytes", "map_nbytes", "rss_added_bytes", "peak_rss_bytes",
                 "nodes", "leaves", "pruned_share", "precision", "recall",
                 "semantic_accuracy", "semantic_accuracy_all", "map_miou", "frames", "miou")
 """Value keys of the ``extra`` records (base units; ``map_bytes``: the file the system itself
-writes, ``map_bytes_full``: evsmap's resumable state; ``octomap_memory_bytes``: OctoMap's
+writes, ``map_bytes_full``: evsmap's resumable state; ``map_bytes_colour``: the colour-only
+ColorOcTree; ``octomap_memory_bytes``: OctoMap's
 ``memoryUsage()`` formula over the tree's nodes, a model; ``map_nbytes``: the bytes of the
 arrays evsmap holds the map in, measured; ``peak_rss_bytes``: the peak resident memory of the
 process while it mapped, measured, and ``rss_added_bytes`` that peak less the RSS before the
@@ -44,7 +45,8 @@ updater was built (the map's own working memory); ``miou``: the synthrooms proxy
 PROXY_SECTION = "Synthetic proxy (evsmap's synthrooms, not the paper's datasets)"
 """Title of the ``reproduce --train`` sections (``extra/proxy...`` records)."""
 
-EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "octomap_memory_bytes", "map_nbytes",
+EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "map_bytes_colour",
+                          "octomap_memory_bytes", "map_nbytes",
                           "rss_added_bytes", "peak_rss_bytes", "nodes", "leaves", "frames"})
 """Value keys that are counts (bytes, nodes, frames): integers in :func:`extra_frame`."""
 

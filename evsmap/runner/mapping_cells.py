@@ -25,6 +25,16 @@ from evsmap.tables.schema import CellSpec, Component, load_tables
 MAPPING_WEIGHTS = "nyuv2"
 """The dataset the segmenters of the mapping systems are trained on (40 NYUv2 classes)."""
 
+READINGS = {"published file": "map_bytes", "colour-only file": "map_bytes_colour",
+            "C++ memory (model)": "octomap_memory_bytes"}
+"""The three readings of a map's size every mapping run records (reading -> its value): the file
+the system itself publishes, the colour-only ``ColorOcTree`` every system can write, OctoMap's
+memory model over the system's C++ node (:mod:`evsmap.report.map_size` compares them)."""
+
+TABLE4_READING = "C++ memory (model)"
+"""The reading Table IV's Map Size cells take: of the three, the one whose ratios come closest to
+the paper's own Seq.1 rows on the TUM frames (docs/mapping.md, "Which Map Size")."""
+
 REFERENCE_ROW = "octomap-cpp"
 """The C++ OctoMap (occupancy only) mapped beside Table IV's systems as a reference."""
 
@@ -394,8 +404,13 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
             source = run_of(spec.datasets[0])
             if source is None or source.status != "ok":
                 return _from_failed(spec, source)
-            values[col] = source.values["map_bytes"]
-            notes += source.notes
+            value = READINGS[TABLE4_READING]
+            if source.values.get(value) is None:
+                return CellRecord(**base, status="na", reason=f"n/a - {spec.row} has no "
+                                  f"{TABLE4_READING}", started=now())
+            values[col] = source.values[value]
+            notes += [f"Map Size read as the {TABLE4_READING} (the published file: "
+                      f"{source.values['map_bytes'] / 1e6:.3f} MB)"] + source.notes
             details[col] = {"source": source.key}
         else:  # runtime_hz
             seq, fallback = runtime_sequence(list(spec.datasets), runs, voxel)

@@ -12,13 +12,16 @@ RENDERS = ("live", "cached")
 
 @READERS.register("synthetic")
 def open_synthetic(*, scene: str = DEFAULT_SCENE, seed: int = 0, frames: int = 60,
-                   width: int = 640, height: int = 480, noise: bool = False,
+                   width: int = 640, height: int = 480, noise: bool = False, laps: int = 1,
                    render: str = "live"):
     """Built-in procedural indoor room (NYUv2-40 labels) rendered with Open3D ray casting;
     ``render=cached`` renders it once into the cache and reads the frames back like a recorded
-    sequence (bit-identical; what ``evsmap map`` and Table IV time)."""
+    sequence (bit-identical; what ``evsmap map`` and Table IV time). ``laps``: times the camera
+    goes round the room (the long run with revisits: ``-r laps=4 -r frames=640``)."""
     options = dict(scene=scene, seed=seed, frames=frames, width=width, height=height,
                    noise=noise)
+    if laps != 1:  # one lap: the options (and the cache key) of earlier versions
+        options["laps"] = laps
     if render not in RENDERS:
         raise EvsmapError(f"synthetic option render must be one of {', '.join(RENDERS)}, got "
                           f"{render!r}")
