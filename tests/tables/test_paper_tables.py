@@ -351,8 +351,8 @@ def test_expansion_of_tables_3_and_4(tables):
     assert all(c.segmenter is None and c.updater.name == "orgb" for c in orgb)
     assert not any(r.startswith("weights:") for c in orgb for r in c.requires)
     ev = {c.key: c for c in t4 if c.row == "evsmap"}
-    size = ev["table4/evsmap/mapping/tum@0.05m[map_size]"]
+    size = ev["table4/evsmap/mapping/tum@0.02m[map_size]"]
     assert size.requires == ("dataset:tum", "weights:feagnet-v2@nyuv2")
-    assert size.voxel_size == 0.05 and size.resolution == "0.05 m" and not size.fresh_process
-    runtime = ev["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m[runtime_hz]"]
+    assert size.voxel_size == 0.02 and size.resolution == "0.02 m" and not size.fresh_process
+    runtime = ev["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.02m[runtime_hz]"]
     assert runtime.fresh_process and len(runtime.datasets) == 5
