@@ -141,7 +141,7 @@ def test_a_signal_seen_through_compiled_code_stops_the_run_not_just_the_cell(ctx
 
 
 def _run_record(row, seq, status="ok", **values):
-    return CellRecord(key=f"extra/mapping/{row}/{seq}@0.05m", table="extra", row=row,
+    return CellRecord(key=f"extra/mapping/{row}/{seq}@0.02m", table="extra", row=row,
                       label=row, kind="mapping", metrics=[], status=status,
                       values=values, notes=[f"{seq} note"], inputs={"sequence": seq},
                       needs=[] if status == "ok" else ["weights:x@nyuv2"],
@@ -153,18 +153,20 @@ def test_table4_cells_come_from_the_mapping_runs(ctx):
     runs = {r.key: r for r in [
         _run_record("evsmap", "synthetic", end_to_end_hz=7.5, map_bytes=1e6),
         _run_record("evsmap", "tum", status="na"),
-        _run_record("orgbmap", "tum", end_to_end_hz=30.0, map_bytes=2e5),
+        _run_record("orgbmap", "tum", end_to_end_hz=30.0, map_bytes=2e5,
+                    octomap_memory_bytes=5e5),
         _run_record("orgbmap", "synthetic", end_to_end_hz=25.0, map_bytes=3e5),
     ]}
-    rate = table4_record(specs["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
+    rate = table4_record(specs["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.02m"
                                "[runtime_hz]"], runs, ctx)
     assert rate.status == "ok" and rate.values == {"runtime": 7.5}
     assert "measured on synthetic" in rate.notes[0]
-    size = table4_record(specs["table4/evsmap/mapping/tum@0.05m[map_size]"], runs, ctx)
+    size = table4_record(specs["table4/evsmap/mapping/tum@0.02m[map_size]"], runs, ctx)
     assert size.status == "na" and "needs trained weights" in size.reason
-    orgb = table4_record(specs["table4/orgbmap/mapping/tum@0.05m[map_size]"], runs, ctx)
-    assert orgb.values == {"size_seq1": 2e5}
-    orgb_rate = table4_record(specs["table4/orgbmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
+    orgb = table4_record(specs["table4/orgbmap/mapping/tum@0.02m[map_size]"], runs, ctx)
+    assert orgb.values == {"size_seq1": 5e5}  # read as the C++ memory model
+    assert "C++ memory (model)" in orgb.notes[0] and "0.200 MB" in orgb.notes[0]
+    orgb_rate = table4_record(specs["table4/orgbmap/mapping/tum+rtabmap+asl+ours1+ours2@0.02m"
                                     "[runtime_hz]"], runs, ctx)
     # like for like: ORGBMap could map TUM but the semantic systems could not, so every
     # row's rate comes from the synthetic room
@@ -174,10 +176,10 @@ def test_table4_cells_come_from_the_mapping_runs(ctx):
     from evsmap.runner.execute import runtime_sequence
 
     rows = [r.id for r in load_tables()["table4"].rows if r.implemented and r.updater]
-    all_tum = {f"extra/mapping/{row}/tum@0.05m": _run_record(row, "tum", end_to_end_hz=1.0)
+    all_tum = {f"extra/mapping/{row}/tum@0.02m": _run_record(row, "tum", end_to_end_hz=1.0)
                for row in rows}
-    assert runtime_sequence(["tum", "rtabmap"], all_tum, 0.05) == ("tum", False)
-    assert runtime_sequence(["tum", "rtabmap"], runs, 0.05) == ("synthetic", True)
+    assert runtime_sequence(["tum", "rtabmap"], all_tum, 0.02) == ("tum", False)
+    assert runtime_sequence(["tum", "rtabmap"], runs, 0.02) == ("synthetic", True)
 
 
 def test_segmentation_cache_computes_once(tmp_path):
@@ -281,10 +283,10 @@ def test_a_contended_mapping_run_flags_the_runtime_cell(ctx):
                 details={"timing_flag": flag}),
         _run_record("orgbmap", "synthetic", end_to_end_hz=25.0, map_bytes=3e5),
     ]}
-    rate = table4_record(specs["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
+    rate = table4_record(specs["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.02m"
                                "[runtime_hz]"], runs, ctx)
     assert rate.details["timing_flag"] == flag
-    orgb = table4_record(specs["table4/orgbmap/mapping/tum+rtabmap+asl+ours1+ours2@0.05m"
+    orgb = table4_record(specs["table4/orgbmap/mapping/tum+rtabmap+asl+ours1+ours2@0.02m"
                                "[runtime_hz]"], runs, ctx)
     assert "timing_flag" not in orgb.details
 

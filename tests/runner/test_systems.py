@@ -48,7 +48,8 @@ def test_the_oracle_on_a_sequence_without_labels_is_not_applicable(tmp_path, tum
     ctx = RunContext.create(tmp_path / "run", data_root=tum_dir.parent, quick=True)
     assert ctx.dataset_path("tum") is not None
     plan = matrix.plan(ctx, ["table4"], [system])
-    runs = [r for r in plan.runs if r.row == "mine" and r.sequence == "tum"]
+    runs = [r for r in plan.runs if r.row == "mine" and r.sequence == "tum"
+            and r.voxel_size == ctx.voxel_size]
     assert len(runs) == 1 and runs[0].own_labels
     [record] = matrix.run_matrix(ctx, matrix.Plan(specs=[], runs=runs, sequences=["tum"]),
                                  pool=lambda n: ThreadPoolExecutor(1),
