@@ -56,7 +56,7 @@ class RunContext:
         voxel_size: Table IV's voxel size (the paper gives none: semantic_slam's default 2 cm
             is assumed).
         voxel_sizes_beside: further voxel sizes every Table IV system maps (the extra
-            section): OctoMap's customary 5 cm.
+            section): OctoMap's customary 5 cm (none with ``quick``).
     """
 
     out: str
@@ -92,6 +92,7 @@ class RunContext:
         if quick:
             ctx.synthetic.update(frames=8, width=320, height=240)
             ctx.synthetic_long = None
+            ctx.voxel_sizes_beside = ()
             ctx.frames = 8
             ctx.speed_runs, ctx.speed_warmup, ctx.speed_backend = 3, 1, "torch"
             ctx.max_rounds = 2
