@@ -715,6 +715,6 @@ def growth_plot(records: Iterable[CellRecord], path: Path) -> bool:
             ax.grid(alpha=0.3)
             if row == len(GROWTH_READINGS) - 1:
                 ax.set_xlabel("frames integrated", fontsize=8)
-        axes[0, col].legend(fontsize=6, loc="upper left")
+        axes[0, col].legend(fontsize=6, loc="best")
     _save(fig, path)
     return True
