@@ -8,6 +8,7 @@ here (no ``hasattr`` probing). A reader is any factory registered in
 from __future__ import annotations
 
 import abc
+import contextlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from os import PathLike
@@ -173,6 +174,32 @@ class MapUpdater(abc.ABC):
         """The :data:`FILE_FORMATS` this updater writes (an updater without ``file_format``
         writes one file, its full and its published one)."""
         return ("full", "published")
+
+    def reuse_tree(self) -> contextlib.AbstractContextManager[None]:
+        """A block in which the map does not change, so that what is derived from it (an
+        octree updater's pruned tree) is built once for every statistic and file asked for
+        inside; a no-op by default."""
+        return contextlib.nullcontext()
+
+    def size_readings(self) -> dict[str, int | None]:
+        """The map's ``nodes``, ``leaves`` and its size under each reading:
+        ``published_bytes``, ``colour_bytes`` (None without a colour form) and
+        ``memory_bytes`` (OctoMap's model, None where the updater has none); files written to a
+        temporary folder (an octree updater computes them from one build of its tree)."""
+        import tempfile
+        from pathlib import Path
+
+        from evsmap.measure.evaluators import write_map
+
+        stats = self.stats()
+        sizes: dict[str, int | None] = {}
+        with tempfile.TemporaryDirectory() as tmp:
+            for fmt in ("published", "colour"):
+                sizes[fmt] = (write_map(self, Path(tmp) / f"{fmt}.ot", fmt)
+                              if fmt in self.file_formats() else None)
+        return {"nodes": int(stats.nodes), "leaves": int(stats.leaves),
+                "published_bytes": sizes["published"], "colour_bytes": sizes["colour"],
+                "memory_bytes": stats.octomap_memory_bytes}
 
     def memory_nbytes(self) -> int | None:
         """Bytes of the arrays that hold the map (measured from their ``nbytes``), or None where

@@ -335,9 +335,10 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
                            update_times, skipped, done, skip_bad=skip_bad, progress=progress,
                            pipeline=pipeline, warmup=warmup, growth=growth)
         times.stages["update"] = update_times.get("update")
-        results = {ev.name: ev.evaluate(the_map) for ev in evaluators}
-        if growth is not None:
-            results["growth"] = growth.finish(len(done), the_map)
+        with the_map.reuse_tree():
+            results = {ev.name: ev.evaluate(the_map) for ev in evaluators}
+            if growth is not None:
+                results["growth"] = growth.finish(len(done), the_map)
     finally:
         if memory is not None:
             memory.__exit__(None, None, None)

@@ -8,15 +8,16 @@ every frame outside the timed update and leaves its time out of the loop's wall 
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from evsmap.interfaces import MapUpdater
 
 GROWTH_POINTS = 12
 """Snapshots a mapping run takes, about evenly spaced (the last frame always)."""
+
+QUICK_GROWTH_POINTS = 4
+"""The same in a ``--quick`` run."""
 
 
 def growth_every(frames: int, points: int = GROWTH_POINTS) -> int:
@@ -25,19 +26,9 @@ def growth_every(frames: int, points: int = GROWTH_POINTS) -> int:
 
 
 def snapshot(frames: int, updater: MapUpdater) -> dict[str, Any]:
-    """The map after ``frames`` frames: nodes, leaves and bytes under each reading (None where
-    the updater has no such file or model)."""
-    from evsmap.measure.evaluators import write_map
-
-    stats = updater.stats()
-    sizes: dict[str, int | None] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for fmt in ("published", "colour"):
-            sizes[fmt] = (write_map(updater, Path(tmp) / f"{fmt}.ot", fmt)
-                          if fmt in updater.file_formats() else None)
-    return {"frames": int(frames), "nodes": int(stats.nodes), "leaves": int(stats.leaves),
-            "published_bytes": sizes["published"], "colour_bytes": sizes["colour"],
-            "memory_bytes": stats.octomap_memory_bytes}
+    """The map after ``frames`` frames: nodes, leaves and bytes under each reading
+    (:meth:`~evsmap.interfaces.MapUpdater.size_readings`)."""
+    return {"frames": int(frames), **updater.size_readings()}
 
 
 @dataclass

@@ -268,7 +268,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                               f"ground-truth labels for the oracle)", started=now())
     from evsmap.measure.engine import rates, run_mapping
     from evsmap.measure.evaluators import MapFiles, MapStatistics, pruned_share
-    from evsmap.measure.growth import MapGrowth, growth_every
+    from evsmap.measure.growth import GROWTH_POINTS, QUICK_GROWTH_POINTS, MapGrowth, growth_every
 
     # the map's own memory: from before the updater is made to its files (the observations
     # were computed beforehand)
@@ -277,7 +277,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                                           **run.updater.config),
         observations=observations, indices=indices,
         evaluators=[MapStatistics(), MapFiles()],
-        growth=MapGrowth(every=growth_every(n)))
+        growth=MapGrowth(every=growth_every(n, QUICK_GROWTH_POINTS if ctx.quick
+                                            else GROWTH_POINTS)))
     updater, memory = mapped.updater, mapped.memory
     stats, sizes = mapped.results["stats"], mapped.results["files"].sizes
     update_ms = list(mapped.update_ms)

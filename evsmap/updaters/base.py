@@ -14,8 +14,10 @@ bytes per node, label and colour, the ``.ot`` record - is the updater's
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
+from collections.abc import Iterator
 from dataclasses import replace
 from os import PathLike
 from pathlib import Path
@@ -311,8 +313,26 @@ class OctreeUpdater(MapUpdater):
             raise RuntimeError("end point voxel missing from the map")
         return points.pixels[sel], voxels, local
 
+    @contextlib.contextmanager
+    def reuse_tree(self) -> Iterator[None]:
+        """Within the block, :meth:`tree` is built once (the map must not change inside)."""
+        self._reused_tree: Tree | None = None
+        self._reusing = True
+        try:
+            yield
+        finally:
+            self._reusing = False
+            self._reused_tree = None
+
     def tree(self) -> Tree:
-        """The pruned octree of the current map."""
+        """The pruned octree of the current map (built once inside :meth:`reuse_tree`)."""
+        if getattr(self, "_reusing", False):
+            if self._reused_tree is None:
+                self._reused_tree = self._build_tree()
+            return self._reused_tree
+        return self._build_tree()
+
+    def _build_tree(self) -> Tree:
         from evsmap.mapping.tree import build_tree
 
         nt = self.node_type
@@ -340,9 +360,6 @@ class OctreeUpdater(MapUpdater):
         """
         from evsmap.mapping.octree_io import write_bt, write_ot
 
-        if file_format not in FILE_FORMATS:
-            raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, "
-                                   f"got {file_format!r}")
         path = Path(path)
         tree = self.tree()
         if path.suffix == ".bt":  # occupancy only; OctoMap writes its own tree type's id
@@ -351,17 +368,40 @@ class OctreeUpdater(MapUpdater):
             return write_bt(path, tree, self.resolution, tree_type=kind,
                             occupancy_thres=p.occupancy_threshold, clamp_min=p.clamp_min,
                             clamp_max=p.clamp_max)
+        kind, tree, fmt = self._file_tree(tree, file_format)
+        return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
+
+    def _file_tree(self, tree: Tree, file_format: str) -> tuple[str, Tree, np.dtype | None]:
+        """(tree id, tree, record) of the ``.ot`` in ``file_format``."""
+        if file_format not in FILE_FORMATS:
+            raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, "
+                                   f"got {file_format!r}")
         if file_format == "colour":
             if file_format not in self.file_formats():
                 raise InvalidDataError(f"{self.name}: its {self.tree_type} nodes have no colour "
                                        f"to write a colour file with")
-            kind, tree, fmt = self.colour_only(tree)
-            return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
+            return self.colour_only(tree)
         if file_format == "published" and self.node_type.publish is not None:
-            kind, tree, fmt = self.node_type.publish(self, tree)
-            return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
-        return write_ot(path, tree, self.resolution, tree_type=self.tree_type,
-                        payload_format=self.node_type.record)
+            return self.node_type.publish(self, tree)
+        return self.tree_type, tree, self.node_type.record
+
+    def size_readings(self) -> dict[str, int | None]:
+        """The map's counts and its size under each reading from one build of the tree."""
+        from evsmap.mapping.octree_io import ot_bytes
+
+        tree = self.tree()
+        sizes = {}
+        for fmt in ("published", "colour"):
+            if fmt in self.file_formats():
+                kind, t, rec = self._file_tree(tree, fmt)
+                sizes[fmt] = len(ot_bytes(t, self.resolution, tree_type=kind,
+                                          payload_format=rec))
+            else:
+                sizes[fmt] = None
+        return {"nodes": int(tree.num_nodes), "leaves": int(tree.num_leaves),
+                "published_bytes": sizes["published"], "colour_bytes": sizes["colour"],
+                "memory_bytes": int(tree.memory_bytes(node_bytes=self.node_type.node_bytes,
+                                                      base_bytes=OCTOMAP_BASE_BYTES))}
 
     def restore(self, path: str | PathLike[str]) -> OctreeUpdater:
         """Replace this map by the one saved in ``path`` (an ``.ot`` this updater wrote), so

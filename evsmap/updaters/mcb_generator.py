@@ -294,10 +294,10 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
         ot = np.where(free, 0, m.payload("others"))
         return [m.logodds, cols, lo, ot]
 
-    def tree(self) -> Tree:
+    def _build_tree(self) -> Tree:
         """The pruned tree; an inner node's value is ``getOccFromSem`` of its merged semantics
         (-0.1 for the unset semantics of a parent of free leaves only)."""
-        tree = super().tree()
+        tree = super()._build_tree()
         if tree.num_nodes:
             inner = np.flatnonzero(tree.child_mask != 0)
             pay = tree.payload[inner]
