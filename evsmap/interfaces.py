@@ -172,7 +172,8 @@ class MapUpdater(abc.ABC):
 
     def file_formats(self) -> tuple[str, ...]:
         """The :data:`FILE_FORMATS` this updater writes (an updater without ``file_format``
-        writes one file, its full and its published one)."""
+        writes one file, its full and its published one; one that lists ``colour`` takes
+        ``write(path, file_format=...)``)."""
         return ("full", "published")
 
     def reuse_tree(self) -> contextlib.AbstractContextManager[None]:
@@ -189,16 +190,14 @@ class MapUpdater(abc.ABC):
         import tempfile
         from pathlib import Path
 
-        from evsmap.measure.evaluators import write_map
-
         stats = self.stats()
-        sizes: dict[str, int | None] = {}
         with tempfile.TemporaryDirectory() as tmp:
-            for fmt in ("published", "colour"):
-                sizes[fmt] = (write_map(self, Path(tmp) / f"{fmt}.ot", fmt)
-                              if fmt in self.file_formats() else None)
+            # an updater without file formats writes one file: its published one
+            published = int(self.write(Path(tmp) / "published.ot"))
+            colour = (int(self.write(Path(tmp) / "colour.ot", file_format="colour"))
+                      if "colour" in self.file_formats() else None)
         return {"nodes": int(stats.nodes), "leaves": int(stats.leaves),
-                "published_bytes": sizes["published"], "colour_bytes": sizes["colour"],
+                "published_bytes": published, "colour_bytes": colour,
                 "memory_bytes": stats.octomap_memory_bytes}
 
     def memory_nbytes(self) -> int | None:
