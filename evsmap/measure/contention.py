@@ -86,13 +86,18 @@ def cpu_clock() -> tuple[float, float, float] | None:
             own.user + own.system + own.children_user + own.children_system)
 
 
+MIN_SHARE_WINDOW_S = 0.5
+"""Shortest window :func:`other_share` judges: ``/proc/stat`` counts CPU time in clock ticks
+(10 ms), so one tick of another process's work in a 1 ms window would read as 1000 % of a core."""
+
+
 def other_share(before: tuple[float, float, float] | None,
                 after: tuple[float, float, float] | None, cores: int) -> float | None:
     """The share of all cores' time that processes other than this one used between two
     :func:`cpu_clock` readings (another VM's steal included): the direct measure of "other work
     shared the cores", whichever way it slows the timed code."""
-    if before is None or after is None or after[0] <= before[0]:
-        return None
+    if before is None or after is None or after[0] - before[0] < MIN_SHARE_WINDOW_S:
+        return None  # /proc/stat counts in clock ticks: a window of a few ticks says nothing
     others = (after[1] - before[1]) - (after[2] - before[2])
     return max(0.0, others) / ((after[0] - before[0]) * max(cores, 1))
 

@@ -53,6 +53,8 @@ def test_other_processes_share_of_the_cores_flags_a_cell_the_matmul_misses():
     before, after = (100.0, 1000.0, 50.0), (110.0, 1015.0, 55.0)
     assert contention.other_share(before, after, 2) == pytest.approx(0.5)
     assert contention.other_share(before, None, 2) is None
+    # a window of a few clock ticks says nothing: one tick of another process in 2 ms
+    assert contention.other_share((100.0, 1000.0, 50.0), (100.002, 1000.01, 50.0), 2) is None
 
     def probe(g, cpu):
         return contention.Probe(load1=1.0, load5=1.0, cores=2, calibration_gmacs=g, cpu=cpu)
