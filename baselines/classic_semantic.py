@@ -173,13 +173,6 @@ class ClassicSemanticMap(OctreeUpdater):
                          else "classic-semantic-max", **kwargs)
 
 
-FRONT_ENDS = {"generator": "semantic_slam as it runs (:mod:`baselines.semantic_slam`)",
-              "direct": "evsmap's cleaner variant (:class:`ClassicSemanticMap`: a class-wise "
-                        "mean fused once per voxel and frame, OctoMap's ray casting to "
-                        "``max_range``, the earlier candidate winning ties)"}
-"""classic-semantic's two front ends (:data:`evsmap.mapping.generator.FRONT_ENDS`)."""
-
-
 def _factory(rule: str):
     def factory(*, resolution: float = 0.05, max_range: float = 5.0, discretize: bool = True,
                 front_end: str = "generator", raycast_range: float = 2.0,
