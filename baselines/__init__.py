@@ -1,8 +1,8 @@
 """Systems EVSMaP is compared with: ESANet-R34-NBt1D and FC-HarDNet-70 (segmenters), the
 networks of Tables I and II (:mod:`baselines.networks`, docs/baselines.md), the classic
-semantic octree of semantic_slam and the C++ OctoMap (map updaters)."""
+semantic octree of semantic_slam and the C++ OctoMap (map updaters, registered by
+:mod:`baselines.updaters`)."""
 
-from baselines import classic_semantic as _classic  # noqa: F401  (registers the plug-ins)
-from baselines import networks as _networks  # noqa: F401
-from baselines import octomap_adapters as _octomap  # noqa: F401
+from baselines import networks as _networks  # noqa: F401  (registers the plug-ins)
 from baselines import segmenters as _segmenters  # noqa: F401
+from baselines import updaters as _updaters  # noqa: F401

@@ -29,7 +29,6 @@ from evsmap.mapping import fusion
 from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.occupancy import ScanUpdate
 from evsmap.mapping.tree import Tree
-from evsmap.registry import UPDATERS
 from evsmap.updaters.base import (
     FramePoints,
     OctreeUpdater,
@@ -171,42 +170,3 @@ class ClassicSemanticMap(OctreeUpdater):
         super().__init__(node_type=NODE_TYPES_BY_RULE[fusion_rule],
                          name="classic-semantic" if fusion_rule == "bayes"
                          else "classic-semantic-max", **kwargs)
-
-
-def _factory(rule: str):
-    def factory(*, resolution: float = 0.05, max_range: float = 5.0, discretize: bool = True,
-                front_end: str = "generator", raycast_range: float = 2.0,
-                prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float | None = None,
-                clamp_max: float | None = None):
-        from evsmap.mapping.generator import check_front_end
-
-        check_front_end("classic-semantic", front_end)
-        if front_end == "generator":
-            from baselines.semantic_slam import make
-
-            if not discretize:
-                from evsmap.errors import InvalidDataError
-
-                raise InvalidDataError("classic-semantic: semantic_slam always inserts with "
-                                       "discretize on; use -o front_end=direct for "
-                                       "discretize=false")
-
-            # semantic_slam's octomap_generator.yaml clamps at 0.12 / 0.97
-            return make(rule, resolution=resolution, max_range=max_range,
-                        raycast_range=raycast_range, prob_hit=prob_hit, prob_miss=prob_miss,
-                        clamp_min=0.12 if clamp_min is None else clamp_min,
-                        clamp_max=0.97 if clamp_max is None else clamp_max)
-        return ClassicSemanticMap(fusion_rule=rule, resolution=resolution, max_range=max_range,
-                                  discretize=discretize, prob_hit=prob_hit, prob_miss=prob_miss,
-                                  clamp_min=0.1192 if clamp_min is None else clamp_min,
-                                  clamp_max=0.971 if clamp_max is None else clamp_max)
-
-    return factory
-
-
-UPDATERS.add("classic-semantic", _factory("bayes"),
-             description="[14] semantic_slam: top-3 Bayesian semantic fusion + RGB (TESAMap, "
-                         "TFEAGMap); -o front_end=direct for evsmap's cleaner variant")
-UPDATERS.add("classic-semantic-max", _factory("max"),
-             description="[14] semantic_slam: max semantic fusion + RGB; -o "
-                         "front_end=direct for evsmap's cleaner variant")

@@ -21,7 +21,6 @@ from evsmap.interfaces import MapStats, MapUpdater, PointQuery
 from evsmap.mapping.fusion.colour import mean_per_voxel
 from evsmap.mapping.keys import key_to_coord, unpack
 from evsmap.mapping.raycast import frame_points
-from evsmap.registry import UPDATERS
 from evsmap.updaters.base import FramePoints, compact
 
 
@@ -106,20 +105,3 @@ class OctoMapAdapter(MapUpdater):
             prob[i] = occ
             state[i] = 1 if self.tree.isNodeOccupied(node) else 0
         return PointQuery(state=state, probability=prob, label=np.full(n, -1, dtype=np.int16))
-
-
-def _factory(color: bool):
-    def factory(*, resolution: float = 0.05, max_range: float = 5.0, discretize: bool = True,
-                prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float = 0.1192,
-                clamp_max: float = 0.971) -> OctoMapAdapter:
-        return OctoMapAdapter(color=color, resolution=resolution, max_range=max_range,
-                              discretize=discretize, prob_hit=prob_hit, prob_miss=prob_miss,
-                              clamp_min=clamp_min, clamp_max=clamp_max)
-
-    return factory
-
-
-UPDATERS.add("octomap-cpp", _factory(False),
-             description="OctoMap C++ OcTree via octomap-python (occupancy only, reference)")
-UPDATERS.add("octomap-color", _factory(True),
-             description="OctoMap C++ ColorOcTree via octomap-python (averaged RGB, reference)")

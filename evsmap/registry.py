@@ -38,8 +38,7 @@ _BUILTIN_MODULES = (
     "evsmap.datasets.cityscapes",
     "evsmap.datasets.synthrooms",
     "evsmap.segmenters.zoo",
-    "evsmap.updaters.orgb",
-    "evsmap.updaters.multiclass_bayes",
+    "evsmap.updaters.registered",
     "evsmap.segmenters.oracle",
 )
 _loaded = False
@@ -199,10 +198,7 @@ def _check_option_types(kind: str, name: str, factory: Callable[..., Any],
     annotation (``-o psi=abc`` where a number is expected)."""
     import typing
 
-    try:
-        hints = typing.get_type_hints(factory)
-    except Exception:  # noqa: BLE001 - annotations we cannot resolve are not checked
-        return
+    hints = _option_hints(factory)
     for key, value in config.items():
         hint = hints.get(key)
         if hint is None or _accepts(hint, value) is not False:
@@ -210,6 +206,32 @@ def _check_option_types(kind: str, name: str, factory: Callable[..., Any],
         words = [_TYPE_WORDS[h] for h in (typing.get_args(hint) or (hint,)) if h in _TYPE_WORDS]
         want = " or ".join(words) or str(hint)
         raise EvsmapError(f"{kind} {name!r}: option {key} must be {want}, got {value!r}")
+
+
+def _option_hints(factory: Callable[..., Any]) -> dict[str, Any]:
+    """The factory's parameter annotations, resolved one by one: an annotation that does not
+    resolve (a name imported only for type checkers, as the return types of factories that
+    import their class when called) is left unchecked, the others still are."""
+    import typing
+
+    annotations = dict(getattr(factory, "__annotations__", {}))
+    annotations.pop("return", None)
+    namespace = getattr(factory, "__globals__", {})
+    hints = {}
+    for name, annotation in annotations.items():
+        try:
+            hints[name] = (typing.get_type_hints(_Annotated(annotation), namespace)["x"])
+        except Exception:  # noqa: BLE001 - annotations we cannot resolve are not checked
+            continue
+    return hints
+
+
+class _Annotated:
+    """An object whose only annotation is ``annotation`` (so ``typing.get_type_hints``
+    resolves one annotation at a time)."""
+
+    def __init__(self, annotation: Any) -> None:
+        self.__annotations__ = {"x": annotation}
 
 
 def _qualname(obj: object) -> str:

@@ -11,7 +11,8 @@ import pytest
 
 from evsmap import open3d_loader
 
-HEAVY = ("torch", "open3d", "onnxruntime", "fvcore", "matplotlib")
+HEAVY = ("torch", "open3d", "onnxruntime", "fvcore", "matplotlib", "numba", "scipy", "pydantic",
+         "octomap", "pandas")
 
 _PROBE = """
 import json, sys
@@ -41,7 +42,7 @@ def test_light_commands_import_no_heavy_library(argv):
 def test_info_on_tum_imports_no_heavy_library(tum_dir):
     result = _probe("info", str(tum_dir))
     assert result["code"] == 0
-    assert result["loaded"] == []
+    assert result["loaded"] in ([], ["scipy"])  # scipy's rotations interpolate the poses
 
 
 def test_report_imports_neither_torch_nor_open3d(tmp_path):

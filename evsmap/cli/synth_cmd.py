@@ -9,8 +9,6 @@ from pathlib import Path
 
 from evsmap.cli.options import nonnegative_int, positive_int
 from evsmap.synth.scene import DEFAULT_SCENE, SCENES
-from evsmap.synth.sequence import SyntheticSequence
-from evsmap.synth.write import write_synthetic
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -39,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from evsmap.synth.sequence import SyntheticSequence  # numba and Open3D: only when run
+    from evsmap.synth.write import write_synthetic
+
     seq = SyntheticSequence(scene=args.scene, seed=args.seed, frames=args.frames,
                             width=args.width, height=args.height, noise=args.noise)
     t0 = time.perf_counter()

@@ -5,7 +5,6 @@ from __future__ import annotations
 from evsmap.errors import EvsmapError
 from evsmap.registry import READERS
 from evsmap.synth.scene import DEFAULT_SCENE
-from evsmap.synth.sequence import SyntheticSequence
 
 RENDERS = ("live", "cached")
 
@@ -29,4 +28,6 @@ def open_synthetic(*, scene: str = DEFAULT_SCENE, seed: int = 0, frames: int = 6
         from evsmap.synth.cached import CachedSynthetic
 
         return CachedSynthetic(**options)
+    from evsmap.synth.sequence import SyntheticSequence  # numba: only when one is opened
+
     return SyntheticSequence(**options)

@@ -41,7 +41,6 @@ from evsmap.mapping.fusion import MCBState
 from evsmap.mapping.mcb_kernel import frame_update
 from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.occupancy import ScanUpdate
-from evsmap.registry import UPDATERS
 from evsmap.updaters.base import FramePoints, OctreeUpdater
 
 PAYLOAD_FORMAT = np.dtype([("classes", "u1", (3,)), ("logodds", "<f4", (3,)),
@@ -256,47 +255,3 @@ def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBaye
         raise
     except InvalidDataError as exc:  # a well-formed file whose map cannot be rebuilt
         raise DataFormatError(f"{path}: not a map this updater can restore ({exc})") from None
-
-
-@UPDATERS.register("multiclass-bayes",
-                   description="EVSMaP: multi-class Bayesian semantic octree, SSMI's update on "
-                               "the octomap_generator front end (Algorithm 1 merging nodes, "
-                               "theta 0.6); -o front_end=direct for evsmap's per-leaf front end")
-def multiclass_bayes(*, front_end: str = "generator", resolution: float = 0.05,
-                     max_range: float = 5.0, raycast_range: float = 2.0,
-                     discretize: bool = True, psi: float = fusion.PSI, phi: float = fusion.PHI,
-                     theta: float = fusion.THETA, leaf_update: str = "bayes",
-                     pairing: str = "printed", occupancy: str = "semantic",
-                     prob_hit: float = 0.7, prob_miss: float = 0.4,
-                     clamp_min: float | None = None, clamp_max: float | None = None
-                     ) -> OctreeUpdater:
-    """``front_end="generator"`` (the default): SSMI's generator
-    (:class:`~evsmap.updaters.mcb_generator.GeneratorMultiClassBayesMap`; ``raycast_range``,
-    SSMI's clamping 1e-4 / 0.9999); ``"direct"``: :class:`MultiClassBayesMap` (every pixel, rays
-    to ``max_range``, one observation per leaf and frame; ``leaf_update``, ``occupancy``,
-    ``discretize``, ``prob_hit`` / ``prob_miss``, OctoMap's clamping 0.1192 / 0.971)."""
-    from evsmap.errors import InvalidDataError
-    from evsmap.mapping.generator import check_front_end
-
-    check_front_end("multiclass-bayes", front_end)
-    if front_end == "generator":
-        from evsmap.updaters.mcb_generator import ROS_DEFAULTS, GeneratorMultiClassBayesMap
-
-        for option, value, default in (("leaf_update", leaf_update, "bayes"),
-                                       ("occupancy", occupancy, "semantic"),
-                                       ("discretize", discretize, True),
-                                       ("prob_hit", prob_hit, 0.7), ("prob_miss", prob_miss, 0.4)):
-            if value != default:
-                raise InvalidDataError(f"multiclass-bayes: {option} applies to -o "
-                                       f"front_end=direct only (SSMI's generator has none)")
-        return GeneratorMultiClassBayesMap(
-            psi=psi, phi=phi, theta=theta, pairing=pairing, raycast_range=raycast_range,
-            resolution=resolution, max_range=max_range,
-            clamp_min=ROS_DEFAULTS["clamp_min"] if clamp_min is None else clamp_min,
-            clamp_max=ROS_DEFAULTS["clamp_max"] if clamp_max is None else clamp_max)
-    return MultiClassBayesMap(resolution=resolution, max_range=max_range, discretize=discretize,
-                              psi=psi, phi=phi, theta=theta, leaf_update=leaf_update,
-                              pairing=pairing, occupancy=occupancy, prob_hit=prob_hit,
-                              prob_miss=prob_miss,
-                              clamp_min=0.1192 if clamp_min is None else clamp_min,
-                              clamp_max=0.971 if clamp_max is None else clamp_max)
