@@ -5,7 +5,11 @@ second ``reproduce`` reuses the first one's work and a run folder keeps only its
 tables, plots and small artifacts:
 
 * ``onnx/`` - ONNX exports, keyed by the network, its options and a digest of its weights
-  (:mod:`evsmap.models.onnx_export`);
+  (:mod:`evsmap.models.onnx_export`; the speed cells' size-free exports:
+  :mod:`evsmap.models.speed_export`);
+* ``complexity/`` - fvcore's counts of a network at an input size, keyed by the network's
+  structure and code (not its weights, which do not change them) and fvcore's version
+  (:func:`evsmap.measure.complexity.cached_complexity`);
 * ``segmentation/`` - a sequence's per-frame top-3 observations, keyed by the segmenter, its
   weights' tensors, the sequence and its frames (timings are never shared: they stay in the
   run folder);
@@ -25,7 +29,7 @@ import shutil
 from pathlib import Path
 
 CACHE_ENV = "EVSMAP_CACHE_DIR"
-KINDS = ("onnx", "segmentation", "sequences")
+KINDS = ("onnx", "complexity", "segmentation", "sequences")
 
 
 def cache_root() -> Path:

@@ -10,7 +10,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from evsmap.cli.options import positive_int
+from evsmap.cli.options import positive_float, positive_int
 from evsmap.errors import EvsmapError
 
 if TYPE_CHECKING:
@@ -73,9 +73,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="trained weights named <segmenter>@<dataset>.pt, e.g. "
                         "feagnet-v2@nyuv2.pt")
     p.add_argument("--quick", action=argparse.BooleanOptionalAction, default=None,
-                   help="smoke test (under 3 minutes): 8 frames at 320x240, 3 timed runs with "
-                        "torch, speed cells above 1024x512 skipped (with --resume: as the run "
-                        "was made)")
+                   help="smoke test (under 3 minutes): 8 frames at 320x240, speed timed with "
+                        "torch for a 3 s budget per cell (3 passes at least), speed cells above "
+                        "1024x512 skipped (with --resume: as the run was made)")
+    p.add_argument("--budget", type=positive_float, default=None, metavar="MINUTES",
+                   help="fit the run into this many minutes: a cell whose estimated time no "
+                        "longer fits is not started and is recorded as not measured, with the "
+                        "reason (the cells the paper's claims rest on run first); the estimate "
+                        "is printed at the start")
     p.add_argument("--cells", type=_cells, default=None, metavar="GLOBS",
                    help="only the cells whose key matches one of these comma-separated globs, "
                         "e.g. 'table1/feagnet-*/complexity*' (keys as in records/*.json; a "
@@ -136,7 +141,6 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from evsmap.interrupt import set_resume_hint
-    from evsmap.progress import progress
     from evsmap.report.build import build_report
     from evsmap.runner.context import RunContext
     from evsmap.runner.execute import environment
@@ -229,20 +233,23 @@ def run(args: argparse.Namespace) -> int:
     set_resume_hint(f"the finished cells are kept in {out}/records: resume with "
                     f"`evsmap reproduce --resume --out {out}`")
 
-    total = len(the_plan.keys)
-    bar = progress(range(total), total=total, desc="cells", unit="cell")
-    counts = {"ok": 0, "na": 0, "error": 0}
+    from evsmap.runner.estimate import Budget
 
-    def tick(record) -> None:
-        counts[record.status] += 1
-        next(bar, None)
+    estimator = _estimator(ctx, args)
+    pending = _pending(the_plan, out, resume=args.resume and not args.force)
+    total_s = estimator.total_s(pending)
+    _announce(the_plan, pending, estimator, total_s, args.budget)
+    budget = Budget(args.budget) if args.budget else None
+    watch = _Progress(len(the_plan.keys), pending, estimator)
 
     with executor:
         if args.executor != "local":
             executor.prepare(ctx)
             print(executor.summary())
         records = run_matrix(ctx, the_plan, workers=args.workers, resume=args.resume,
-                             force=args.force, on_record=tick, executor=executor)
+                             force=args.force, on_record=watch.tick, executor=executor,
+                             budget=budget, estimator=estimator)
+        watch.close()
         fields["executor"] = executor.describe()
     if args.train:
         from evsmap.runner.proxy import PROXY_MODELS, PROXY_RECIPE, run_proxy
@@ -271,10 +278,103 @@ def run(args: argparse.Namespace) -> int:
     return 1 if err else 0
 
 
+def _estimator(ctx: RunContext, args: argparse.Namespace):
+    """This machine's estimator (:mod:`evsmap.runner.estimate`), scaled by a calibration
+    taken now with the run's threads."""
+    import torch
+
+    from evsmap.measure.contention import calibration_gmacs
+    from evsmap.runner.estimate import Estimator
+
+    previous = torch.get_num_threads()
+    try:
+        torch.set_num_threads(ctx.threads)
+        gmacs = calibration_gmacs()
+    finally:
+        torch.set_num_threads(previous)
+    return Estimator.load(threads=ctx.threads, calibration_gmacs=gmacs)
+
+
+def _pending(the_plan, out: Path, *, resume: bool) -> list[tuple[str, str]]:
+    """``(key, kind)`` of the cells this run will measure (not those that need what is not
+    here, nor Table IV's, which are read from the mapping runs, nor, resuming, those done)."""
+    from evsmap.runner.records import RecordStore
+
+    store = RecordStore(out) if resume else None
+
+    def done(key: str) -> bool:
+        if store is None:
+            return False
+        record = store.get(key)
+        return record is not None and record.status == "ok"
+
+    items = [(s.key, s.kind) for s in the_plan.specs
+             if not s.needs and s.kind != "mapping" and not done(s.key)]
+    items += [(r.key, "mapping") for r in the_plan.runs if not done(r.key)]
+    return items
+
+
+def _announce(the_plan, pending, estimator, total_s: float, budget: float | None) -> None:
+    """The plan in two lines: how many cells, what they need, and the estimated time."""
+    from evsmap.environment import instruction_set
+    from evsmap.runner.estimate import format_duration
+
+    sources = estimator.sources(pending)
+    how = ", ".join(f"{n} from {_SOURCE_WORDS[k]}" for k, n in sorted(sources.items()))
+    print(f"plan: {len(the_plan.keys)} cells, {len(pending)} to measure here; estimated "
+          f"{format_duration(total_s)} on this machine ({instruction_set()}; {how})")
+    if budget is not None:
+        fits = "fits" if total_s <= budget * 60 else "does not fit: the cells that do not fit " \
+                                                    "are recorded as not measured"
+        print(f"--budget {budget:g} min: the estimate {fits} (the paper's claims first)")
+
+
+_SOURCE_WORDS = {"history": "earlier runs here", "reference": "the reference run scaled by "
+                 "this machine's calibration", "default": "a default per kind of cell"}
+
+
+class _Progress:
+    """Cells done out of the plan's, and the time left: a bar on a terminal, else one line per
+    measured cell on stderr."""
+
+    def __init__(self, total: int, pending: list[tuple[str, str]], estimator) -> None:
+        import sys
+
+        from tqdm import tqdm
+
+        self.estimator = estimator
+        self.left = dict(pending)
+        self.total = total
+        self.count = 0
+        self.terminal = sys.stderr.isatty()
+        self.bar = tqdm(total=total, desc="cells", unit="cell", leave=False,
+                        disable=not self.terminal, file=sys.stderr)
+
+    def tick(self, record) -> None:
+        import sys
+
+        from evsmap.runner.estimate import format_duration
+
+        self.count += 1
+        measured = self.left.pop(record.key, None) is not None
+        if measured and record.seconds > 0:
+            self.estimator.learn(record.key, record.kind, record.seconds)
+        eta = format_duration(self.estimator.remaining_s(self.left.items()))
+        if self.terminal:
+            self.bar.update(1)
+            self.bar.set_postfix_str(f"~{eta} left", refresh=True)
+        elif measured:
+            print(f"[{self.count}/{self.total}] {record.status} {record.key} "
+                  f"({record.seconds:.0f} s); about {eta} left", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
 SETTING_DEFAULTS: dict[str, object] = {
     "quick": False, "cells": None, "workers": 2, "executor": "local", "address": None,
     "strict_timing": False, "train": False, "proxy_models": None, "proxy_recipe": None,
-    "precision": "fp32", "data_root": None, "weights_dir": None}
+    "precision": "fp32", "data_root": None, "weights_dir": None, "budget": None}
 """``reproduce``'s settings that ``run.json`` keeps (``settings``) and ``--resume`` takes back
 when they are not given again, with their defaults for a new run."""
 

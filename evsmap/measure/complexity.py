@@ -93,3 +93,37 @@ def measure_complexity(
         height=height,
         width=width,
     )
+
+
+def cached_complexity(module: torch.nn.Module, inputs: torch.Tensor | Sequence[torch.Tensor]
+                      ) -> ComplexityRecord:
+    """:func:`measure_complexity`, stored in the cache shared across runs
+    (``<cache>/complexity``) under the module's structure and code, the inputs' shapes and
+    dtypes, and the torch and fvcore versions: the counts do not depend on the weights, so a
+    speed cell reuses what the complexity cell of the same network and size counted."""
+    import hashlib
+    import json
+    from importlib import metadata
+
+    from evsmap.cache import cache_dir
+    from evsmap.fileio import atomic_write_text
+    from evsmap.models.speed_export import structure_digest
+
+    inputs = as_inputs(inputs)
+    h = hashlib.sha256()
+    for part in (structure_digest(module), ";".join(f"{t.dtype}{tuple(t.shape)}" for t in inputs),
+                 torch.__version__, metadata.version("fvcore")):
+        h.update(part.encode())
+        h.update(b"\0")
+    path = cache_dir("complexity") / f"{h.hexdigest()[:24]}.json"
+    try:
+        return ComplexityRecord(**json.loads(path.read_text()))
+    except (OSError, ValueError, TypeError):
+        pass
+    record = measure_complexity(module, inputs)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, json.dumps(record.as_dict()))
+    except OSError:  # a read-only cache: counted again next time
+        pass
+    return record

@@ -107,13 +107,38 @@ def peak_rss() -> int:
     return int(maxrss if sys.platform == "darwin" else maxrss * 1024)  # macOS: bytes; Linux: KiB
 
 
+_reached_before_reset = 0
+"""The highest peak read just before a reset since :func:`mark_peak` (bytes)."""
+
+
 def reset_peak() -> bool:
-    """Reset the peak RSS to the current RSS; False where the kernel does not allow it."""
+    """Reset the peak RSS to the current RSS; False where the kernel does not allow it. The
+    peak reached so far is remembered for :func:`peak_since_mark`."""
+    global _reached_before_reset
+    _reached_before_reset = max(_reached_before_reset, peak_rss())
+    return _clear_peak()
+
+
+def _clear_peak() -> bool:
     try:
         _CLEAR_REFS.write_text("5")
     except OSError:
         return False
     return True
+
+
+def mark_peak() -> None:
+    """Start a new span for :func:`peak_since_mark` (a cell of a run): the peak is reset and
+    what earlier spans reached forgotten."""
+    global _reached_before_reset
+    _reached_before_reset = 0
+    _clear_peak()
+
+
+def peak_since_mark() -> int:
+    """The process's peak RSS since the last :func:`mark_peak`, bytes, across any
+    :func:`reset_peak` in between (a measurement of its own inside the span)."""
+    return max(_reached_before_reset, peak_rss())
 
 
 @dataclass

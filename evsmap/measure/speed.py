@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import platform
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from typing import Any
@@ -16,6 +17,7 @@ import torch
 
 from evsmap.environment import cpu_model, instruction_set
 from evsmap.errors import UnknownNameError
+from evsmap.measure.timing_policy import TimedPasses, TimingPolicy, time_until_precise
 from evsmap.models.module_utils import as_inputs, eval_mode, image_size
 
 BACKENDS = ("onnxruntime", "torch")
@@ -55,6 +57,12 @@ class SpeedRecord:
             ran while this figure was taken. Two speeds each divided by their own calibration
             compare without the drift of a shared machine between them
             (:func:`calibrated_ratio`).
+        ci_ms: the median's confidence interval (low, high), ms, under a
+            :class:`~evsmap.measure.timing_policy.TimingPolicy` (None: timed in rounds).
+        rel_ci: the precision reached: the interval's half-width over the median.
+        stopped: why timing stopped (``"precision"``, ``"budget"``, ``"max_runs"``).
+        timed_s: seconds spent on the timed passes.
+        policy: the timing rule followed.
     """
 
     backend: str
@@ -80,6 +88,11 @@ class SpeedRecord:
     stable: bool | None = None
     contention: dict[str, Any] = field(default_factory=dict)
     calibration_gmacs: float | None = None
+    ci_ms: list[float] | None = None
+    rel_ci: float | None = None
+    stopped: str | None = None
+    timed_s: float | None = None
+    policy: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -179,6 +192,9 @@ def measure_speed(
     stable_rel_iqr: float | None = None,
     calibration_log: Any = None,
     onnx_path: str | os.PathLike[str] | None = None,
+    policy: TimingPolicy | None = None,
+    roofline: float | None = None,
+    free_dimensions: dict[str, int] | None = None,
 ) -> SpeedRecord:
     """Time ``runs`` forward passes of ``module(*inputs)`` after ``warmup`` untimed ones.
 
@@ -204,6 +220,14 @@ def measure_speed(
             run's best calibration (default: this call's own).
         onnx_path: with onnxruntime, time this ONNX file (e.g. the module's int8
             quantisation) instead of the module's cached fp32 export.
+        policy: time pass by pass until the median is precise enough or the budget is spent
+            (:func:`~evsmap.measure.timing_policy.time_until_precise`) instead of in rounds of
+            ``runs`` (``runs``, ``warmup``, ``max_rounds`` and ``stable_rel_iqr`` then unused).
+        roofline: the fp32 matmul roofline already measured for this machine and thread count
+            (G MAC/s); measured in this call when None.
+        free_dimensions: with ``onnx_path``, the graph's free dimensions pinned for this
+            session (a size-free export timed at one size:
+            :func:`~evsmap.models.speed_export.speed_export`).
 
     Each sample is one forward pass timed with ``time.perf_counter``.
 
@@ -236,27 +260,34 @@ def measure_speed(
         used_threads = torch.get_num_threads()
         probes = [Probe.take()]  # one before every round and one after the last
         if backend == "torch":
-            def timed(n_warm: int) -> list[float]:
-                return _time_torch(module, inputs, runs, n_warm)
+            def call() -> object:
+                return module(*inputs)
         else:
-            forward = _onnxruntime_forward(module, inputs, input_names, used_threads,
-                                           key or type(module).__name__, cache_dir, onnx_path)
-
-            def timed(n_warm: int) -> list[float]:
-                return _time_calls(forward, runs, n_warm)
-        kept, kept_rel, kept_round, rounds = None, float("inf"), 0, 0
-        for r in range(max_rounds):
-            times = timed(warmup if r == 0 else 0)
+            call = _onnxruntime_forward(module, inputs, input_names, used_threads,
+                                        key or type(module).__name__, cache_dir, onnx_path,
+                                        free_dimensions)
+        passes = None
+        if policy is not None:
+            with _timing_context(module, backend):
+                passes = time_until_precise(call, policy)
             probes.append(Probe.take())
-            rounds += 1
-            rel = _rel_iqr(times)
-            if rel < kept_rel or (stable_rel_iqr is not None and rel <= stable_rel_iqr):
-                kept, kept_rel, kept_round = times, rel, r
-            if stable_rel_iqr is not None and rel <= stable_rel_iqr:
-                break
-        times = kept
+            times, rounds, kept_rel, kept_round = passes.times_s, 1, _rel_iqr(passes.times_s), 0
+        else:
+            kept, kept_rel, kept_round, rounds = None, float("inf"), 0, 0
+            for r in range(max_rounds):
+                with _timing_context(module, backend):
+                    times = _time_calls(call, runs, warmup if r == 0 else 0)
+                probes.append(Probe.take())
+                rounds += 1
+                rel = _rel_iqr(times)
+                if rel < kept_rel or (stable_rel_iqr is not None and rel <= stable_rel_iqr):
+                    kept, kept_rel, kept_round = times, rel, r
+                if stable_rel_iqr is not None and rel <= stable_rel_iqr:
+                    break
+            times = kept
         before, after = probes[kept_round], probes[kept_round + 1]
-        roofline = roofline_gmacs(roofline_size)
+        if roofline is None:
+            roofline = roofline_gmacs(roofline_size)
     finally:
         torch.set_num_threads(previous_threads)
 
@@ -264,7 +295,8 @@ def measure_speed(
     q25, median, q75 = (float(v) for v in np.percentile(times_ms, [25, 50, 75]))
     achieved = macs / (median / 1000.0) / 1e9
     return SpeedRecord(
-        backend=backend, height=height, width=width, runs=runs, warmup=warmup,
+        backend=backend, height=height, width=width,
+        runs=len(times_ms), warmup=passes.warmup_runs if passes else warmup,
         threads=used_threads,
         ms_median=median, ms_iqr=q75 - q25,
         fps_median=1000.0 / median, fps_iqr=1000.0 / q25 - 1000.0 / q75,
@@ -276,7 +308,24 @@ def measure_speed(
         stable=None if stable_rel_iqr is None else bool(kept_rel <= stable_rel_iqr),
         contention=contention(before, after, calibration_log),
         calibration_gmacs=math.sqrt(before.calibration_gmacs * after.calibration_gmacs),
+        **(_precision_fields(passes) if passes else {}),
     )
+
+
+def _precision_fields(passes: TimedPasses) -> dict[str, Any]:
+    return {"ci_ms": [passes.ci_s[0] * 1000.0, passes.ci_s[1] * 1000.0],
+            "rel_ci": passes.rel_ci, "stopped": passes.stopped, "timed_s": passes.timed_s,
+            "policy": dict(passes.policy)}
+
+
+@contextlib.contextmanager
+def _timing_context(module: torch.nn.Module, backend: str) -> Iterator[None]:
+    """torch: the module in eval mode under ``inference_mode``; onnxruntime: nothing."""
+    if backend != "torch":
+        yield
+        return
+    with eval_mode(module), torch.inference_mode():
+        yield
 
 
 def calibrated_ratio(fps_a: float, cal_a: float | None, fps_b: float,
@@ -306,28 +355,17 @@ def _time_calls(forward: Callable[[], object], runs: int, warmup: int) -> list[f
     return times
 
 
-def _time_torch(module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], runs: int,
-                warmup: int) -> list[float]:
-    with eval_mode(module), torch.inference_mode():
-        return _time_calls(lambda: module(*inputs), runs, warmup)
-
-
 def _onnxruntime_forward(
     module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], input_names: Sequence[str],
     threads: int, key: str, cache_dir: str | os.PathLike[str] | None,
     onnx_path: str | os.PathLike[str] | None = None,
+    free_dimensions: dict[str, int] | None = None,
 ) -> Callable[[], object]:
-    import onnxruntime as ort
-
     from evsmap.models.onnx_export import cached_onnx
+    from evsmap.models.speed_export import session_for
 
     path = onnx_path or cached_onnx(module, inputs, input_names, key=key, cache_dir=cache_dir)
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    options.log_severity_level = 3  # errors only
-    session = ort.InferenceSession(str(path), sess_options=options,
-                                   providers=["CPUExecutionProvider"])
+    session = session_for(path, threads=threads, free_dimensions=free_dimensions)
     arrays = dict(zip(input_names, (t.detach().cpu().numpy() for t in inputs), strict=True))
     # the exporter drops inputs the graph does not use; feed only those it kept
     feeds = {i.name: arrays[i.name] for i in session.get_inputs()}

@@ -5,60 +5,20 @@ A ratio between two systems measured the same way on the same machine compares m
 carries across machines. So each table gets a view relative to the paper's baseline row
 (:func:`relative_markdown`), and ``index.md`` opens with the paper's claims checked as such
 ratios (:func:`claims_markdown`): measured here, beside the paper's own ratio, with a verdict,
-or the reason it cannot be checked.
+or the reason it cannot be checked. The claims themselves are the paper's, stored with its
+tables (:mod:`evsmap.tables.claims`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 
 import pandas as pd
 
 from evsmap.runner.records import CellRecord
+from evsmap.tables.claims import BASELINES, CLAIMS, MATCH_TOLERANCE, Claim
 from evsmap.tables.schema import PaperTable
-
-BASELINES = {"table1": "esanet-r34", "table2": "esanet-r34", "table4": "tesamap"}
-"""The paper's baseline row of each table: the system its method is set against."""
-
-
-@dataclass(frozen=True)
-class Claim:
-    """A comparative claim of the paper about ``value(row, column) / value(base, column)``:
-    above 1 (``mode="higher"``), below 1 (``"lower"``), or within :data:`MATCH_TOLERANCE` of
-    the paper's own ratio (``"match"``: the paper trades accuracy for speed, so what it claims
-    is its relative accuracy, not a win)."""
-
-    text: str
-    table: str
-    row: str
-    base: str
-    column: str
-    mode: str
-
-
-MATCH_TOLERANCE = 0.05
-
-
-CLAIMS = (
-    Claim("FEAGNet-V2 runs faster than ESANet-R34 (Table I, FPS)", "table1", "feagnet-v2",
-          "esanet-r34", "fps", "higher"),
-    Claim("FEAGNet-V1 runs faster than ESANet-R34 (Table I, FPS)", "table1", "feagnet-v1",
-          "esanet-r34", "fps", "higher"),
-    Claim("FEAGNet-V2 has fewer parameters than ESANet-R34 (Table I)", "table1", "feagnet-v2",
-          "esanet-r34", "params", "lower"),
-    Claim("FEAGNet-V2 needs fewer FLOPs than ESANet-R34 (Table I)", "table1", "feagnet-v2",
-          "esanet-r34", "flops", "lower"),
-    Claim("FEAGNet-V2 keeps the paper's share of ESANet-R34's NYUv2 mIoU (Table I, within 5 %)",
-          "table1", "feagnet-v2", "esanet-r34", "miou_nyuv2", "match"),
-    Claim("FEAGNet-V2 keeps the paper's share of ESANet-R34's SUN RGB-D mIoU (Table I, within "
-          "5 %)", "table1", "feagnet-v2", "esanet-r34", "miou_sunrgbd", "match"),
-    Claim("EVSMap runs faster end to end than TESAMap (Table IV, Runtime)", "table4", "evsmap",
-          "tesamap", "runtime", "higher"),
-    Claim("EVSMap's map is smaller than TESAMap's on Seq.1, TUM (Table IV)", "table4", "evsmap",
-          "tesamap", "size_seq1", "lower"),
-)
 
 
 def _cells(frame: pd.DataFrame) -> dict[tuple[str, str], dict]:
@@ -193,3 +153,7 @@ def relative_markdown(table: PaperTable, frame: pd.DataFrame) -> list[str]:
             line.append(f"{m} / {p}" if (m, p) != ("-", "-") else "-")
         out.append("| " + " | ".join(line) + " |")
     return out + [""]
+
+
+__all__ = ["BASELINES", "CLAIMS", "MATCH_TOLERANCE", "Claim", "check", "claims_markdown",
+           "measured_ratio", "relative_markdown"]

@@ -13,6 +13,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from evsmap.measure.timing_policy import QUICK_POLICY, TimingPolicy
 from evsmap.paths import REPO_ROOT, default_data_root
 
 SEGMENTATION_DATASETS = ("nyuv2", "sunrgbd", "cityscapes")
@@ -47,10 +48,11 @@ class RunContext:
         synthetic_long: options of the long synthetic sequence (several laps of the room with
             revisits, as a robot's run; mapped by full runs, not by ``quick`` ones), or None.
         frames: frames mapped per sequence (None: all).
-        speed_runs, speed_warmup, speed_backend, threads: the speed method.
-        stable_rel_iqr, max_rounds: a speed cell repeats its rounds of ``speed_runs`` passes
-            until one has IQR / median at or below ``stable_rel_iqr``, at most ``max_rounds``;
-            one that never does is flagged.
+        speed_backend, threads: the speed method.
+        timing: the speed cells' timing rule, the fields of a
+            :class:`~evsmap.measure.timing_policy.TimingPolicy` (:meth:`timing_policy`): the
+            same for every row.
+        speed_runs: timed passes of each of the two networks the int8 row compares.
         strict_timing: refuse to time on a busy machine: a cell whose calibration shows
             contention is retried once after a pause, then recorded as not measured.
         voxel_size: Table IV's voxel size (the paper gives none: semantic_slam's default 2 cm
@@ -71,11 +73,9 @@ class RunContext:
         "height": 480, "noise": True})
     frames: int | None = None
     speed_runs: int = 10
-    speed_warmup: int = 2
     speed_backend: str = "onnxruntime"
     threads: int = field(default_factory=lambda: os.cpu_count() or 1)
-    stable_rel_iqr: float = 0.10
-    max_rounds: int = 4
+    timing: dict[str, Any] = field(default_factory=lambda: TimingPolicy().as_dict())
     strict_timing: bool = False
     voxel_size: float = 0.02
     voxel_sizes_beside: tuple[float, ...] = (0.05,)
@@ -94,12 +94,16 @@ class RunContext:
             ctx.synthetic_long = None
             ctx.voxel_sizes_beside = ()
             ctx.frames = 8
-            ctx.speed_runs, ctx.speed_warmup, ctx.speed_backend = 3, 1, "torch"
-            ctx.max_rounds = 2
+            ctx.speed_runs, ctx.speed_backend = 3, "torch"
+            ctx.timing = QUICK_POLICY.as_dict()
         return ctx
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def timing_policy(self) -> TimingPolicy:
+        """The speed cells' timing rule."""
+        return TimingPolicy(**self.timing)
 
     def voxel_sizes(self) -> list[float]:
         """Table IV's voxel size, then those mapped beside it."""

@@ -55,6 +55,9 @@ RUNNERS = {"complexity": run_complexity, "speed": run_speed, "accuracy": run_acc
 
 def execute_spec(spec: CellSpec, ctx: RunContext) -> CellRecord:
     """Run one non-mapping cell, turning errors into ``error`` records."""
+    from evsmap.measure.memory import mark_peak, peak_since_mark
+
+    mark_peak()
     started, t0 = now(), time.perf_counter()
     try:
         record = RUNNERS[spec.kind](spec, ctx)
@@ -67,11 +70,15 @@ def execute_spec(spec: CellSpec, ctx: RunContext) -> CellRecord:
                             error=f"{type(exc).__name__}: {exc}",
                             details={"traceback": traceback.format_exc()})
     record.started, record.seconds = started, time.perf_counter() - t0
+    record.cell_peak_rss_bytes = peak_since_mark()
     record.environment = environment(ctx.threads)
     return record
 
 
 def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
+    from evsmap.measure.memory import mark_peak, peak_since_mark
+
+    mark_peak()
     started, t0 = now(), time.perf_counter()
     base = {"key": run.key, "table": "extra", "row": run.row, "label": run.label,
             "kind": "mapping", "metrics": [],
@@ -88,6 +95,7 @@ def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
         record = CellRecord(**base, status="error", error=f"{type(exc).__name__}: {exc}",
                             details={"traceback": traceback.format_exc()})
     record.started, record.seconds = started, time.perf_counter() - t0
+    record.cell_peak_rss_bytes = peak_since_mark()
     record.environment = environment(ctx.threads)
     return record
 

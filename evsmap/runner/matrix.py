@@ -4,13 +4,19 @@ cells and store each record as it finishes.
 Order and isolation:
 
 1. Cells that cannot be measured here (``needs``) are recorded as ``na`` at once.
-2. Complexity and accuracy cells run in a process pool (``workers``); cells with the same
+2. The cells the paper's claims rest on (:func:`evsmap.tables.claims.claims_first`: the rows
+   the claims name, the baselines, FEAGNet's rows, Tables III and IV) are measured before the
+   compared networks, each group as follows.
+3. Complexity and accuracy cells run in a process pool (``workers``); cells with the same
    configuration (``CellSpec.config_key``: e.g. FEAGNet-V2's parameters in Tables I and III) are
    measured once and recorded under each key.
-3. Timing cells (speed, and the mapping runs behind Table IV) then run one at a time per timing
+4. Timing cells (speed, and the mapping runs behind Table IV) then run one at a time per timing
    slot, each in a fresh interpreter (``spawn``, one task per process), so no cell inherits
    another's warm caches, threads or memory, and nothing else of the run competes for the cores.
-4. Table IV's cells are read from the mapping runs.
+5. Table IV's cells are read from the mapping runs.
+
+With a ``--budget``, a cell whose estimate (:mod:`evsmap.runner.estimate`) does not fit in the
+time left is recorded as not measured, with the reason, instead of being started.
 
 Where the cells run is the executor's (:mod:`evsmap.runner.executors`): this machine by default
 (one timing slot), or a Ray cluster (:mod:`evsmap.runner.ray_executor`: one timing slot per
@@ -39,6 +45,7 @@ from typing import Any
 from evsmap.errors import EvsmapError
 from evsmap.fileio import atomic_write_text
 from evsmap.runner.context import RunContext
+from evsmap.runner.estimate import Budget, Estimator
 from evsmap.runner.execute import (
     MappingRun,
     environment,
@@ -263,14 +270,19 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
                on_record: Callable[[CellRecord], None] | None = None,
                pool: Callable[[int], Executor] | None = None,
                fresh: Callable[[], Executor] | None = None,
-               executor: CellExecutor | None = None) -> list[CellRecord]:
+               executor: CellExecutor | None = None, budget: Budget | None = None,
+               estimator: Estimator | None = None) -> list[CellRecord]:
     """Run every cell of ``the_plan`` not already done; returns all records of the plan.
 
     ``executor`` runs the cells (an entered :class:`~evsmap.runner.executors.CellExecutor`;
     default: :class:`~evsmap.runner.executors.LocalExecutor` on this machine, whose pools
     ``pool(workers)`` and ``fresh()`` make: spawned process pools unless given; tests pass
     in-process ones). ``resume`` and ``force`` are decided here, before anything is scheduled,
-    whichever the executor."""
+    whichever the executor.
+
+    The cells the paper's claims rest on run first (:func:`evsmap.tables.claims.claims_first`).
+    With a ``budget``, a cell whose ``estimator`` estimate does not fit in the time left is not
+    started: it is recorded as not measured, with the reason."""
     if executor is None:
         executor = LocalExecutor(pool=pool or _spawn_pool, fresh=fresh or _fresh_executor)
     elif pool is not None or fresh is not None:
@@ -290,7 +302,7 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
             on_record(record)
 
     env = None
-    # 1. what cannot run here
+    # what cannot run here
     todo: list[CellSpec] = []
     for spec in the_plan.specs:
         if spec.key in done or spec.kind == "mapping":
@@ -302,66 +314,27 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
         else:
             todo.append(spec)
 
-    # 2. complexity and accuracy in a pool, once per configuration
-    pooled = [s for s in todo if not s.fresh_process]
-    timed = [s for s in todo if s.fresh_process]
-    by_config: dict[str, list[CellSpec]] = {}
-    for spec in pooled:
-        by_config.setdefault(spec.config_key, []).append(spec)
-    runs_left = any(r.key not in done for r in the_plan.runs)
-    if by_config or timed or runs_left:
+    from evsmap.tables.claims import claims_first
+
+    runs_left = [r for r in the_plan.runs if r.key not in done]
+    if todo or runs_left:
         executor.prepare(ctx)
-    if by_config:
-        threads = executor.pool_threads(ctx.threads)
-        data = (ctx if threads == ctx.threads else replace(ctx, threads=threads)).as_dict()
-        with executor.pool(workers, threads) as ex:
-            futures: dict[Future, list[CellSpec]] = {
-                ex.submit(_spec_worker, group[0].table, group[0].key, data): group
-                for group in by_config.values()}
-            for fut in as_completed(futures):
-                group = futures[fut]
-                first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
-                for spec in group:
-                    keep(_copy_for(first, spec))
+    slots = executor.timing_slots() if any(s.fresh_process for s in todo) or runs_left else []
 
-    # 3. timing cells, each in a fresh process, one at a time per timing slot
-    def time_spec(spec: CellSpec, slot: TimingSlot) -> CellRecord:
-        with executor.fresh(slot) as ex:
-            data = _slot_context(ctx, slot).as_dict()
-            return _placed(CellRecord.from_dict(
-                _result(ex.submit(_spec_worker, spec.table, spec.key, data), spec.key,
-                        ctx.out)),
-                executor)
+    def left_out(key: str, kind: str) -> str | None:
+        """Why --budget leaves this cell out, or None."""
+        if budget is None:
+            return None
+        return budget.refuses(estimator.seconds(key, kind)[0] if estimator else 0.0)
 
-    def time_run(run: MappingRun, slot: TimingSlot) -> CellRecord:
-        return _placed(_timed_mapping(run, _slot_context(ctx, slot),
-                                      lambda: executor.fresh(slot)), executor)
+    # the cells the paper's claims rest on first (evsmap.tables.claims), then the others: a run
+    # stopped early has answered the claims
+    for first in (0, 1):
+        group = [s for s in todo if claims_first(s.table, s.row) == first]
+        group_runs = runs_left if first == 0 else []
+        _run_group(ctx, group, group_runs, done, keep, executor, workers, slots, left_out)
 
-    slots = executor.timing_slots() if timed or runs_left else []
-    _run_timed(timed, time_spec, slots, keep)
-    labels_cache: dict[str, bool] = {}
-    to_map: list[MappingRun] = []
-    for run in the_plan.runs:
-        if run.key in done:
-            continue
-        if run.segmenter is not None and not run.own_labels and \
-                ctx.weights_path(run.segmenter.spec, "nyuv2") is None and \
-                _unlabelled(ctx, run.sequence, labels_cache):
-            need = f"weights:{run.segmenter.spec}@nyuv2"
-            rec = CellRecord(
-                key=run.key, table="extra", row=run.row, label=run.label, kind="mapping",
-                metrics=[], status="na", needs=[need],
-                reason=needs_text([need]) + f" ({run.sequence} has no ground-truth labels for "
-                                            f"the oracle)",
-                inputs={"sequence": run.sequence, "voxel_size": run.voxel_size,
-                        "updater": run.updater.spec, "segmenter": run.segmenter.spec})
-            rec.environment = env = env or environment(ctx.threads)
-            keep(rec)
-            continue
-        to_map.append(run)
-    _run_timed(to_map, time_run, slots, keep)
-
-    # 4. Table IV from the mapping runs
+    # Table IV from the mapping runs
     runs = {r.key: done[r.key] for r in the_plan.runs if r.key in done}
     for spec in the_plan.specs:
         if spec.kind != "mapping" or spec.key in done:
@@ -376,6 +349,92 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
         else:
             keep(table4_record(spec, runs, ctx))
     return [done[k] for k in the_plan.keys if k in done]
+
+
+def _skip_record(spec: CellSpec | MappingRun, why: str, ctx: RunContext) -> CellRecord:
+    """A cell --budget left out: not measured, with the reason."""
+    if isinstance(spec, MappingRun):
+        base = {"key": spec.key, "table": "extra", "row": spec.row, "label": spec.label,
+                "kind": "mapping", "metrics": [],
+                "inputs": {"sequence": spec.sequence, "voxel_size": spec.voxel_size,
+                           "updater": spec.updater.spec,
+                           "segmenter": spec.segmenter.spec if spec.segmenter else None}}
+    else:
+        from evsmap.runner.execute import spec_inputs
+
+        base = {"key": spec.key, "table": spec.table, "row": spec.row, "label": spec.label,
+                "kind": spec.kind, "metrics": list(spec.metrics), "inputs": spec_inputs(spec)}
+    record = CellRecord(**base, status="na", needs=["time"], reason=why)
+    record.environment = environment(ctx.threads)
+    return record
+
+
+def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
+               done: dict[str, CellRecord], keep: Callable[[CellRecord], None],
+               executor: CellExecutor, workers: int, slots: list[TimingSlot],
+               left_out: Callable[[str, str], str | None]) -> None:
+    """Complexity and accuracy in a pool (once per configuration), then the timed cells one at a
+    time per timing slot, each in a fresh process, then the mapping runs."""
+    pooled = [s for s in specs if not s.fresh_process]
+    timed = [s for s in specs if s.fresh_process]
+    by_config: dict[str, list[CellSpec]] = {}
+    for spec in pooled:
+        why = left_out(spec.key, spec.kind)
+        if why:
+            keep(_skip_record(spec, why, ctx))
+        else:
+            by_config.setdefault(spec.config_key, []).append(spec)
+    if by_config:
+        threads = executor.pool_threads(ctx.threads)
+        data = (ctx if threads == ctx.threads else replace(ctx, threads=threads)).as_dict()
+        with executor.pool(workers, threads) as ex:
+            futures: dict[Future, list[CellSpec]] = {
+                ex.submit(_spec_worker, group[0].table, group[0].key, data): group
+                for group in by_config.values()}
+            for fut in as_completed(futures):
+                group = futures[fut]
+                first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
+                for spec in group:
+                    keep(_copy_for(first, spec))
+
+    def time_spec(spec: CellSpec, slot: TimingSlot) -> CellRecord:
+        why = left_out(spec.key, spec.kind)
+        if why:
+            return _skip_record(spec, why, ctx)
+        with executor.fresh(slot) as ex:
+            data = _slot_context(ctx, slot).as_dict()
+            return _placed(CellRecord.from_dict(
+                _result(ex.submit(_spec_worker, spec.table, spec.key, data), spec.key,
+                        ctx.out)),
+                executor)
+
+    def time_run(run: MappingRun, slot: TimingSlot) -> CellRecord:
+        why = left_out(run.key, "mapping")
+        if why:
+            return _skip_record(run, why, ctx)
+        return _placed(_timed_mapping(run, _slot_context(ctx, slot),
+                                      lambda: executor.fresh(slot)), executor)
+
+    _run_timed(timed, time_spec, slots, keep)
+    labels_cache: dict[str, bool] = {}
+    to_map: list[MappingRun] = []
+    for run in runs:
+        if run.segmenter is not None and not run.own_labels and \
+                ctx.weights_path(run.segmenter.spec, "nyuv2") is None and \
+                _unlabelled(ctx, run.sequence, labels_cache):
+            need = f"weights:{run.segmenter.spec}@nyuv2"
+            rec = CellRecord(
+                key=run.key, table="extra", row=run.row, label=run.label, kind="mapping",
+                metrics=[], status="na", needs=[need],
+                reason=needs_text([need]) + f" ({run.sequence} has no ground-truth labels for "
+                                            f"the oracle)",
+                inputs={"sequence": run.sequence, "voxel_size": run.voxel_size,
+                        "updater": run.updater.spec, "segmenter": run.segmenter.spec})
+            rec.environment = environment(ctx.threads)
+            keep(rec)
+            continue
+        to_map.append(run)
+    _run_timed(to_map, time_run, slots, keep)
 
 
 def _copy_for(record: CellRecord, spec: CellSpec) -> CellRecord:

@@ -47,57 +47,91 @@ def _size(spec: CellSpec, segmenter) -> tuple[int, int]:
 
 
 def run_complexity(spec: CellSpec, ctx: RunContext) -> CellRecord:
-    from evsmap.measure.complexity import measure_complexity
+    from evsmap.measure.complexity import cached_complexity, count_parameters
 
     segmenter = build_segmenter(spec.segmenter)
-    h, w = _size(spec, segmenter)
-    rec = measure_complexity(segmenter.module, segmenter.example_inputs(h, w))
     quantities = column_quantities(spec)
+    if set(quantities.values()) == {"params"}:  # no input size in a parameter count
+        params = count_parameters(segmenter.module)
+        return CellRecord(**base_fields(spec), status="ok",
+                          values={col: float(params) for col in quantities},
+                          notes=["every parameter of the network, training-only heads included "
+                                 "where it has them; the count does not depend on the input "
+                                 "size"], details={"params": params})
+    h, w = _size(spec, segmenter)
+    rec = cached_complexity(segmenter.module, segmenter.example_inputs(h, w))
     values = {col: float(rec.params if q == "params" else rec.flops)
               for col, q in quantities.items()}
-    if set(quantities.values()) == {"params"}:  # no input size in a parameter count
-        notes = ["every parameter of the network, training-only heads included where it has them; "
-                 "the count does not depend on the input size"]
-    else:
-        notes = [f"fvcore at {w}x{h} (1 MAC = 1 FLOP, as fvcore and the paper's lineage "
-                 f"count)"]
+    notes = [f"fvcore at {w}x{h} (1 MAC = 1 FLOP, as fvcore and the paper's lineage count)"]
     if rec.uncounted_ops and "flops" in quantities.values():
         notes.append("operators fvcore does not count: " + ", ".join(sorted(rec.uncounted_ops)))
     return CellRecord(**base_fields(spec), status="ok", values=values, notes=notes,
                       details=rec.as_dict())
 
 
+def run_roofline(ctx: RunContext) -> float:
+    """The fp32 matmul roofline of this machine at the run's thread count (G MAC/s): measured
+    by the run's first speed cell, read from ``<run>/cache/roofline.json`` by the others (one
+    machine fact per run, not re-measured per cell)."""
+    import json
+
+    import torch
+
+    from evsmap.fileio import atomic_write_text
+    from evsmap.measure.speed import roofline_gmacs
+
+    path = Path(ctx.out) / "cache" / "roofline.json"
+    try:
+        known = json.loads(path.read_text())
+    except (OSError, ValueError):
+        known = {}
+    if str(ctx.threads) in known:
+        return float(known[str(ctx.threads)])
+    previous = torch.get_num_threads()
+    try:
+        torch.set_num_threads(ctx.threads)
+        value = roofline_gmacs()
+    finally:
+        torch.set_num_threads(previous)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, json.dumps({**known, str(ctx.threads): value}))
+    return value
+
+
 def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
-    from evsmap.measure.complexity import measure_complexity
+    from evsmap.measure.complexity import cached_complexity
+    from evsmap.measure.contention import CalibrationLog, machine_log_path, severity
     from evsmap.measure.speed import measure_speed
 
     segmenter = build_segmenter(spec.segmenter, input_size=spec.input_size)
     h, w = _size(spec, segmenter)
     inputs = segmenter.example_inputs(h, w)
-    macs = measure_complexity(segmenter.module, inputs).flops
-    from evsmap.measure.contention import CalibrationLog, machine_log_path
-    from evsmap.models.onnx_export import default_cache_dir
+    macs = cached_complexity(segmenter.module, inputs).flops
+    export = None
+    if ctx.speed_backend == "onnxruntime":
+        # one size-free export per network, cached across runs (evsmap.models.speed_export)
+        from evsmap.models.speed_export import speed_export
 
-    # ONNX exports: the cache shared across runs (content-addressed by network and weights)
-    cache = default_cache_dir() if ctx.speed_backend == "onnxruntime" else None
+        export = speed_export(segmenter.module, inputs, segmenter.input_names,
+                              key=spec.segmenter.spec)
     log = CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
                          machine_path=machine_log_path())
+    policy = ctx.timing_policy()
+    roofline = run_roofline(ctx)
 
     def measure():
         return measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,
-                             runs=ctx.speed_runs, warmup=ctx.speed_warmup, threads=ctx.threads,
-                             macs=macs, input_names=segmenter.input_names,
-                             key=spec.segmenter.spec, cache_dir=cache,
-                             max_rounds=ctx.max_rounds, stable_rel_iqr=ctx.stable_rel_iqr,
-                             calibration_log=log)
+                             threads=ctx.threads, macs=macs, input_names=segmenter.input_names,
+                             key=spec.segmenter.spec, calibration_log=log, policy=policy,
+                             roofline=roofline,
+                             onnx_path=export.path if export else None,
+                             free_dimensions=export.free_dimensions(h, w) if export else None)
 
     rec = measure()
     if rec.contention.get("contended"):
         # one more try once the other work may have passed; keep the less contended
         time.sleep(STRICT_PAUSE_S if ctx.strict_timing else RETRY_PAUSE_S)
         again = measure()
-        from evsmap.measure.contention import severity
-
         if severity(again.contention) < severity(rec.contention):
             rec = again
         if ctx.strict_timing and rec.contention.get("contended"):
@@ -107,16 +141,38 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
                               details=rec.as_dict(), started=now())
     values = {col: float(rec.fps_median) for col in spec.metrics}
     notes = [f"{ctx.speed_backend} on the CPU ({rec.threads} threads, {rec.cpu}), {w}x{h}, "
-             f"median of {rec.runs} runs after {rec.warmup} warm-up"
-             + (f" (round {rec.rounds} of at most {ctx.max_rounds}: the first with IQR/median "
-                f"<= {ctx.stable_rel_iqr:g})" if rec.rounds > 1 and rec.stable else "")
-             + "; untrained weights (speed does not depend on them)"]
+             f"median of {rec.runs} passes after {rec.warmup} warm-up, "
+             f"{precision_text(rec.as_dict())}; untrained weights (speed does not depend on "
+             f"them)"]
     details = rec.as_dict()
+    if export is not None:
+        details["export"] = {"path": export.path.name, "size_free": export.size_free,
+                             "export_s": export.export_s, "cached": export.export_s is None,
+                             "note": export.note}
+        if export.note:
+            notes.append(export.note)
     if rec.flag:
         notes.append(f"timing flagged - {rec.flag}")
         details["timing_flag"] = rec.flag
     return CellRecord(**base_fields(spec), status="ok", values=values, notes=notes,
                       details=details)
+
+
+def precision_text(details: dict[str, Any]) -> str:
+    """How precise a speed cell's median is, in words: "+-1.2 % (95 % CI), 12 passes" and,
+    when it stopped on its budget, that it did."""
+    rel, stopped = details.get("rel_ci"), details.get("stopped")
+    if rel is None:
+        return "precision not measured (timed in rounds)"
+    policy = details.get("policy") or {}
+    level = policy.get("confidence", 0.95)
+    text = f"median +-{rel * 100:.1f} % ({level:.0%} CI)"
+    if stopped == "budget":
+        text += (f", stopped on its {policy.get('budget_s', 0):g} s budget before "
+                 f"+-{policy.get('target_rel_ci', 0) * 100:g} %")
+    elif stopped == "max_runs":
+        text += f", stopped after its {policy.get('max_runs')} passes at most"
+    return text
 
 
 def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:

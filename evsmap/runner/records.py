@@ -67,6 +67,8 @@ class CellRecord:
         inputs: the cell's configuration (segmenter and updater specs, datasets, sizes).
         environment: CPU model, threads, library versions, git commit, host.
         started, seconds: UTC start time (ISO 8601) and wall time.
+        cell_peak_rss_bytes: the peak resident memory of the process while the cell ran
+            (Linux: the peak is reset when the cell starts; 0: not measured).
     """
 
     key: str
@@ -86,6 +88,7 @@ class CellRecord:
     environment: dict[str, Any] = field(default_factory=dict)
     started: str = ""
     seconds: float = 0.0
+    cell_peak_rss_bytes: int = 0
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -133,6 +136,7 @@ class CellRecord:
 _JSON_TYPES: dict[str, Any] = {
     "key": str, "table": str, "row": str, "label": str, "kind": str, "status": str,
     "reason": str, "error": str, "started": str, "seconds": (int, float),
+    "cell_peak_rss_bytes": int,
     "metrics": list, "notes": list, "needs": list,
     "values": dict, "details": dict, "inputs": dict, "environment": dict}
 _STRING_LISTS = ("metrics", "notes", "needs")

@@ -53,7 +53,7 @@ def test_record_is_consistent(backend, tmp_path):
 def test_iqr_from_quartiles(monkeypatch):
     import evsmap.measure.speed as speed
 
-    monkeypatch.setattr(speed, "_time_torch", lambda *a: [0.004, 0.001, 0.002, 0.003, 0.005])
+    monkeypatch.setattr(speed, "_time_calls", lambda *a: [0.004, 0.001, 0.002, 0.003, 0.005])
     rec = measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), runs=5, warmup=0,
                         macs=2_000_000, roofline_size=32)
     assert rec.ms_median == pytest.approx(3.0)
@@ -89,7 +89,7 @@ def test_repeats_until_stable_and_flags_what_never_is(monkeypatch):
     import evsmap.measure.speed as speed
 
     rounds = iter([[1.0, 2.0, 3.0, 4.0], [1.0, 1.0, 1.01, 1.0], [9.0, 9.0, 9.0, 9.0]])
-    monkeypatch.setattr(speed, "_time_torch", lambda *a: next(rounds))
+    monkeypatch.setattr(speed, "_time_calls", lambda *a: next(rounds))
     monkeypatch.setattr(speed, "roofline_gmacs", lambda *a, **k: 100.0)
     monkeypatch.setattr(contention, "calibration_gmacs", lambda: 50.0)
     module = torch.nn.Conv2d(3, 4, 3)

@@ -1,0 +1,167 @@
+"""How long a run's cells will take on this machine, before and while it runs.
+
+Each cell's estimate comes from the best source at hand:
+
+1. ``history``: how long the same cell took here before (``<cache>/durations.json``, per
+   machine: CPU model, instruction set and threads), written as cells finish;
+2. ``reference``: how long it took on the machine that made
+   ``evsmap/runner/reference_durations.json`` (a first run with an empty cache, exports
+   included), scaled by the two machines' calibration matmuls
+   (:func:`evsmap.measure.contention.calibration_gmacs`);
+3. ``default``: a figure per kind of cell, for cells neither knows (a plug-in's, a new row).
+
+While the run goes, the estimates of the cells left are scaled by how the finished ones compared
+with theirs (:meth:`Estimator.remaining_s`), so the time left a person sees corrects itself.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from evsmap.fileio import atomic_write_text
+
+REFERENCE_FILE = Path(__file__).with_name("reference_durations.json")
+DURATIONS_FILE = "durations.json"
+DEFAULT_S = {"complexity": 10.0, "speed": 30.0, "accuracy": 120.0, "mapping": 60.0}
+"""Seconds assumed for a cell of each kind that neither the history nor the reference knows."""
+CORRECTION_LIMITS = (0.5, 3.0)
+"""The running correction of the estimates left is kept within these factors."""
+
+
+def machine_id(threads: int) -> str:
+    """The history's machine: CPU model, instruction set and threads."""
+    from evsmap.environment import cpu_model, instruction_set
+
+    return f"{cpu_model()} / {instruction_set()} / {threads} threads"
+
+
+@dataclass
+class Estimator:
+    """Seconds per cell (module docstring).
+
+    Attributes:
+        history: this machine's earlier durations, by cell key.
+        reference: the reference machine's durations, by cell key.
+        scale: the reference machine's calibration over this one's (a slower machine: > 1).
+        path: where the history is kept (None: not kept).
+        machine: this machine's key in the history file.
+    """
+
+    history: dict[str, float] = field(default_factory=dict)
+    reference: dict[str, float] = field(default_factory=dict)
+    scale: float = 1.0
+    path: Path | None = None
+    machine: str = ""
+    _estimated: float = 0.0
+    _taken: float = 0.0
+
+    @classmethod
+    def load(cls, *, threads: int, calibration_gmacs: float | None,
+             cache_root: Path | None = None) -> Estimator:
+        """The estimator of this machine: its history under ``cache_root`` (default: evsmap's
+        cache) and the shipped reference scaled by ``calibration_gmacs`` (None: unscaled)."""
+        from evsmap.cache import cache_root as default_root
+
+        root = cache_root if cache_root is not None else default_root()
+        path = root / DURATIONS_FILE
+        machine = machine_id(threads)
+        history = _read(path).get(machine, {})
+        reference_data = _read(REFERENCE_FILE)
+        reference = reference_data.get("cells", {})
+        ref_cal = (reference_data.get("machine") or {}).get("calibration_gmacs")
+        scale = ref_cal / calibration_gmacs if ref_cal and calibration_gmacs else 1.0
+        return cls(history={k: float(v) for k, v in history.items()},
+                   reference={k: float(v) for k, v in reference.items()}, scale=scale,
+                   path=path, machine=machine)
+
+    def seconds(self, key: str, kind: str) -> tuple[float, str]:
+        """``(seconds, source)`` for the cell ``key`` of ``kind`` (source: ``history``,
+        ``reference`` or ``default``)."""
+        if key in self.history:
+            return self.history[key], "history"
+        if key in self.reference:
+            return self.reference[key] * self.scale, "reference"
+        return DEFAULT_S.get(kind, 30.0), "default"
+
+    def total_s(self, items: Iterable[tuple[str, str]]) -> float:
+        """The sum of the estimates of ``(key, kind)`` items."""
+        return sum(self.seconds(key, kind)[0] for key, kind in items)
+
+    def sources(self, items: Iterable[tuple[str, str]]) -> dict[str, int]:
+        """How many of the items each source estimates."""
+        counts: dict[str, int] = {}
+        for key, kind in items:
+            source = self.seconds(key, kind)[1]
+            counts[source] = counts.get(source, 0) + 1
+        return counts
+
+    def learn(self, key: str, kind: str, seconds: float) -> None:
+        """A cell finished in ``seconds``: fold it into the running correction and keep it in
+        the history (written at once: an interrupted run keeps what it learnt)."""
+        if seconds <= 0:
+            return
+        self._estimated += self.seconds(key, kind)[0]
+        self._taken += seconds
+        self.history[key] = float(seconds)
+        if self.path is not None:
+            data = _read(self.path)
+            data[self.machine] = {**data.get(self.machine, {}), key: round(float(seconds), 2)}
+            try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                atomic_write_text(self.path, json.dumps(data, indent=0, sort_keys=True))
+            except OSError:
+                pass  # a read-only cache: the estimate stays in memory
+
+    def correction(self) -> float:
+        """Time taken over time estimated for the cells finished so far (1 before any)."""
+        if self._estimated <= 0:
+            return 1.0
+        low, high = CORRECTION_LIMITS
+        return min(high, max(low, self._taken / self._estimated))
+
+    def remaining_s(self, items: Iterable[tuple[str, str]]) -> float:
+        """The estimate of the cells left, corrected by how the finished ones went."""
+        return self.total_s(items) * self.correction()
+
+
+@dataclass
+class Budget:
+    """``--budget``: the run's time, from its start; a cell whose estimate does not fit in the
+    time left is not started (recorded as not measured, with the reason)."""
+
+    minutes: float
+    start: float = field(default_factory=time.monotonic)
+
+    def left_s(self) -> float:
+        return self.minutes * 60.0 - (time.monotonic() - self.start)
+
+    def refuses(self, estimate_s: float) -> str | None:
+        """Why a cell estimated at ``estimate_s`` is left out, or None when it fits."""
+        left = self.left_s()
+        if estimate_s <= left:
+            return None
+        return (f"n/a - left out by --budget {self.minutes:g} (estimated {estimate_s:.0f} s, "
+                f"{max(left, 0.0):.0f} s of the budget left); run it with a larger --budget or "
+                f"`--resume`")
+
+
+def format_duration(seconds: float) -> str:
+    """``"45 s"``, ``"12 min"``, ``"1 h 05 min"``."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60.0)
+    if minutes < 60:
+        return f"{minutes} min"
+    return f"{minutes // 60} h {minutes % 60:02d} min"
+
+
+def _read(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+        return data if isinstance(data, dict) else {}
+    except (OSError, ValueError):
+        return {}
