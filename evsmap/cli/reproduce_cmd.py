@@ -76,6 +76,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="smoke test (under 3 minutes): 8 frames at 320x240, speed timed with "
                         "torch for a 3 s budget per cell (3 passes at least), speed cells above "
                         "1024x512 skipped (with --resume: as the run was made)")
+    p.add_argument("--extended", action=argparse.BooleanOptionalAction, default=None,
+                   help="also map Table IV's systems on the long synthetic sequence (640 "
+                        "frames, 4 laps with revisits: the map growth and the Map Size "
+                        "readings' check) and at 5 cm beside 2 cm: about 40 minutes more on 2 "
+                        "cores (with --resume: as the run was made)")
     p.add_argument("--budget", type=positive_float, default=None, metavar="MINUTES",
                    help="fit the run into this many minutes: a cell whose estimated time no "
                         "longer fits is not started and is recorded as not measured, with the "
@@ -207,7 +212,8 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
 
     ctx = RunContext.create(out, data_root=args.data_root, weights_dir=args.weights_dir,
-                            quick=args.quick, strict_timing=args.strict_timing)
+                            quick=args.quick, strict_timing=args.strict_timing,
+                            extended=args.extended)
     the_plan = plan(ctx, args.tables, systems, cells=args.cells)
     if not the_plan.keys:
         if created:
@@ -236,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
     from evsmap.runner.estimate import Budget
 
     estimator = _estimator(ctx, args)
-    pending = _pending(the_plan, out, resume=args.resume and not args.force)
+    pending = _pending(ctx, the_plan, out, resume=args.resume and not args.force)
     total_s = estimator.total_s(pending)
     _announce(the_plan, pending, estimator, total_s, args.budget)
     budget = Budget(args.budget) if args.budget else None
@@ -295,9 +301,11 @@ def _estimator(ctx: RunContext, args: argparse.Namespace):
     return Estimator.load(threads=ctx.threads, calibration_gmacs=gmacs)
 
 
-def _pending(the_plan, out: Path, *, resume: bool) -> list[tuple[str, str]]:
+def _pending(ctx: RunContext, the_plan, out: Path, *,
+             resume: bool) -> list[tuple[str, str]]:
     """``(key, kind)`` of the cells this run will measure (not those that need what is not
     here, nor Table IV's, which are read from the mapping runs, nor, resuming, those done)."""
+    from evsmap.runner.matrix import lacks_labels
     from evsmap.runner.records import RecordStore
 
     store = RecordStore(out) if resume else None
@@ -310,7 +318,9 @@ def _pending(the_plan, out: Path, *, resume: bool) -> list[tuple[str, str]]:
 
     items = [(s.key, s.kind) for s in the_plan.specs
              if not s.needs and s.kind != "mapping" and not done(s.key)]
-    items += [(r.key, "mapping") for r in the_plan.runs if not done(r.key)]
+    labels: dict[str, bool] = {}
+    items += [(r.key, "mapping") for r in the_plan.runs
+              if not done(r.key) and not lacks_labels(ctx, r, labels)]
     return items
 
 
@@ -374,11 +384,13 @@ class _Progress:
 SETTING_DEFAULTS: dict[str, object] = {
     "quick": False, "cells": None, "workers": 2, "executor": "local", "address": None,
     "strict_timing": False, "train": False, "proxy_models": None, "proxy_recipe": None,
-    "precision": "fp32", "data_root": None, "weights_dir": None, "budget": None}
+    "precision": "fp32", "data_root": None, "weights_dir": None, "budget": None,
+    "extended": False}
 """``reproduce``'s settings that ``run.json`` keeps (``settings``) and ``--resume`` takes back
 when they are not given again, with their defaults for a new run."""
 
-FIXED_SETTINGS = ("quick", "cells", "train", "proxy_models", "proxy_recipe", "precision")
+FIXED_SETTINGS = ("quick", "cells", "train", "proxy_models", "proxy_recipe", "precision",
+                  "extended")
 """Settings that decide what a run measures: a resumed run may not change them (its records
 would be a mix); the others (where the data is, how many workers) may change."""
 

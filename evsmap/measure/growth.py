@@ -16,8 +16,18 @@ from evsmap.interfaces import MapUpdater
 GROWTH_POINTS = 12
 """Snapshots a mapping run takes, about evenly spaced (the last frame always)."""
 
-QUICK_GROWTH_POINTS = 4
-"""The same in a ``--quick`` run."""
+SHORT_GROWTH_POINTS = 2
+"""The same in a ``--quick`` run and on a sequence of fewer than :data:`LONG_SEQUENCE`
+frames: half-way and at the end (each snapshot builds the tree and measures every file
+reading: 1-5 s at 2 cm)."""
+
+LONG_SEQUENCE = 300
+"""Frames from which a sequence gets :data:`GROWTH_POINTS` snapshots."""
+
+
+def growth_points(frames: int, *, quick: bool = False) -> int:
+    """How many snapshots a mapping run of ``frames`` takes."""
+    return GROWTH_POINTS if frames >= LONG_SEQUENCE and not quick else SHORT_GROWTH_POINTS
 
 
 def growth_every(frames: int, points: int = GROWTH_POINTS) -> int:

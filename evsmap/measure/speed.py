@@ -63,6 +63,9 @@ class SpeedRecord:
         stopped: why timing stopped (``"precision"``, ``"budget"``, ``"max_runs"``).
         timed_s: seconds spent on the timed passes.
         policy: the timing rule followed.
+        session_s: seconds ONNX Runtime took to load and optimise the graph for this size
+            (onnxruntime only; not cached across runs: it is a second or two even for the
+            largest network here).
     """
 
     backend: str
@@ -93,6 +96,7 @@ class SpeedRecord:
     stopped: str | None = None
     timed_s: float | None = None
     policy: dict[str, Any] | None = None
+    session_s: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -259,13 +263,16 @@ def measure_speed(
             torch.set_num_threads(threads)
         used_threads = torch.get_num_threads()
         probes = [Probe.take()]  # one before every round and one after the last
+        session_s = None
         if backend == "torch":
             def call() -> object:
                 return module(*inputs)
         else:
+            t_session = time.perf_counter()
             call = _onnxruntime_forward(module, inputs, input_names, used_threads,
                                         key or type(module).__name__, cache_dir, onnx_path,
                                         free_dimensions)
+            session_s = time.perf_counter() - t_session
         passes = None
         if policy is not None:
             with _timing_context(module, backend):
@@ -308,7 +315,7 @@ def measure_speed(
         stable=None if stable_rel_iqr is None else bool(kept_rel <= stable_rel_iqr),
         contention=contention(before, after, calibration_log),
         calibration_gmacs=math.sqrt(before.calibration_gmacs * after.calibration_gmacs),
-        **(_precision_fields(passes) if passes else {}),
+        **(_precision_fields(passes) if passes else {}), session_s=session_s,
     )
 
 

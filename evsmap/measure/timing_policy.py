@@ -47,7 +47,7 @@ class TimingPolicy:
 
     target_rel_ci: float = 0.03
     confidence: float = 0.95
-    min_runs: int = 5
+    min_runs: int = 3
     budget_s: float = 15.0
     max_runs: int = 1000
     warmup: int = 1
@@ -58,8 +58,8 @@ class TimingPolicy:
     def __post_init__(self) -> None:
         if not 0 < self.target_rel_ci < 1 or not 0.5 <= self.confidence < 1:
             raise ValueError("target_rel_ci must be in (0, 1) and confidence in [0.5, 1)")
-        if self.min_runs < 2 or self.max_runs < self.min_runs or self.budget_s <= 0:
-            raise ValueError("need min_runs >= 2, max_runs >= min_runs and budget_s > 0")
+        if self.min_runs < 3 or self.max_runs < self.min_runs or self.budget_s <= 0:
+            raise ValueError("need min_runs >= 3, max_runs >= min_runs and budget_s > 0")
         if self.warmup < 0 or self.max_warmup < self.warmup or self.warmup_s < 0:
             raise ValueError("need 0 <= warmup <= max_warmup and warmup_s >= 0")
 
@@ -124,22 +124,29 @@ def relative_half_width(median: float, low: float, high: float) -> float:
     return max(median - low, high - median) / median if median > 0 else float("inf")
 
 
-def time_until_precise(call: Callable[[], object], policy: TimingPolicy, *,
-                       clock: Callable[[], float] = time.perf_counter) -> TimedPasses:
-    """Warm up, then time ``call()`` pass by pass under ``policy`` (module docstring)."""
+def time_until_precise(call: Callable[..., object], policy: TimingPolicy, *,
+                       clock: Callable[[], float] = time.perf_counter,
+                       setup: Callable[[int], Any] | None = None) -> TimedPasses:
+    """Warm up, then time ``call()`` pass by pass under ``policy`` (module docstring).
+
+    With ``setup``, pass ``i`` times ``call(setup(i))`` and ``setup(i)`` is not timed (e.g.
+    reading frame ``i`` of a sequence before a network segments it); warm-up passes use
+    ``setup(0)``."""
     start = clock()
     warm = 0
+    first = setup(0) if setup is not None else None
     while warm < policy.max_warmup and (warm < policy.warmup or
                                         clock() - start < policy.warmup_s):
-        call()
+        call() if setup is None else call(first)
         warm += 1
     times: list[float] = []
     began = clock()
     checked_at = 0
     stopped = ""
     while not stopped:
+        arg = setup(len(times)) if setup is not None else None
         t0 = clock()
-        call()
+        call() if setup is None else call(arg)
         t1 = clock()
         times.append(t1 - t0)
         n = len(times)

@@ -196,7 +196,7 @@ def build_report(run_dir: str | Path) -> list[Path]:
     from evsmap.cache import cache_root, folder_size
 
     index = index_markdown(run, tables, table_ids, frames, extras, drawn,
-                           has_extra_csv=bool(extras),
+                           has_extra_csv=bool(extras), records=records,
                            sizes={"run": folder_size(run_dir)[1],
                                   "cache_root": str(cache_root()),
                                   "cache": folder_size(cache_root())[1]})
@@ -242,8 +242,10 @@ def _md(text: Any) -> str:
 def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
                    table_ids: list[str], frames: Mapping[str, pd.DataFrame],
                    extras: list[CellRecord], drawn: Mapping[str, bool], *,
-                   has_extra_csv: bool, sizes: Mapping[str, Any] | None = None) -> str:
-    """The run's ``index.md`` (``sizes``: bytes of the run folder and of the shared cache)."""
+                   has_extra_csv: bool, sizes: Mapping[str, Any] | None = None,
+                   records: list[CellRecord] | None = None) -> str:
+    """The run's ``index.md`` (``sizes``: bytes of the run folder and of the shared cache;
+    ``records``: the run's records, for the timing precision)."""
     run_id = run.get("run") or "unknown"
     out = [f"# evsmap report - run {run_id}", ""]
     out += claims_markdown(frames, extras)
@@ -251,6 +253,9 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     from evsmap.runner.mapping_cells import TABLE4_READING
 
     out += consistency_markdown(extras, TABLE4_READING)
+    from evsmap.report.precision import precision_markdown
+
+    out += precision_markdown(list(records or []), (run.get("context") or {}).get("timing"))
     finished = run.get("finished") or "not finished (interrupted, or still running)"
     out += [f"- Started: {run.get('started') or 'unknown'}", f"- Finished: {finished}"]
     if run.get("quick"):
@@ -263,12 +268,13 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     if flagged:
         cells = ", ".join(f"{tables[tid].number}: {r['label']} / {r['header']}"
                           for tid, r in flagged[:6]) + (" ..." if len(flagged) > 6 else "")
-        out.append(f"- **Timing: {len(flagged)} timed cell(s) flagged** (marked `~`: no steady "
-                   f"median within the rounds allowed, or the machine was busy) - Table {cells}. "
+        out.append(f"- **Timing: {len(flagged)} timed cell(s) flagged** (marked `~`: the "
+                   f"machine was busy, or an older run's median was not steady) - Table {cells}. "
                    f"Rerun them on an idle machine, or with `--strict-timing`.")
     elif timed:
         out.append(f"- Timing: all {timed} timed cells (speeds, mapping rates) were taken with no "
-                   f"contention seen by the calibration, speeds with a steady median")
+                   f"contention seen by the calibration (the speeds' precision: \"Timing "
+                   f"precision\" above)")
     if sizes:
         out.append(f"- Run folder: {sizes['run'] / 1e6:.1f} MB (records, tables, plots, small "
                    f"artifacts); ONNX exports, segmentations and rendered sequences live in the "

@@ -206,6 +206,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     frames_id = sequence_identity(sequence)
     observations: list | None = None
     segment_ms: list[float] = []
+    segment_timing: dict[str, Any] | None = None  # the untrained network timed on its own
     from evsmap.measure.contention import CalibrationLog, Probe, contention, machine_log_path
 
     before = Probe.take()  # the machine around the timed part (segmentation and update)
@@ -224,11 +225,12 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                 own, sequence, indices, key={"segmenter": run.segmenter.spec,
                                              "sequence": sequence.name, "frames": frames_id})
             if reused:
-                segment_ms, _ = cache.timings(own, sequence, indices, key={
+                segment_timing, _ = cache.timings(own, sequence, indices, key={
                     "segmenter": run.segmenter.spec, "threads": ctx.threads,
-                    "sequence": sequence.name})
+                    "sequence": sequence.name}, policy=ctx.timing_policy())
+                segment_ms = segment_timing["predict_ms"]
             if is_oracle(own):  # ground truth read, not a segmentation: no segmentation time
-                segment_ms = []
+                segment_ms, segment_timing = [], None
             notes.append(f"labels from {run.segmenter.spec} (not a network: no weights"
                          + ("; reads ground truth, so end to end = update only)"
                             if is_oracle(own) else ")"))
@@ -239,10 +241,11 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                 key={**observations_key(run.segmenter.spec, weights, sequence.name),
                      "frames": frames_id})
             if reused:  # computed in another run: time the network in this one
-                segment_ms, _ = cache.timings(net, sequence, indices, key={
+                segment_timing, _ = cache.timings(net, sequence, indices, key={
                     "segmenter": run.segmenter.spec, "weights_id": weights_identity(weights),
                     "backend": "onnxruntime", "threads": ctx.threads,
-                    "sequence": sequence.name})
+                    "sequence": sequence.name}, policy=ctx.timing_policy())
+                segment_ms = segment_timing["predict_ms"]
             notes.append(f"labels from {run.segmenter.spec} with weights {choice.file} "
                          f"(onnxruntime)")
             notes.append(choice.note())
@@ -254,13 +257,16 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                 oracle, sequence, indices, key={"segmenter": "oracle", **ctx.oracle,
                                                 "sequence": sequence.name, "frames": frames_id})
             net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
-            segment_ms, _ = cache.timings(net, sequence, indices, key={
+            segment_timing, _ = cache.timings(net, sequence, indices, key={
                 "segmenter": run.segmenter.spec, "backend": ctx.speed_backend,
-                "threads": ctx.threads, "sequence": sequence.name})
+                "threads": ctx.threads, "sequence": sequence.name}, policy=ctx.timing_policy())
+            segment_ms = segment_timing["predict_ms"]
             notes.append(f"labels from the oracle segmenter ({_options(ctx.oracle)}: ground "
                          f"truth with seeded noise), no trained weights; segmentation time of "
                          f"the untrained {run.segmenter.spec} ({ctx.speed_backend}) on the "
-                         f"same frames")
+                         f"same frames in order, {len(segment_ms)} of them (until its "
+                         f"median was within +-{100 * segment_timing['rel_ci']:.1f} %, "
+                         f"{segment_timing['stopped']})")
         else:
             need = f"weights:{run.segmenter.spec}@{MAPPING_WEIGHTS}"
             return CellRecord(**base, status="na", needs=[need],
@@ -268,7 +274,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                               f"ground-truth labels for the oracle)", started=now())
     from evsmap.measure.engine import rates, run_mapping
     from evsmap.measure.evaluators import MapFiles, MapStatistics, pruned_share
-    from evsmap.measure.growth import GROWTH_POINTS, QUICK_GROWTH_POINTS, MapGrowth, growth_every
+    from evsmap.measure.growth import MapGrowth, growth_every, growth_points
 
     # the map's own memory: from before the updater is made to its files (the observations
     # were computed beforehand)
@@ -277,8 +283,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                                           **run.updater.config),
         observations=observations, indices=indices,
         evaluators=[MapStatistics(), MapFiles()],
-        growth=MapGrowth(every=growth_every(n, QUICK_GROWTH_POINTS if ctx.quick
-                                            else GROWTH_POINTS)))
+        growth=MapGrowth(every=growth_every(n, growth_points(n, quick=ctx.quick))))
     updater, memory = mapped.updater, mapped.memory
     stats, sizes = mapped.results["stats"], mapped.results["files"].sizes
     update_ms = list(mapped.update_ms)
@@ -309,7 +314,12 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         "front_end": {"name": updater.front_end, **updater.front_end_counts()},
         "growth": mapped.results["growth"]}
     notes.append(f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians "
-                 f"over frames (update only; end to end = segmentation + update)")
+                 f"over frames (update only; end to end = the median segmentation time + the "
+                 f"median update time)")
+    if segment_timing is not None:
+        details["segment_timing"] = {k: segment_timing[k] for k in
+                                     ("rel_ci", "stopped", "warmup", "policy")
+                                     if k in segment_timing}
     details["contention"] = machine
     details["calibration_gmacs"] = math.sqrt(machine["before"]["calibration_gmacs"]
                                              * machine["after"]["calibration_gmacs"])

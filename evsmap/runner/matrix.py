@@ -101,10 +101,17 @@ def plan(ctx: RunContext, tables: Iterable[str] = TABLES,
         specs += expand(loaded[tid], available=ctx.available(requires))
     skipped = []
     if ctx.quick:
+        from evsmap.tables.claims import claims_first
+
         keep = []
         for s in specs:
-            if s.kind == "speed" and s.input_size and \
-                    s.input_size[0] * s.input_size[1] > QUICK_MAX_PIXELS and not s.needs:
+            if s.needs:
+                keep.append(s)
+            elif claims_first(s.table, s.row):
+                skipped.append((s.key, "skipped by --quick (a compared network; the full run "
+                                       "measures it)"))
+            elif s.kind == "speed" and s.input_size and \
+                    s.input_size[0] * s.input_size[1] > QUICK_MAX_PIXELS:
                 skipped.append((s.key, "skipped by --quick (input above 1024x512)"))
             else:
                 keep.append(s)
@@ -225,6 +232,14 @@ def _unlabelled(ctx: RunContext, sequence: str, cache: dict[str, bool]) -> bool:
         seq = open_mapping_sequence(ctx, sequence)
         cache[sequence] = len(seq) == 0 or seq.frame(0).labels is None
     return cache[sequence]
+
+
+def lacks_labels(ctx: RunContext, run: MappingRun, cache: dict[str, bool] | None = None) -> bool:
+    """A semantic run that cannot be mapped here: no trained weights for its network and no
+    ground-truth labels on its sequence for the oracle to stand in."""
+    return (run.segmenter is not None and not run.own_labels
+            and ctx.weights_path(run.segmenter.spec, "nyuv2") is None
+            and _unlabelled(ctx, run.sequence, {} if cache is None else cache))
 
 
 def _run_timed(items: list, run_one: Callable[[Any, TimingSlot], CellRecord],
@@ -419,9 +434,7 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
     labels_cache: dict[str, bool] = {}
     to_map: list[MappingRun] = []
     for run in runs:
-        if run.segmenter is not None and not run.own_labels and \
-                ctx.weights_path(run.segmenter.spec, "nyuv2") is None and \
-                _unlabelled(ctx, run.sequence, labels_cache):
+        if lacks_labels(ctx, run, labels_cache):
             need = f"weights:{run.segmenter.spec}@nyuv2"
             rec = CellRecord(
                 key=run.key, table="extra", row=run.row, label=run.label, kind="mapping",

@@ -5,7 +5,9 @@
   updater of Table IV maps the same labels and none pays for segmentation again.
 * Segmentation times (ms per frame) of a network are stored next to them: when no trained weights
   are given, mapping uses the oracle's labels and the untrained network is only timed (its speed
-  does not depend on its weights), which is what the end-to-end rate needs.
+  does not depend on its weights), which is what the end-to-end rate needs. It is timed on the
+  sequence's frames in order under the run's timing policy (until its median is precise enough
+  or its budget is spent), not on every frame.
 
 Entries are keyed by a hash of everything that determines them and written atomically (a
 temporary folder renamed into place), so an interrupted run never leaves half an entry.
@@ -27,6 +29,7 @@ import numpy as np
 from evsmap.data import SemanticObservation, Sequence
 from evsmap.measure.engine import run_segmentation
 from evsmap.measure.evaluators import KeepObservations
+from evsmap.measure.timing_policy import TimingPolicy, time_until_precise
 
 
 def cache_key(**parts: Any) -> str:
@@ -83,20 +86,27 @@ class SegmentationCache:
         return obs, times, False
 
     def timings(self, segmenter, sequence: Sequence, indices: list[int], *,
-                key: dict[str, Any], warmup: int = 1) -> tuple[list[float], bool]:
-        """ms per ``predict`` of ``segmenter`` on each frame (after ``warmup`` untimed
-        predictions), measured once and stored; and whether they came from the cache."""
-        entry = self._entry("time", cache_key(indices=indices, warmup=warmup, **key))
+                key: dict[str, Any], policy: TimingPolicy) -> tuple[dict[str, Any], bool]:
+        """ms per ``predict`` of ``segmenter`` on ``sequence``'s frames ``indices`` in order
+        (cycling when the policy wants more passes than frames), timed under ``policy``
+        (:func:`~evsmap.measure.timing_policy.time_until_precise`) and stored; returns the
+        timing (``predict_ms``, ``rel_ci``, ``stopped``, ``warmup``) and whether it came from
+        the cache."""
+        entry = self._entry("time", cache_key(indices=indices, policy=policy.as_dict(), **key))
         if (entry / "meta.json").is_file():
-            return json.loads((entry / "meta.json").read_text())["predict_ms"], True
+            meta = json.loads((entry / "meta.json").read_text())
+            return {k: v for k, v in meta.items() if k not in ("key", "indices")}, True
         self.root.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(dir=self.root, prefix=".tmp-time-"))
         try:
-            times = run_segmentation(sequence, segmenter, indices=indices,
-                                     warmup=warmup).predict_ms
+            passes = time_until_precise(
+                segmenter.predict, policy,
+                setup=lambda i: sequence.frame(indices[i % len(indices)]))
+            times = {"predict_ms": [t * 1000.0 for t in passes.times_s],
+                     "rel_ci": passes.rel_ci, "stopped": passes.stopped,
+                     "warmup": passes.warmup_runs, "policy": passes.policy}
             (tmp / "meta.json").write_text(json.dumps(
-                {"key": key, "indices": indices, "warmup": warmup, "predict_ms": times},
-                default=str))
+                {"key": key, "indices": indices, **times}, default=str))
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -165,8 +165,8 @@ def test_rates():
     assert rates([10.0, 20.0, 30.0]) == (50.0, 50.0)
     assert rates([10.0, 10.0], [30.0, 30.0]) == (100.0, 25.0)
     assert all(np.isnan(rates([])))
-    with pytest.raises(InvalidDataError, match="2 segmentation times for 1 updates"):
-        rates([1.0], [1.0, 2.0])
+    # the median segmentation time (any number of frames) + the median update time
+    assert rates([10.0, 30.0, 20.0], [40.0, 30.0]) == (50.0, pytest.approx(1000.0 / 55.0))
 
 
 def test_in_memory_wraps_frames(seq):

@@ -1,0 +1,46 @@
+"""Write ``evsmap/runner/reference_durations.json`` from a finished ``evsmap reproduce`` run:
+how long each cell took on that machine, with the machine's calibration, so that a new user's
+first run can estimate its time (:mod:`evsmap.runner.estimate` scales these by the two
+machines' calibrations).
+
+Use a first run with an empty cache (``EVSMAP_CACHE_DIR`` pointing at an empty folder), on an
+idle machine, so the durations include what a new user pays (exports, renders, counts)::
+
+    EVSMAP_CACHE_DIR=$(mktemp -d) evsmap reproduce --out reports/ref
+    python benchmarks/reference_durations.py reports/ref
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from evsmap.fileio import atomic_write_text
+from evsmap.report.build import read_records
+from evsmap.runner.estimate import REFERENCE_FILE
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path, help="the run folder")
+    args = parser.parse_args()
+    run = json.loads((args.run / "run.json").read_text())
+    calibration = json.loads((args.run / "cache" / "calibration.json").read_text())
+    env = run.get("environment") or {}
+    cells = {r.key: round(r.seconds, 2) for r in read_records(args.run)
+             if r.status == "ok" and r.seconds > 0}
+    data = {"machine": {"cpu": env.get("cpu"), "instruction_set": env.get("instruction_set"),
+                        "threads": env.get("threads"),
+                        "calibration_gmacs": round(float(calibration["best_gmacs"]), 2)},
+            "run": {"started": run.get("started"), "finished": run.get("finished"),
+                    "git_commit": env.get("git_commit"), "quick": run.get("quick"),
+                    "extended": (run.get("settings") or {}).get("extended")},
+            "cells": dict(sorted(cells.items()))}
+    atomic_write_text(REFERENCE_FILE, json.dumps(data, indent=1) + "\n")
+    print(f"{len(cells)} cells, {sum(cells.values()) / 60:.1f} min in all -> {REFERENCE_FILE}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
