@@ -173,3 +173,10 @@ def _check_due(n: int, last: int, pass_s: float) -> bool:
     """Whether to compute the interval again: after every pass of a slow network, every tenth
     of the passes so far for a fast one (the bootstrap costs a few milliseconds)."""
     return pass_s >= 0.05 or n - last >= max(1, n // 10)
+
+
+def sum_precision(parts: list[tuple[float, float]]) -> float:
+    """The precision (relative half-width) of a sum of medians, from each part's ``(median,
+    relative half-width)``: the parts' half-widths added (a conservative bound)."""
+    total = sum(m for m, _ in parts)
+    return sum(m * r for m, r in parts) / total if total > 0 else float("inf")

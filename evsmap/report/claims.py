@@ -37,6 +37,22 @@ def _paper(cell: Mapping | None) -> float | None:
     return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
 
 
+TIMED_UNITS = ("FPS", "Hz")
+"""Units of the columns whose values are timings (the others are counts or scores: exact)."""
+
+
+def _precision(cell: Mapping | None) -> float | None:
+    v = None if cell is None else cell.get("rel_ci")
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+
+
+def ratio_precision(a: Mapping | None, b: Mapping | None) -> float | None:
+    """The precision of a ratio of two timings: the two cells' precisions added (None when
+    either has none: a count, or a record from before the timing rule)."""
+    pa, pb = _precision(a), _precision(b)
+    return None if pa is None or pb is None else pa + pb
+
+
 def _calibration(cell: Mapping | None) -> float | None:
     v = None if cell is None else cell.get("calibration_gmacs")
     return None if v is None or (isinstance(v, float) and math.isnan(v)) or v <= 0 else float(v)
@@ -86,6 +102,8 @@ def check(claim: Claim, frame: pd.DataFrame) -> dict:
     flagged = any(isinstance(c.get("timing_flag"), str) and c.get("timing_flag")
                   for c in (a, b) if c is not None)
     return {"claim": claim.text, "measured": ratio, "raw": raw, "paper": paper,
+            "precision": ratio_precision(a, b),
+            "timed": any(c is not None and c.get("unit") in TIMED_UNITS for c in (a, b)),
             "verdict": "holds" if holds else "does not hold",
             "why": "a timing in it is flagged (~)" if flagged else ""}
 
@@ -102,15 +120,20 @@ def claims_markdown(frames: Mapping[str, pd.DataFrame],
            "way in this run (ratios carry across machines; this CPU against the paper's GPU or "
            "Jetson does not). A ratio of two timings divides each by the calibration matmul "
            "timed around it first, so the machine running faster or slower between the two "
-           "does not move it; the plain ratio follows in brackets.", "",
-           "| claim | measured ratio | paper's ratio | here |", "|---|---:|---:|---|"]
+           "does not move it; the plain ratio follows in brackets. Its precision is the two "
+           "timings' (each the half-width of its median's 95 % interval) added: another idle "
+           "run should land within it.", "",
+           "| claim | measured ratio | precision | paper's ratio | here |",
+           "|---|---:|---:|---:|---|"]
     for r in rows:
         measured = "-" if r["measured"] is None else f"{r['measured']:.2f}x"
         if r.get("raw") is not None and f"{r['raw']:.2f}" != f"{r['measured']:.2f}":
             measured += f" (plain {r['raw']:.2f}x)"
         paper = "-" if r["paper"] is None else f"{r['paper']:.2f}x"
         verdict = r["verdict"] + (f" ({_short(r['why'])})" if r["why"] else "")
-        out.append(f"| {r['claim']} | {measured} | {paper} | {verdict} |")
+        precision = ("-" if r["measured"] is None else "exact" if not r.get("timed") else
+                     "-" if r.get("precision") is None else f"+-{100 * r['precision']:.1f} %")
+        out.append(f"| {r['claim']} | {measured} | {precision} | {paper} | {verdict} |")
     from evsmap.report.map_size import verdict_rows
 
     out += verdict_rows(extras)

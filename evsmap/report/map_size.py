@@ -113,7 +113,7 @@ def verdict_rows(extras: Iterable[CellRecord]) -> list[str]:
                     continue
                 out.append(f"| {pair.split(' / ')[0]}'s map is smaller than "
                            f"{pair.split(' / ')[1]}'s ({reading}), {seq} at {voxel * 100:g} cm "
-                           f"(not a paper sequence unless TUM) | {ratio:.2f}x | up to "
+                           f"(not a paper sequence unless TUM) | {ratio:.2f}x | exact | up to "
                            f"1/{CLAIMED_SHRINK:g} = {1 / CLAIMED_SHRINK:.2f}x | "
                            f"{'holds' if ratio < 1 else 'does not hold'} |")
     return out

@@ -22,7 +22,7 @@ from evsmap.tables.schema import CellSpec, Column, PaperTable, expand
 
 FRAME_COLUMNS = ("table", "row", "label", "column", "header", "unit", "measured", "paper",
                  "paper_printed", "paper_best", "ratio", "status", "note", "timing_flag",
-                 "calibration_gmacs")
+                 "calibration_gmacs", "rel_ci")
 """Columns of :func:`table_frame`."""
 
 STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
@@ -209,7 +209,7 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
             cell = table.cell(system.id, col.id)
             paper = None if cell.number is None else float(cell.number)
             measured = None
-            flag = calibration = None
+            flag = calibration = precision = None
             if not system.implemented:
                 status, note = "paper only", ""
             elif (system.id, col.id) not in index or index[(system.id, col.id)] is None:
@@ -234,6 +234,7 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                         flag = (rec.details or {}).get("timing_flag")
                         if col.timing:
                             calibration = record_calibration(rec)
+                            precision = _number((rec.details or {}).get("rel_ci"))
             ratio = (measured / paper if measured is not None and paper not in (None, 0.0)
                      else None)
             lines.append({"table": table.id, "row": system.id, "label": system.label,
@@ -242,9 +243,9 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                           "paper_printed": cell.printed, "paper_best": bool(cell.bold),
                           "ratio": ratio,
                           "status": status, "note": note, "timing_flag": flag,
-                          "calibration_gmacs": calibration})
+                          "calibration_gmacs": calibration, "rel_ci": precision})
     frame = pd.DataFrame(lines, columns=list(FRAME_COLUMNS))
-    for name in ("measured", "paper", "ratio", "calibration_gmacs"):
+    for name in ("measured", "paper", "ratio", "calibration_gmacs", "rel_ci"):
         frame[name] = pd.to_numeric(frame[name]).astype("float64")
     return frame
 

@@ -320,6 +320,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         details["segment_timing"] = {k: segment_timing[k] for k in
                                      ("rel_ci", "stopped", "warmup", "policy")
                                      if k in segment_timing}
+    details["rel_ci"] = end_to_end_precision(update_ms, segment_ms)
     details["contention"] = machine
     details["calibration_gmacs"] = math.sqrt(machine["before"]["calibration_gmacs"]
                                              * machine["after"]["calibration_gmacs"])
@@ -398,6 +399,19 @@ def runtime_sequence(sequences: list[str], runs: dict[str, CellRecord],
     return "synthetic", True
 
 
+def end_to_end_precision(update_ms: list[float], segment_ms: list[float]) -> float | None:
+    """The precision of the end-to-end rate (1000 / (median update + median segmentation)):
+    each median's 95 % bootstrap interval, their half-widths added, over the sum."""
+    from evsmap.measure.timing_policy import median_ci, relative_half_width, sum_precision
+
+    parts = []
+    for times in (update_ms, segment_ms):
+        if times:
+            median, low, high = median_ci(times)
+            parts.append((median, relative_half_width(median, low, high)))
+    return sum_precision(parts) if parts else None
+
+
 def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) -> CellRecord:
     """A Table IV cell from the mapping runs: the map size on its sequence, or the end-to-end
     rate on the one sequence every row's rate comes from (:func:`runtime_sequence`), so the
@@ -434,7 +448,7 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
                          + (" (no sequence of the paper's could be mapped by every system "
                             "here)" if fallback else "") + "; " + "; ".join(source.notes))
             details[col] = {"source": source.key}
-            for name in ("timing_flag", "calibration_gmacs"):
+            for name in ("timing_flag", "calibration_gmacs", "rel_ci"):
                 if (source.details or {}).get(name):
                     details[name] = source.details[name]
     return CellRecord(**base, status="ok", values=values, notes=notes, details=details,

@@ -8,9 +8,11 @@ from evsmap.report.claims import CLAIMS, Claim, check, claims_markdown, relative
 from evsmap.tables import load_tables
 
 
-def _frame(cells):
+def _frame(cells, precision=None):
     rows = [{"row": r, "column": c, "label": r, "status": s, "measured": m, "paper": p,
-             "note": n, "timing_flag": f} for (r, c), (s, m, p, n, f) in cells.items()]
+             "note": n, "timing_flag": f, "unit": "FPS" if c == "fps" else "%",
+             "rel_ci": (precision or {}).get(r)}
+            for (r, c), (s, m, p, n, f) in cells.items()]
     return pd.DataFrame(rows)
 
 
@@ -49,10 +51,13 @@ def test_a_match_claim_allows_five_percent():
 def test_index_section_and_relative_view():
     table = load_tables()["table1"]
     frame = _frame({("feagnet-v2", "fps"): ("ok", 30.0, 28.1, "", None),
-                    ("esanet-r34", "fps"): ("ok", 10.0, 10.0, "", None)})
+                    ("esanet-r34", "fps"): ("ok", 10.0, 10.0, "", None)},
+                   precision={"feagnet-v2": 0.012, "esanet-r34": 0.02})
     md = "\n".join(claims_markdown({"table1": frame}))
     assert md.startswith("## What reproduces here")
-    assert "| FEAGNet-V2 runs faster than ESANet-R34 (Table I, FPS) | 3.00x | 2.81x | holds |" in md
+    # a ratio of two timings: their precisions added
+    assert ("| FEAGNet-V2 runs faster than ESANet-R34 (Table I, FPS) | 3.00x | +-3.2 % | 2.81x "
+            "| holds |") in md
     rel = "\n".join(relative_markdown(table, frame))
     assert "Relative to" in rel and "3.00x / 2.81x" in rel
     assert relative_markdown(load_tables()["table3"], frame) == []
