@@ -208,7 +208,7 @@ def export_lean(module: torch.nn.Module, inputs: Sequence[torch.Tensor], names: 
         dynamic = {n: {2: HEIGHT, 3: WIDTH} for n in names}
         dynamic[OUTPUT_NAMES[0]] = {2: f"out_{HEIGHT}", 3: f"out_{WIDTH}"}
     with eval_mode(module), torch.no_grad(), warnings.catch_warnings(), \
-            contextlib.redirect_stdout(io.StringIO()):
+            contextlib.redirect_stdout(io.StringIO()), quiet_native_output():
         warnings.simplefilter("ignore")
         try:
             torch.onnx.export(module, inputs, str(path), input_names=list(names),
@@ -228,6 +228,33 @@ def export_lean(module: torch.nn.Module, inputs: Sequence[torch.Tensor], names: 
     except Exception as exc:
         raise OnnxExportError(f"ONNX export of {type(module).__name__} does not check: "
                               f"{_first_line(exc)}") from exc
+
+
+@contextlib.contextmanager
+def quiet_native_output():
+    """Silence what native code writes to the process's stdout and stderr for the block: a
+    failed TorchScript export prints the whole traced graph (thousands of lines) from C++,
+    past Python's ``sys.stdout``. The exception still says what failed."""
+    import sys
+
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:  # no file descriptors to redirect (an embedded interpreter)
+        yield
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
 
 
 def _attach_weights(model, state: Mapping[str, torch.Tensor], names: set[str],

@@ -122,3 +122,25 @@ def test_digest_follows_structure_not_weights():
                                                  ((96, 96), (128, 128), (192, 64))])
 def test_trace_sizes(size, traced, checked):
     assert trace_sizes(size) == (traced, checked)
+
+
+class PooledNet(FreeNet):
+    """Pools to a fixed grid: the exporter refuses it with free sizes (as ESANet's and LDN's
+    context modules), printing the traced graph from C++."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.pool = nn.AdaptiveAvgPool2d((4, 4))
+
+    def forward(self, rgb, depth):
+        x = self.conv(torch.cat([rgb, depth], 1))
+        x = x + nn.functional.interpolate(self.pool(x), size=x.shape[-2:], mode="nearest")
+        return self.head(x)
+
+
+def test_a_refused_size_free_export_falls_back_quietly(tmp_path, capfd):
+    export = speed_export(_net(PooledNet), _inputs(), ["rgb", "depth"], key="pooled",
+                          cache_dir=tmp_path)
+    assert not export.size_free and "adaptive_avg_pool2d" in export.note
+    out, err = capfd.readouterr()
+    assert "Torch IR graph" not in out + err and len(out + err) < 2000
