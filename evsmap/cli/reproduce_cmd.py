@@ -298,7 +298,7 @@ def _estimator(ctx: RunContext, args: argparse.Namespace):
         gmacs = calibration_gmacs()
     finally:
         torch.set_num_threads(previous)
-    return Estimator.load(threads=ctx.threads, calibration_gmacs=gmacs)
+    return Estimator.load(threads=ctx.threads, calibration_gmacs=gmacs, quick=ctx.quick)
 
 
 def _pending(ctx: RunContext, the_plan, out: Path, *,

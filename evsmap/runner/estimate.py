@@ -32,11 +32,13 @@ CORRECTION_LIMITS = (0.5, 3.0)
 """The running correction of the estimates left is kept within these factors."""
 
 
-def machine_id(threads: int) -> str:
-    """The history's machine: CPU model, instruction set and threads."""
+def machine_id(threads: int, *, quick: bool = False) -> str:
+    """The history's machine: CPU model, instruction set and threads (a ``--quick`` run's cells
+    are kept apart: same keys, smaller work)."""
     from evsmap.environment import cpu_model, instruction_set
 
-    return f"{cpu_model()} / {instruction_set()} / {threads} threads"
+    return f"{cpu_model()} / {instruction_set()} / {threads} threads" + (" / quick" if quick
+                                                                          else "")
 
 
 @dataclass
@@ -61,17 +63,19 @@ class Estimator:
 
     @classmethod
     def load(cls, *, threads: int, calibration_gmacs: float | None,
-             cache_root: Path | None = None) -> Estimator:
+             cache_root: Path | None = None, quick: bool = False) -> Estimator:
         """The estimator of this machine: its history under ``cache_root`` (default: evsmap's
-        cache) and the shipped reference scaled by ``calibration_gmacs`` (None: unscaled)."""
+        cache) and the shipped reference scaled by ``calibration_gmacs`` (None: unscaled);
+        ``quick``: a ``--quick`` run's (the reference is a full run's: not used)."""
         from evsmap.cache import cache_root as default_root
 
         root = cache_root if cache_root is not None else default_root()
         path = root / DURATIONS_FILE
-        machine = machine_id(threads)
+        machine = machine_id(threads, quick=quick)
         history = _read(path).get(machine, {})
         reference_data = _read(REFERENCE_FILE)
-        reference = reference_data.get("cells", {})
+        same_kind = bool((reference_data.get("run") or {}).get("quick")) == quick
+        reference = reference_data.get("cells", {}) if same_kind else {}
         ref_cal = (reference_data.get("machine") or {}).get("calibration_gmacs")
         scale = ref_cal / calibration_gmacs if ref_cal and calibration_gmacs else 1.0
         return cls(history={k: float(v) for k, v in history.items()},

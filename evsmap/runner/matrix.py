@@ -121,7 +121,8 @@ def plan(ctx: RunContext, tables: Iterable[str] = TABLES,
         sequences = ["synthetic"] + (["synthetic-long"] if ctx.synthetic_long else []) + [
             d for d in ("tum", "rtabmap", "asl", "ours1", "ours2")
             if ctx.dataset_path(d) is not None]
-    runs = mapping_runs(sequences, ctx.voxel_sizes(), systems) if sequences else []
+    runs = mapping_runs(sequences, ctx.voxel_sizes(), systems,
+                        reference_on_synthetic=ctx.reference_on_synthetic) if sequences else []
     if cells is not None:
         from fnmatch import fnmatchcase
 

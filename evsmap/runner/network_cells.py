@@ -118,6 +118,13 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
                          machine_path=machine_log_path())
     policy = ctx.timing_policy()
     roofline = run_roofline(ctx)
+    if export is not None:  # what the export and the counts left behind is not timed with
+        import gc
+
+        from evsmap.measure.memory import trim_heap
+
+        gc.collect()
+        trim_heap()
 
     def measure():
         return measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,

@@ -103,3 +103,15 @@ def test_the_correction_is_bounded_and_durations_read_well():
 def test_budget_refuses_once_the_time_is_spent():
     assert Budget(1.0).refuses(30.0) is None
     assert "left out by --budget 1" in Budget(1.0).refuses(120.0)
+
+
+def test_quick_runs_keep_their_own_history_and_skip_the_full_reference(tmp_path, monkeypatch):
+    reference = tmp_path / "reference.json"
+    reference.write_text(json.dumps({"machine": {"calibration_gmacs": 100.0},
+                                     "run": {"quick": False}, "cells": {"a": 10.0}}))
+    monkeypatch.setattr("evsmap.runner.estimate.REFERENCE_FILE", reference)
+    quick = Estimator.load(threads=2, calibration_gmacs=100.0, cache_root=tmp_path, quick=True)
+    assert quick.seconds("a", "speed") == (30.0, "default")
+    quick.learn("a", "speed", 2.0)
+    full = Estimator.load(threads=2, calibration_gmacs=100.0, cache_root=tmp_path)
+    assert full.seconds("a", "speed") == (10.0, "reference")  # the quick 2 s stays apart
