@@ -140,7 +140,8 @@ _JSON_TYPES: dict[str, Any] = {
     "metrics": list, "notes": list, "needs": list,
     "values": dict, "details": dict, "inputs": dict, "environment": dict}
 _STRING_LISTS = ("metrics", "notes", "needs")
-_KIND_NAMES = {str: "a string", (int, float): "a number", list: "a list", dict: "an object"}
+_KIND_NAMES = {str: "a string", (int, float): "a number", int: "an integer", list: "a list",
+               dict: "an object"}
 
 
 def _file_name(key: str) -> str:

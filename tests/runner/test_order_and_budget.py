@@ -115,3 +115,13 @@ def test_quick_runs_keep_their_own_history_and_skip_the_full_reference(tmp_path,
     quick.learn("a", "speed", 2.0)
     full = Estimator.load(threads=2, calibration_gmacs=100.0, cache_root=tmp_path)
     assert full.seconds("a", "speed") == (10.0, "reference")  # the quick 2 s stays apart
+
+
+@pytest.mark.parametrize("value", ["x", 1.5, True])
+def test_a_record_whose_peak_is_not_an_integer_is_one_clear_error(value):
+    from evsmap.errors import DataFormatError
+
+    data = {"key": "a", "table": "table1", "row": "r", "label": "R", "kind": "speed",
+            "metrics": [], "status": "ok", "cell_peak_rss_bytes": value}
+    with pytest.raises(DataFormatError, match="'cell_peak_rss_bytes' must be an integer"):
+        CellRecord.from_json(data, source="f.json")
