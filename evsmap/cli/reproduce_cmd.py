@@ -79,8 +79,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--extended", action=argparse.BooleanOptionalAction, default=None,
                    help="also map Table IV's systems on the long synthetic sequence (640 "
                         "frames, 4 laps with revisits: the map growth and the Map Size "
-                        "readings' check) and at 5 cm beside 2 cm: about 40 minutes more on 2 "
-                        "cores (with --resume: as the run was made)")
+                        "readings' check), at 5 cm beside 2 cm, and the C++ OctoMap on the "
+                        "synthetic room: 33 more mapping runs, 16 of them of 640 frames (not "
+                        "timed as a whole; with --resume: as the run was made)")
     p.add_argument("--budget", type=positive_float, default=None, metavar="MINUTES",
                    help="fit the run into this many minutes: a cell whose estimated time no "
                         "longer fits is not started and is recorded as not measured, with the "

@@ -55,7 +55,8 @@ def precision_markdown(records: list[CellRecord], policy: dict[str, Any] | None)
         met = int(sum(x["stopped"] == "precision" for x in lines))
         out.append(f"- Precision of the {rel.size} speed cells' medians: median +-{q50:.1f} %, "
                    f"90th percentile +-{q90:.1f} %, worst +-{rel.max() * 100:.1f} %; "
-                   f"{met} reached the target, {rel.size - met} stopped on their budget.")
+                   f"{met} reached the target, {rel.size - met} stopped on "
+                   f"{'its' if rel.size - met == 1 else 'their'} budget.")
         budget = [x for x in lines if x["stopped"] == "budget"]
         if budget:
             worst = sorted(budget, key=lambda x: -(x["rel_ci"] or 0))[:8]

@@ -22,7 +22,7 @@ def test_the_section_states_rule_distribution_budget_cells_and_peaks():
     text = "\n".join(precision_markdown(records, TimingPolicy().as_dict()))
     assert "## Timing precision" in text and "within +-3%" in text
     assert "median +-2.0 %" in text and "worst +-8.0 %" in text
-    assert "2 reached the target, 1 stopped on their budget" in text
+    assert "2 reached the target, 1 stopped on its budget" in text
     assert "Stopped on their budget, with the precision reached: C 640x480 +-8.0 %" in text
     assert "2 made in this run (11 s)" in text
     assert "Peak memory of a cell: 3.00 GiB (C" in text
