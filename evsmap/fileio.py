@@ -169,3 +169,15 @@ def staging_folder(out: Path, *, overwrite: bool, source: Path | None = None,
         raise WriteError(f"{name}: cannot write ({exc.strerror or exc})") from None
     finally:
         shutil.rmtree(partial, ignore_errors=True)
+
+
+def read_json_object(path: str | os.PathLike[str]) -> dict:
+    """The JSON object in ``path``, or ``{}`` when the file is missing, unreadable or holds
+    something else (small state files that are rebuilt when lost: calibrations, durations)."""
+    import json
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}

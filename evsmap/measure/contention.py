@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evsmap.fileio import atomic_write_text
+from evsmap.fileio import atomic_write_text, read_json_object
 
 CALIBRATION_SIZE = 384
 SLOWDOWN_LIMIT = 1.4
@@ -162,11 +162,11 @@ class CalibrationLog:
         (``seen`` included) or of this machine, whichever is higher."""
         best = max(self._best, seen)
         if self.path is not None:
-            best = max(best, _read(self.path).get("best_gmacs", 0.0))
+            best = max(best, read_json_object(self.path).get("best_gmacs", 0.0))
             _write(self.path, {"best_gmacs": best})
         self._best = best
         if self.machine_path is not None:
-            table = _read(self.machine_path)
+            table = read_json_object(self.machine_path)
             key = machine_key()
             machine = max(float(table.get(key, 0.0)), best)
             table[key] = machine
@@ -174,13 +174,6 @@ class CalibrationLog:
             best = machine
         return best
 
-
-def _read(path: Path) -> dict:
-    try:
-        data = json.loads(path.read_text())
-        return data if isinstance(data, dict) else {}
-    except (OSError, ValueError):
-        return {}
 
 
 def _write(path: Path, data: dict) -> None:

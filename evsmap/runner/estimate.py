@@ -22,7 +22,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from evsmap.fileio import atomic_write_text
+from evsmap.fileio import atomic_write_text, read_json_object
 
 REFERENCE_FILE = Path(__file__).with_name("reference_durations.json")
 DURATIONS_FILE = "durations.json"
@@ -72,8 +72,8 @@ class Estimator:
         root = cache_root if cache_root is not None else default_root()
         path = root / DURATIONS_FILE
         machine = machine_id(threads, quick=quick)
-        history = _read(path).get(machine, {})
-        reference_data = _read(REFERENCE_FILE)
+        history = read_json_object(path).get(machine, {})
+        reference_data = read_json_object(REFERENCE_FILE)
         same_kind = bool((reference_data.get("run") or {}).get("quick")) == quick
         reference = reference_data.get("cells", {}) if same_kind else {}
         ref_cal = (reference_data.get("machine") or {}).get("calibration_gmacs")
@@ -112,7 +112,7 @@ class Estimator:
         self._taken += seconds
         self.history[key] = float(seconds)
         if self.path is not None:
-            data = _read(self.path)
+            data = read_json_object(self.path)
             data[self.machine] = {**data.get(self.machine, {}), key: round(float(seconds), 2)}
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -162,10 +162,3 @@ def format_duration(seconds: float) -> str:
         return f"{minutes} min"
     return f"{minutes // 60} h {minutes % 60:02d} min"
 
-
-def _read(path: Path) -> dict:
-    try:
-        data = json.loads(path.read_text())
-        return data if isinstance(data, dict) else {}
-    except (OSError, ValueError):
-        return {}

@@ -80,11 +80,7 @@ def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
 
     mark_peak()
     started, t0 = now(), time.perf_counter()
-    base = {"key": run.key, "table": "extra", "row": run.row, "label": run.label,
-            "kind": "mapping", "metrics": [],
-            "inputs": {"sequence": run.sequence, "voxel_size": run.voxel_size,
-                       "updater": run.updater.spec,
-                       "segmenter": run.segmenter.spec if run.segmenter else None}}
+    base = run.base_fields()
     try:
         record = mapping_record(run, ctx)
     except EvsmapError as exc:

@@ -57,6 +57,14 @@ class MappingRun:
     def key(self) -> str:
         return f"extra/mapping/{self.row}/{self.sequence}@{self.voxel_size:g}m"
 
+    def base_fields(self) -> dict[str, Any]:
+        """The fields every record of this run carries (key, row, inputs, ...)."""
+        return {"key": self.key, "table": "extra", "row": self.row, "label": self.label,
+                "kind": "mapping", "metrics": [],
+                "inputs": {"segmenter": self.segmenter.spec if self.segmenter else None,
+                           "updater": self.updater.spec, "sequence": self.sequence,
+                           "voxel_size": self.voxel_size}}
+
 
 VARIANT_ROWS = {
     "tfeagmap": ("-direct", "TFEAGMap, direct front end", {"front_end": "direct"}),
@@ -186,11 +194,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     from evsmap.registry import UPDATERS
     from evsmap.runner.segcache import SegmentationCache
 
-    base = {"key": run.key, "table": "extra", "row": run.row, "label": run.label,
-            "kind": "mapping", "metrics": [],
-            "inputs": {"segmenter": run.segmenter.spec if run.segmenter else None,
-                       "updater": run.updater.spec, "sequence": run.sequence,
-                       "voxel_size": run.voxel_size}}
+    base = run.base_fields()
     semantic = run.segmenter is not None
     choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) \
         if semantic and not run.own_labels else None

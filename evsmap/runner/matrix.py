@@ -370,11 +370,7 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
 def _skip_record(spec: CellSpec | MappingRun, why: str, ctx: RunContext) -> CellRecord:
     """A cell --budget left out: not measured, with the reason."""
     if isinstance(spec, MappingRun):
-        base = {"key": spec.key, "table": "extra", "row": spec.row, "label": spec.label,
-                "kind": "mapping", "metrics": [],
-                "inputs": {"sequence": spec.sequence, "voxel_size": spec.voxel_size,
-                           "updater": spec.updater.spec,
-                           "segmenter": spec.segmenter.spec if spec.segmenter else None}}
+        base = spec.base_fields()
     else:
         from evsmap.runner.execute import spec_inputs
 
@@ -438,12 +434,9 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
         if lacks_labels(ctx, run, labels_cache):
             need = f"weights:{run.segmenter.spec}@nyuv2"
             rec = CellRecord(
-                key=run.key, table="extra", row=run.row, label=run.label, kind="mapping",
-                metrics=[], status="na", needs=[need],
+                **run.base_fields(), status="na", needs=[need],
                 reason=needs_text([need]) + f" ({run.sequence} has no ground-truth labels for "
-                                            f"the oracle)",
-                inputs={"sequence": run.sequence, "voxel_size": run.voxel_size,
-                        "updater": run.updater.spec, "segmenter": run.segmenter.spec})
+                                            f"the oracle)")
             rec.environment = environment(ctx.threads)
             keep(rec)
             continue
