@@ -83,6 +83,9 @@ class OctoMapAdapter(MapUpdater):
         return MapStats(nodes=int(self.tree.size()), leaves=int(self.tree.getNumLeafNodes()),
                         octomap_memory_bytes=int(self.tree.memoryUsage()))
 
+    def occupied_voxels(self) -> int:
+        return int(len(self.tree.extractPointCloud()[0]))
+
     def write(self, path: str | PathLike[str], file_format: str = "full") -> int:
         """OctoMap's own file (the same for ``full`` and ``published``)."""
         path = Path(path)

@@ -205,6 +205,11 @@ class MapUpdater(abc.ABC):
         the updater cannot say (a map held in C++)."""
         return None
 
+    def occupied_voxels(self) -> int | None:
+        """How many occupied leaves the map holds (0: a map of free space only); None where
+        the updater cannot say. An octree that prunes counts a merged leaf once."""
+        return len(self.occupied_labels()[0]) if self.has_leaf_map else None
+
     def occupied_labels(self) -> tuple[np.ndarray, np.ndarray]:
         """The occupied finest-level leaves and their most likely class: (sorted ``int64``
         voxel codes, ``int16`` labels, -1 where a leaf has no class).

@@ -6,20 +6,20 @@ as the paper's MIoU columns (Tables I-III) and detectron2's ``SemSegEvaluator`` 
 
 A network segmenter without ``--weights`` is refused: its random initialisation scores noise,
 and a printed mIoU would look like a result. ``--allow-random`` runs it anyway (to check the
-pipeline), warns on stderr and marks the record ``"random_weights": true``.
+pipeline), seeded by ``--seed``, warns on stderr and marks the record ``"random_weights": true``
+with its ``init_seed`` (:mod:`evsmap.cli.weights_args`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
-from pathlib import Path
 from typing import Any
 
-from evsmap.cli.options import key_value, positive_int, refuse_random_weights
+from evsmap.cli.options import key_value, positive_int
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 from evsmap.cli.sequence_args import add_sequence_options
+from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
 from evsmap.datasets.lookup import dataset_classes, open_dataset
 from evsmap.errors import EvsmapError
 
@@ -41,10 +41,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="dataset split for readers that have splits (default: test; val for "
                         "cityscapes)")
     p.add_argument("--limit", type=positive_int, metavar="N", help="first N frames only")
-    p.add_argument("--weights", type=Path, metavar="FILE", help="segmenter weights (state dict)")
-    p.add_argument("--allow-random", action="store_true",
-                   help="score a network without --weights (random weights: the mIoU is "
-                        "meaningless; for checking the pipeline)")
+    add_weights_options(p, depends="Its scores")
     p.add_argument("--backend", choices=("torch", "onnxruntime"),
                    help="inference backend of a network segmenter (default torch)")
     p.add_argument("-o", "--option", type=key_value, action="append", default=[],
@@ -61,18 +58,14 @@ def run(args: argparse.Namespace) -> int:
     from evsmap.measure.engine import run_segmentation
     from evsmap.measure.evaluators import ConfusionEvaluator
     from evsmap.progress import progress
-    from evsmap.registry import SEGMENTERS
 
     config: dict[str, Any] = dict(args.option)
-    if args.weights is not None:
-        config["weights"] = str(args.weights)
     backend = backend_for(args, args.model)
     if backend is not None:
         config["backend"] = backend
-    segmenter = SEGMENTERS.create(args.model, **config)
-    weights = segmenter.weights
-    random_weights = refuse_random_weights(segmenter, args.model, allow=args.allow_random,
-                          why="score the random initialisation, whose mIoU is meaningless")
+    noise = "its scores mean nothing"
+    segmenter, weights_record = make_segmenter(args, args.model, config, command="evsmap eval",
+                                               depends=True, noise=noise)
 
     sequence, source = open_dataset(args.dataset, reader=args.reader, split=args.split,
                                     limit=args.limit, options=args.reader_option)
@@ -83,9 +76,6 @@ def run(args: argparse.Namespace) -> int:
             f"{args.model} predicts {n_seg} classes but {sequence.name!r} is labelled with "
             f"{n_data}: use a model for this label set (e.g. -o num_classes={n_data} with "
             f"matching --weights)")
-    if random_weights:
-        sys.stderr.write(f"evsmap eval: warning: {args.model} runs with RANDOM weights "
-                         f"(no --weights): the scores below are meaningless\n")
     names = data_names if len(data_names) == n_seg else \
         tuple(segmenter.class_names or class_names_for(n_seg))
 
@@ -93,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
     if total == 0:
         raise EvsmapError(f"{sequence.name!r} ({source['reader']}, split "
                           f"{source['split']}) has no frames")
+    announce_weights(args, args.model, weights_record, command="evsmap eval", depends=True,
+                     noise=noise)
     precision = apply_precision(args, segmenter, sequence, count=total, what="eval")
     scored = run_segmentation(
         sequence, segmenter, frames=total, skip_bad=args.skip_bad,
@@ -105,8 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from evsmap.environment import describe
 
     record = {
-        "model": args.model, "options": {k: v for k, v in config.items() if k != "weights"},
-        "weights": weights, "random_weights": random_weights,
+        "model": args.model, "options": config, **weights_record,
         "backend": segmenter.backend, **precision,
         "dataset": sequence.name, "reader": source["reader"], "split": source["split"],
         "frames": frames, "skipped": scored.skipped.as_dict() if args.skip_bad else None,
@@ -127,7 +118,8 @@ def _pct(x: float | None) -> str:
 
 def format_eval(r: dict[str, Any]) -> str:
     split = f", split {r['split']}" if r["split"] else ""
-    weights = r["weights"] or ("RANDOM (scores meaningless)" if r["random_weights"] else "none")
+    weights = r["weights"] or (f"RANDOM, seed {r['init_seed']}: scores meaningless"
+                               if r["random_weights"] else "none")
     lines = [
         f"model            {r['model']}  (weights: {weights}"
         + (f"; int8 {r['int8_scheme']} on {r['instruction_set']}" if r.get("precision") == "int8"

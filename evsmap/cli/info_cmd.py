@@ -6,10 +6,10 @@ import argparse
 import json
 from pathlib import Path
 
-from evsmap.cli.sequence_args import add_sequence_options
+from evsmap.cli.sequence_args import add_sequence_options, reader_options
 from evsmap.errors import EvsmapError
 from evsmap.progress import progress
-from evsmap.readers.detect import detect_reader, open_sequence
+from evsmap.readers.detect import open_sequence, sequence_reader
 from evsmap.readers.skipping import SkippedFrames
 from evsmap.registry import READERS
 from evsmap.summary import summarize_sequence
@@ -21,7 +21,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Detect the layout of PATH (TUM RGB-D, evsmap synthetic, Microsoft 7-Scenes, "
                     "...) and print the number of frames, resolution, depth range, pose span and "
                     "label classes.")
-    p.add_argument("path", type=Path, metavar="PATH", help="sequence folder")
+    p.add_argument("path", type=Path, metavar="PATH",
+                   help="a sequence folder or bag, or a reader that needs no path (synthetic)")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
     p.add_argument("--camera", metavar="NAME",
                    help="TUM camera intrinsics when the folder name does not tell "
@@ -31,8 +32,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    name = args.reader or detect_reader(args.path)
-    options = list(args.reader_option)
+    name = sequence_reader(str(args.path), args.reader)
+    options = reader_options(args, str(args.path))
     if args.camera:
         if "camera" not in READERS.get(name).parameters():
             raise EvsmapError(f"--camera does not apply to reader {name!r}")

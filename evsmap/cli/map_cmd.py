@@ -4,17 +4,23 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import key_value, positive_float, positive_int
+from evsmap.cli.outputs import Output, claim_outputs
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
-from evsmap.cli.sequence_args import add_sequence_options
+from evsmap.cli.sequence_args import add_sequence_options, reader_options
+from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
 from evsmap.errors import EvsmapError
 from evsmap.interfaces import FILE_FORMATS
 from evsmap.readers.detect import open_sequence
 from evsmap.readers.skipping import SkippedFrames
+
+_NOISE = "the classes in the map are noise"
+"""What random weights make meaningless in a semantic map."""
 
 
 def _range(text: str) -> float:
@@ -43,7 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--segmenter", metavar="NAME",
                    help="segmenter for semantic updaters (default: oracle when the sequence has "
                         "labels)")
-    p.add_argument("--weights", type=Path, metavar="FILE", help="segmenter weights (state dict)")
+    add_weights_options(p, depends="The classes in a semantic map")
     p.add_argument("--backend", choices=("torch", "onnxruntime"),
                    help="inference backend of a network segmenter (default torch)")
     p.add_argument("--resolution", type=positive_float, default=0.05, metavar="R",
@@ -52,7 +58,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="sensor max range in metres, negative for unlimited (default 5)")
     p.add_argument("--frames", type=positive_int, metavar="N", help="first N frames only")
     p.add_argument("--out", type=Path, metavar="FILE",
-                   help="write the map here (.ot full state; .bt occupancy only)")
+                   help="write the map here (.ot full state; .bt occupancy only); an existing "
+                        "file is refused unless --overwrite")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --out or --ply file (once the new one is "
+                        "complete)")
     p.add_argument("--file-format", choices=FILE_FORMATS, default="full",
                    metavar="|".join(FILE_FORMATS),
                    help="--out .ot content: full (the whole state; reloads and mapping "
@@ -89,6 +99,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from evsmap.interrupt import file_state, set_resume_hint
 
+    claim_outputs([None if args.out is None else Output("--out", args.out,
+                                                        suffixes=(".ot", ".bt")),
+                   None if args.ply is None else Output("--ply", args.ply)],
+                  overwrite=args.overwrite)
     before = file_state(args.out)
 
     def hint() -> str:
@@ -101,67 +115,32 @@ def run(args: argparse.Namespace) -> int:
     from evsmap.measure.mapping import map_sequence
     from evsmap.measure.pipelined import stage_threads_option
     from evsmap.progress import progress
-    from evsmap.registry import SEGMENTERS, UPDATERS
+    from evsmap.registry import UPDATERS
 
-    if args.out is not None:
-        if args.out.suffix not in (".ot", ".bt"):
-            raise EvsmapError(f"--out {args.out}: the map file must end in .ot or .bt")
-        if not args.out.parent.exists():
-            raise EvsmapError(f"--out {args.out}: folder {args.out.parent} does not exist")
-    if args.ply is not None and not args.ply.parent.exists():
-        raise EvsmapError(f"--ply {args.ply}: folder {args.ply.parent} does not exist")
     config = dict(args.option)
     config.update(resolution=args.resolution, max_range=args.max_range)
     updater = UPDATERS.create(args.updater, **config)
     ply_color = None
     if args.ply is not None:
+        if not updater.has_leaf_map:
+            raise EvsmapError(f"--ply: updater {args.updater!r} keeps its map in C++ OctoMap, "
+                              f"which evsmap cannot list as points; write it with --out (.ot or "
+                              f".bt, for octovis) or map with one of evsmap's updaters")
         from evsmap.updaters.export import check_color_by
 
         ply_color = check_color_by(updater, args.ply_color)
-    reader_options = list(args.reader_option)
-    if args.sequence == "synthetic" and args.reader in (None, "synthetic") and \
-            "render" not in dict(reader_options):
-        # the synthetic room is read as a recorded sequence, as Table IV reads it (rendered
-        # once into the cache; -r render=live renders each frame inside the timed loop)
-        reader_options.append(("render", "cached"))
-    sequence = open_sequence(args.sequence, args.reader, reader_options)
-    if not sequence.has_poses:
-        hint = sequence.meta.get("no_poses_hint")  # e.g. synthrooms: pick one room
-        raise EvsmapError(
-            f"{args.sequence}: {hint}" if hint else
-            f"{args.sequence}: {sequence.meta.get('layout', 'this dataset')} has no camera poses "
-            f"(a segmentation dataset); map a sequence with poses (TUM, a ROS bag, synthetic)")
-    segmenter = None
-    seg_name = args.segmenter
-    if updater.uses_semantics or seg_name:
-        if seg_name is None:
-            if len(sequence) and sequence.frame(0).labels is None:
-                raise EvsmapError(
-                    f"updater {args.updater!r} needs semantics and {sequence.name!r} has no "
-                    f"ground-truth labels for the oracle: pass --segmenter NAME (a network, "
-                    f"see `evsmap list`)")
-            seg_name = "oracle"
-        seg_config: dict[str, Any] = dict(args.segmenter_option)
-        if args.weights is not None:
-            seg_config["weights"] = args.weights
-        backend = backend_for(args, seg_name)
-        if backend is not None:
-            seg_config["backend"] = backend
-        segmenter = SEGMENTERS.create(seg_name, **seg_config)
-        if segmenter.module is not None and \
-                segmenter.weights is None and \
-                updater.uses_semantics:
-            sys.stderr.write(f"evsmap map: warning: {seg_name} runs with RANDOM weights (no "
-                             f"--weights): its labels are noise, only its timing means "
-                             f"something\n")
-    elif args.segmenter_option:
-        raise EvsmapError(f"-s: updater {args.updater!r} uses no segmenter (pass --segmenter "
-                          f"NAME to run one)")
+    sequence = _open(args)
+    segmenter, seg_name, weights_record = _segmenter(args, updater, sequence)
     if args.precision == "int8" and segmenter is None:
         raise EvsmapError(f"--precision int8: updater {args.updater!r} runs no segmenter (pass "
                           f"--segmenter NAME, a network)")
     precision = {} if segmenter is None else apply_precision(
         args, segmenter, sequence, count=args.frames, what="map")
+    count = len(sequence) if args.frames is None else min(args.frames, len(sequence))
+    if segmenter is not None:
+        announce_weights(args, seg_name, weights_record, command="evsmap map",
+                         depends=updater.uses_semantics, noise=_NOISE)
+    survey = _survey(sequence, count, args.max_range, skip_bad=args.skip_bad)
     from evsmap.environment import describe
 
     record = map_sequence(
@@ -172,8 +151,12 @@ def run(args: argparse.Namespace) -> int:
         threads=stage_threads_option(args.stage_threads, pipeline=args.pipeline))
     result = record.as_dict()
     result.update(precision)
+    result.update(weights_record)
     result["stage_ms_median"] = record.stage_medians()
     result["machine"] = describe()
+    result["occupied_voxels"] = updater.occupied_voxels()
+    if survey is not None:
+        result["range_survey"] = survey.as_dict()
     truth = _ground_truth(sequence, args.resolution)
     if truth is not None and updater.has_leaf_map:
         from evsmap.metrics import evaluate_map
@@ -181,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         quality = evaluate_map(updater, truth).as_dict()
         quality.pop("semantics", None)
         result["quality"] = quality
-    if args.ply is not None:
+    if args.ply is not None and result["occupied_voxels"]:
         from evsmap.updaters.export import export_ply
 
         result["ply_points"] = export_ply(updater, args.ply, color_by=ply_color)
@@ -189,7 +172,107 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result, indent=2))
     else:
         print(format_record(result))
+    for line in empty_result_warnings(result, args):
+        sys.stderr.write(f"evsmap map: warning: {line}\n")
     return 0
+
+
+def _open(args: argparse.Namespace):
+    """The sequence to map (the synthetic room read as a recorded sequence, as Table IV reads
+    it: rendered once into the cache; ``-r render=live`` renders each frame in the loop)."""
+    sequence = open_sequence(args.sequence, args.reader, reader_options(args, args.sequence))
+    if not sequence.has_poses:
+        hint = sequence.meta.get("no_poses_hint")  # e.g. synthrooms: pick one room
+        raise EvsmapError(
+            f"{args.sequence}: {hint}" if hint else
+            f"{args.sequence}: {sequence.meta.get('layout', 'this dataset')} has no camera poses "
+            f"(a segmentation dataset); map a sequence with poses (TUM, a ROS bag, synthetic)")
+    return sequence
+
+
+def _segmenter(args: argparse.Namespace, updater, sequence) -> tuple[Any, str | None, dict]:
+    """The segmenter the updater reads (the oracle by default where the sequence has labels),
+    its name and the record's weights fields; (None, None, {}) where none runs."""
+
+    seg_name = args.segmenter
+    if not (updater.uses_semantics or seg_name):
+        if args.segmenter_option:
+            raise EvsmapError(f"-s: updater {args.updater!r} uses no segmenter (pass "
+                              f"--segmenter NAME to run one)")
+        if args.weights is not None:
+            raise EvsmapError(f"--weights {args.weights}: updater {args.updater!r} runs no "
+                              f"segmenter (pass --segmenter NAME, a network, to time one)")
+        return None, None, {}
+    if seg_name is None:
+        if len(sequence) and sequence.frame(0).labels is None:
+            raise EvsmapError(
+                f"updater {args.updater!r} needs semantics and {sequence.name!r} has no "
+                f"ground-truth labels for the oracle: pass --segmenter NAME (a network, see "
+                f"`evsmap list`) with --weights FILE")
+        seg_name = "oracle"
+    seg_config: dict[str, Any] = dict(args.segmenter_option)
+    backend = backend_for(args, seg_name)
+    if backend is not None:
+        seg_config["backend"] = backend
+    segmenter, fields = make_segmenter(args, seg_name, seg_config, command="evsmap map",
+                                       depends=updater.uses_semantics, noise=_NOISE)
+    return segmenter, seg_name, fields
+
+
+def _survey(sequence, count: int, max_range: float, *, skip_bad: bool):
+    """The ranges of up to 3 frames (first, middle, last) before mapping, and a warning at once
+    when most of their points lie beyond ``max_range`` (None with no limit)."""
+    if max_range < 0 or count == 0:
+        return None
+    from evsmap.measure.range_survey import survey_indices, survey_ranges
+
+    frames = []
+    for i in survey_indices(count):
+        try:
+            frames.append((i, sequence.frame(i)))
+        except EvsmapError:
+            if not skip_bad:
+                raise
+    survey = survey_ranges(frames, max_range)
+    line = range_warning(survey)
+    if line:
+        sys.stderr.write(f"evsmap map: warning: {line}\n")
+    return survey
+
+
+def range_warning(survey) -> str | None:
+    """The warning for a survey where most points lie beyond ``--max-range``, else None."""
+    if survey.points == 0 or survey.share_beyond <= 0.5:
+        return None
+    frames = ", ".join(str(i) for i in survey.frames)
+    return (f"{100 * survey.share_beyond:.0f} % of the points of frames {frames} lie beyond "
+            f"--max-range {survey.max_range:g} m (their distances: {survey.min_m:.1f} to "
+            f"{survey.max_m:.1f} m, median {survey.median_m:.1f} m); those rays insert free "
+            f"space only. Pass --max-range {math.ceil(survey.p95_m)} to keep 95 % of them, or "
+            f"-1 for no limit")
+
+
+def empty_result_warnings(r: dict[str, Any], args: argparse.Namespace) -> list[str]:
+    """Warnings for a run that succeeded and holds (almost) nothing: no occupied voxel, most
+    frames skipped."""
+    lines = []
+    skipped = r.get("extra", {}).get("skipped")
+    if skipped is not None:
+        count = skipped.get("count", 0)
+        tried = count + r["frames"]
+        if tried and count / tried > 0.5:
+            lines.append(f"{count} of {tried} frames were skipped as unreadable (--skip-bad); "
+                         f"the map holds {r['frames']} (the reasons are listed above)")
+    if r.get("occupied_voxels") == 0:
+        why = ""
+        survey = r.get("range_survey")
+        if survey and survey["share_beyond"] > 0.5:
+            why = f" (most points lie beyond --max-range {args.max_range:g} m, see above)"
+        elif r["frames"] == 0:
+            why = " (no frame was mapped)"
+        lines.append(f"the map holds no occupied voxel, only free space{why}"
+                     + ("; no PLY was written" if args.ply is not None else ""))
+    return lines
 
 
 def _ground_truth(sequence, resolution: float):

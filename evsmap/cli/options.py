@@ -22,22 +22,6 @@ def _int_at_least(lowest: int, what: str) -> Callable[[str], int]:
     return parse
 
 
-def refuse_random_weights(segmenter: object, model: str, *, allow: bool, why: str) -> bool:
-    """Whether ``segmenter`` is a network with random weights; refused unless ``allow``.
-
-    ``why`` ends the message (what ``--allow-random`` would do, e.g. "run the random
-    initialisation, whose labels are noise").
-    """
-    from evsmap.errors import EvsmapError
-
-    network = segmenter.module is not None
-    random_weights = network and segmenter.weights is None
-    if random_weights and not allow:
-        raise EvsmapError(f"{model} has no trained weights: pass --weights FILE (or "
-                          f"--allow-random to {why})")
-    return random_weights
-
-
 def positive_float(text: str) -> float:
     """A finite number above 0."""
     try:

@@ -20,7 +20,8 @@ beside DIR that replaces DIR once the last frame is done, so an interrupted run 
 file behind.
 
 Like ``evsmap eval``, a network without ``--weights`` is refused (its random initialisation
-predicts noise) unless ``--allow-random``.
+predicts noise) unless ``--allow-random`` (:mod:`evsmap.cli.weights_args`); the output folder
+follows the commands' output policy (:mod:`evsmap.cli.outputs`).
 """
 
 from __future__ import annotations
@@ -28,14 +29,15 @@ from __future__ import annotations
 import argparse
 import json
 import re
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from evsmap.cli.options import image_size, key_value, positive_int, refuse_random_weights
+from evsmap.cli.options import image_size, key_value, positive_int
+from evsmap.cli.outputs import Output, claim_outputs
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 from evsmap.cli.sequence_args import add_sequence_options
+from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
 from evsmap.errors import EvsmapError
 
 TOPK = 3
@@ -63,10 +65,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, metavar="DIR",
                    help="output folder (refused when it exists and is not empty, unless "
                         "--overwrite)")
-    p.add_argument("--weights", type=Path, metavar="FILE", help="segmenter weights (state dict)")
-    p.add_argument("--allow-random", action="store_true",
-                   help="run a network without --weights (random weights: the labels are "
-                        "noise; for checking the pipeline)")
+    add_weights_options(p, depends="Its labels")
     p.add_argument("--backend", choices=("torch", "onnxruntime"),
                    help="inference backend of a network segmenter (default torch)")
     p.add_argument("--size", type=image_size, metavar="HxW",
@@ -187,20 +186,11 @@ def _open(args: argparse.Namespace):
     return open_sequence(text, reader, args.reader_option), text
 
 
-def _check_out(out: Path, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise EvsmapError(f"--out {out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise EvsmapError(f"--out {out}: folder exists and is not empty (pass --overwrite)")
-
-
 def run(args: argparse.Namespace) -> int:
     from evsmap.registry import SEGMENTERS
 
-    _check_out(args.out, args.overwrite)
+    claim_outputs([Output("--out", args.out, folder=True)], overwrite=args.overwrite)
     config: dict[str, Any] = dict(args.option)
-    if args.weights is not None:
-        config["weights"] = str(args.weights)
     backend = backend_for(args, args.model)
     if backend is not None:
         config["backend"] = backend
@@ -215,11 +205,11 @@ def run(args: argparse.Namespace) -> int:
     sequence, source = _open(args)
     if takes_size and args.size is None and sequence.intrinsics is not None:
         config["input_size"] = sequence.intrinsics.shape  # the frames' own resolution
-    segmenter = SEGMENTERS.create(args.model, **config)
+    noise = "its labels are noise"
+    segmenter, weights_record = make_segmenter(args, args.model, config,
+                                               command="evsmap predict", depends=True,
+                                               noise=noise)
     network = segmenter.module is not None
-    weights = segmenter.weights
-    random_weights = refuse_random_weights(segmenter, args.model, allow=args.allow_random,
-                          why="run the random initialisation, whose labels are noise")
     num_classes = int(segmenter.num_classes)
     if num_classes > 255:
         raise EvsmapError(f"{args.model} predicts {num_classes} classes: the uint8 label images "
@@ -227,9 +217,8 @@ def run(args: argparse.Namespace) -> int:
     total = len(sequence) if args.frames is None else min(args.frames, len(sequence))
     if total == 0:
         raise EvsmapError(f"{sequence.name!r} has no frames")
-    if random_weights:
-        sys.stderr.write(f"evsmap predict: warning: {args.model} runs with RANDOM weights "
-                         f"(no --weights): its labels are noise\n")
+    announce_weights(args, args.model, weights_record, command="evsmap predict",
+                     depends=True, noise=noise)
     precision = apply_precision(args, segmenter, sequence, count=total, what="predict")
     from evsmap.environment import describe
 
@@ -237,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
         "model": args.model,
         "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in config.items()
                     if k not in ("weights", "input_size")},
-        "weights": weights, "random_weights": random_weights,
+        **weights_record,
         "backend": segmenter.backend, **precision,
         "input_size": list(args.size) if args.size is not None else
         ("frame" if network else None),
@@ -350,7 +339,8 @@ def predict_sequence(sequence, segmenter, out: Path, *, model: str, count: int,
 
 
 def format_record(r: dict[str, Any]) -> str:
-    weights = r["weights"] or ("RANDOM (labels are noise)" if r["random_weights"] else "none")
+    weights = r["weights"] or (f"RANDOM, seed {r['init_seed']}: labels are noise"
+                               if r["random_weights"] else "none")
     size = r.get("input_size")
     size = "" if size is None else "; network input: " + \
         ("each frame's resolution" if size == "frame" else f"{size[0]}x{size[1]}")

@@ -8,6 +8,16 @@ import argparse
 from evsmap.cli.options import key_value
 
 
+def reader_options(args: argparse.Namespace, sequence: str) -> list[tuple[str, object]]:
+    """``-r`` options, with the built-in synthetic room read as a recorded sequence (rendered
+    once into the cache, as Table IV reads it) unless ``-r render=live`` says otherwise."""
+    options = list(args.reader_option)
+    if sequence == "synthetic" and args.reader in (None, "synthetic") and \
+            "render" not in dict(options):
+        options.append(("render", "cached"))
+    return options
+
+
 def add_sequence_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reader", metavar="NAME",
                    help="use this reader instead of detecting one from the path (evsmap list)")

@@ -7,9 +7,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from evsmap.cli.complexity_cmd import add_model_options, build_network
+from evsmap.cli.complexity_cmd import add_model_options, check_input_size
 from evsmap.cli.options import nonnegative_int, positive_int
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
+from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
+from evsmap.errors import EvsmapError
 
 # evsmap.measure.speed.BACKENDS, spelled out so that building the parser does not import torch
 BACKENDS = ("onnxruntime", "torch")
@@ -22,6 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "and report the median FPS with its inter-quartile range, next to an fp32 "
                     "matmul roofline measured in the same call.")
     add_model_options(p)
+    add_weights_options(p, depends=None)
     p.add_argument("--backend", choices=BACKENDS,
                    help="torch (eager, inference mode) or onnxruntime (CPU, cached ONNX export); "
                         "default torch (onnxruntime with --precision int8)")
@@ -42,13 +45,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     backend = backend_for(args) or "torch"
-    segmenter, height, width = build_network(args)
-    if segmenter.weights is None:
-        import sys
-
-        sys.stderr.write(f"evsmap speed: warning: {args.model} has RANDOM weights (-o "
-                         f"weights=FILE loads trained ones); its timing does not depend on "
-                         f"them\n")
+    config = dict(args.option)
+    if args.classes is not None:
+        config["num_classes"] = args.classes
+    segmenter, weights_record = make_segmenter(args, args.model, config, command="evsmap speed",
+                                               depends=False)
+    if segmenter.module is None:
+        raise EvsmapError(f"segmenter {args.model!r} is not a network; nothing to time")
+    height = args.height or segmenter.default_size[0]
+    width = args.width or segmenter.default_size[1]
+    check_input_size(segmenter, args.model, height, width)
+    announce_weights(args, args.model, weights_record, command="evsmap speed", depends=False)
     from evsmap.measure.complexity import measure_complexity
     from evsmap.measure.speed import measure_speed
 
@@ -65,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads, macs=macs, input_names=segmenter.input_names, key=args.model,
         cache_dir=args.cache_dir, onnx_path=int8_path)
     result = {"model": args.model, "num_classes": segmenter.num_classes,
-              "inputs": list(segmenter.input_names), **precision, **record.as_dict()}
+              "inputs": list(segmenter.input_names), **weights_record, **precision,
+              **record.as_dict()}
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -75,9 +83,11 @@ def run(args: argparse.Namespace) -> int:
 
 def format_speed(r: dict[str, Any]) -> str:
     versions = ", ".join(f"{k} {v}" for k, v in r["versions"].items())
+    weights = r["weights"] or f"random, seed {r['init_seed']}"
     return "\n".join([
         f"model     {r['model']}  ({r['width']}x{r['height']}, backend {r['backend']}, "
-        f"{_precision_text(r)}, {r['threads']} thread{'s' if r['threads'] != 1 else ''})",
+        f"{_precision_text(r)}, {r['threads']} thread{'s' if r['threads'] != 1 else ''}, "
+        f"weights {weights})",
         f"fps       {r['fps_median']:.2f}  (IQR {r['fps_iqr']:.2f})",
         f"latency   {r['ms_median']:.2f} ms median  (IQR {r['ms_iqr']:.2f} ms; {r['runs']} runs "
         f"after {r['warmup']} warm-up)",

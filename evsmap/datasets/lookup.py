@@ -19,7 +19,9 @@ test labels are not public); every other reader with splits: ``test``."""
 
 
 def find_dataset(text: str, reader: str | None) -> tuple[str, str | None]:
-    """``(path or reader name, reader)``: a prepared dataset's name becomes its folder.
+    """``(path or reader name, reader)``: a bare name that is not a path becomes the folder of
+    that name in ``datasets/`` or the data root (a prepared dataset, ``nyuv2``, or a sample,
+    ``nyuv2_samples``), its reader the one the name names, else detected.
 
     Raises:
         EvsmapError: ``text`` names a reader that reads a folder and no prepared folder of that
@@ -29,18 +31,26 @@ def find_dataset(text: str, reader: str | None) -> tuple[str, str | None]:
     from evsmap.registry import READERS
 
     path = Path(text)
-    if path.exists() or reader is not None or text not in READERS.names():
+    if path.exists():
         return text, reader
-    if "path" not in READERS.get(text).parameters():
+    is_reader = reader is None and text in READERS.names()
+    if is_reader and "path" not in READERS.get(text).parameters():
         return text, None  # e.g. synthetic: built from options
     roots = [Path("datasets")]
     data_root = default_data_root()
     if data_root is not None:
         roots.append(data_root)
-    for root in roots:
-        if (root / text).is_dir():
-            return str(root / text), text
+    if len(path.parts) == 1:  # a bare name: a folder of that name in datasets/ or the data root
+        for root in roots:
+            if (root / text).is_dir():
+                return str(root / text), reader or (text if is_reader else None)
     looked = ", ".join(str(r / text) for r in roots)
+    if not is_reader:
+        if len(path.parts) == 1 and not text.startswith("."):
+            raise EvsmapError(f"{text}: no such file or folder, nor a dataset of that name "
+                              f"(looked in {looked}; `evsmap datasets list` shows the prepared "
+                              f"ones)")
+        return text, reader
     raise EvsmapError(f"reader {text!r} reads a folder and none was found (looked in {looked}): "
                       f"pass --dataset PATH, or prepare it with `evsmap datasets prepare {text}`")
 

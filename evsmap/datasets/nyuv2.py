@@ -106,8 +106,9 @@ class NYUv2Sequence(SegmentationSequence):
             split_file = root / f"{split}.txt"
             if not split_file.is_file():
                 raise DataFormatError(
-                    f"{split_file}: split file not found (this folder has no NYUv2 splits: use "
-                    f"split 'all', or prepare the dataset with `evsmap datasets prepare nyuv2`)")
+                    f"{split_file}: split file not found: this folder has no NYUv2 splits; read "
+                    f"every frame with --split all (-r split=all where a command has no "
+                    f"--split), or prepare the dataset with `evsmap datasets prepare nyuv2`")
             ids = _sort_ids(read_id_list(split_file))
             if not ids:
                 raise DataFormatError(f"{split_file}: lists no frames")

@@ -26,21 +26,35 @@ def detect_reader(path: Path) -> str:
     raise DataFormatError(f"{path}: layout not recognised (readers tried: {', '.join(known)})")
 
 
+def pathless_reader(text: str, reader: str | None = None) -> str | None:
+    """The reader ``text`` names when it is a reader that needs no path (``synthetic``, with or
+    without ``--reader`` naming the same reader) and no file of that name exists; else None."""
+    if Path(text).exists() or text not in READERS.names() or reader not in (None, text):
+        return None
+    return text if "path" not in READERS.get(text).parameters() else None
+
+
+def sequence_reader(text: str, reader: str | None = None) -> str:
+    """The reader :func:`open_sequence` reads ``text`` with."""
+    return pathless_reader(text, reader) or reader or detect_reader(Path(text))
+
+
 def open_sequence(text: str, reader: str | None = None,
                   options: list[tuple[str, object]] | None = None) -> Sequence:
     """A sequence from a path (reader detected unless named) or the name of a reader that needs
     no path (e.g. ``synthetic``), built with the given reader options."""
     config = dict(options or [])
     path = Path(text)
-    if reader is None and not path.exists() and text in READERS.names() and \
-            "path" not in READERS.get(text).parameters():
+    if pathless_reader(text, reader) is not None:
         return READERS.create(text, **config)
     name = reader or detect_reader(path)
     if "path" not in READERS.get(name).parameters():
-        raise EvsmapError(f"reader {name!r} takes no path; pass its name instead of {text!r}")
+        raise EvsmapError(f"reader {name!r} takes no path: give {name!r} as the sequence "
+                          f"(not {text!r}), or leave out --reader to read {text!r} with the "
+                          f"reader its layout needs")
     if reader is not None and not path.exists():
         raise EvsmapError(f"{path}: no such file or folder")
     return READERS.create(name, path=str(path), **config)
 
 
-__all__ = ["detect_reader", "open_sequence"]
+__all__ = ["detect_reader", "open_sequence", "pathless_reader", "sequence_reader"]

@@ -24,11 +24,11 @@ from evsmap.tables.schema import CellSpec, Component
 
 def build_segmenter(component: Component, *, input_size=None, backend: str | None = None,
                     weights: str | None = None):
-    """The segmenter of ``component`` (seeded: untrained networks get the same weights every
-    run, so ONNX exports are reused)."""
-    import torch
-
+    """The segmenter of ``component`` (an untrained network's random weights drawn from
+    :data:`~evsmap.segmenters.create.RANDOM_INIT_SEED`: the same every run, so ONNX exports are
+    reused)."""
     from evsmap.registry import SEGMENTERS
+    from evsmap.segmenters.create import RANDOM_INIT_SEED, create_segmenter
 
     config = dict(component.config)
     params = SEGMENTERS.get(component.name).parameters()
@@ -38,8 +38,7 @@ def build_segmenter(component: Component, *, input_size=None, backend: str | Non
         config["backend"] = backend
     if weights is not None:
         config["weights"] = weights
-    torch.manual_seed(0)
-    return SEGMENTERS.create(component.name, **config)
+    return create_segmenter(component.name, init_seed=RANDOM_INIT_SEED, **config)
 
 
 def _size(spec: CellSpec, segmenter) -> tuple[int, int]:

@@ -92,6 +92,7 @@ def read_checkpoint(path: str | PathLike[str], *, mmap: bool = False) -> object:
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(f"{path}: weights file not found")
+    check_checkpoint_head(path)
     try:
         obj = torch_load(path, mmap=mmap)
     except MemoryError:
@@ -100,6 +101,27 @@ def read_checkpoint(path: str | PathLike[str], *, mmap: bool = False) -> object:
         raise DataFormatError(f"{path}: cannot read weights ({one_line_reason(exc)})") from None
     check_nesting(obj, path)
     return obj
+
+
+CHECKPOINT_HEADS = (b"PK\x03\x04", b"\x80")
+"""How a file ``torch.save`` wrote begins: a zip archive (the format since torch 1.6), or a
+pickle (protocol 2 or later: the legacy format)."""
+
+
+def check_checkpoint_head(path: Path) -> None:
+    """Refuse a file that is not a PyTorch checkpoint (a text file, an image, a safetensors
+    or numpy file) by its first bytes, naming what it starts with, before torch's reader
+    fails on it with an unhelpful ``KeyError``."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read weights ({exc.strerror or exc})") from None
+    if not head:
+        raise DataFormatError(f"{path}: the weights file is empty")
+    if not head.startswith(CHECKPOINT_HEADS):
+        raise DataFormatError(f"{path}: not a PyTorch checkpoint (a torch.save file is a zip "
+                              f"archive; this one starts with {head[:8]!r})")
 
 
 MAX_NESTING = 64

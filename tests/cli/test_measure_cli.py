@@ -110,9 +110,12 @@ def test_speed_json(capsys, tiny_segmenter, tmp_path, backend):
     code, out, err = run(capsys, "speed", tiny_segmenter, "--json", "--backend", backend,
                          "--runs", "2", "--warmup", "0", "--threads", "1", "--height", "8",
                          "--width", "8")
-    # stderr holds at most the warning that the network has random weights
-    assert code == 0 and all("RANDOM weights" in line for line in err.splitlines())
+    # stderr holds the one note that the network runs its seeded random initialisation
+    assert code == 0 and err.splitlines() == [
+        f"evsmap speed: note: {tiny_segmenter} runs its random initialisation (seed 0, no "
+        f"--weights); nothing measured here depends on the weights"]
     data = json.loads(out)
+    assert (data["weights"], data["random_weights"], data["init_seed"]) == (None, True, 0)
     assert SPEED_KEYS <= set(data)
     assert data["model"] == tiny_segmenter and data["backend"] == backend
     assert (data["runs"], data["threads"], data["height"], data["width"]) == (2, 1, 8, 8)
@@ -232,11 +235,31 @@ def test_map_user_errors_are_one_line(tmp_path, tum_dir):
     assert "option psi must be a number, got 'abc'" in _evsmap(*cases[4]).stderr
 
 
-def test_map_warns_about_random_weights():
-    r = _evsmap("map", "synthetic", "--updater", "multiclass-bayes", "--segmenter",
-                "feagnet-v1", "--frames", "1", "--resolution", "0.2")
-    assert r.returncode == 0, r.stderr
-    assert "warning: feagnet-v1 runs with RANDOM weights" in r.stderr
+def test_map_refuses_random_weights_unless_allowed(tmp_path):
+    """The one weights policy: a semantic map's classes depend on the weights, so an untrained
+    network is refused without --allow-random; with it the map is made from the random
+    initialisation of --seed (recorded), twice the same file byte for byte, and a warning says
+    so. (An untrained FEAGNet predicts one class almost everywhere whatever the seed, so the
+    seeds' weights are compared in tests/segmenters/test_create.py, not their maps.)"""
+    base = ("map", "synthetic", "--updater", "multiclass-bayes", "--segmenter", "feagnet-v1",
+            "--frames", "2", "--resolution", "0.2")
+    r = _evsmap(*base)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.splitlines() == [
+        "evsmap map: error: feagnet-v1 has no trained weights: pass --weights FILE (or "
+        "--allow-random to run its random initialisation, seed 0: the classes in the map are "
+        "noise)"]
+    maps = []
+    for name in ("a", "b", "c"):
+        seed = ("--seed", "3") if name == "c" else ()
+        out = tmp_path / f"{name}.ot"
+        r = _evsmap(*base, "--allow-random", *seed, "--out", str(out), "--json")
+        assert r.returncode == 0, r.stderr
+        assert "warning: feagnet-v1 runs with RANDOM weights (seed" in r.stderr
+        record = json.loads(r.stdout)
+        assert (record["random_weights"], record["init_seed"]) == (True, 3 if seed else 0)
+        maps.append(out.read_bytes())
+    assert maps[0] == maps[1]
 
 
 def test_classic_semantic_published_file_is_semantic_slams_color_octree(tmp_path):
