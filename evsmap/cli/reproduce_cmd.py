@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from evsmap.cli.options import positive_float, positive_int
+from evsmap.cli.outputs import Output, check_writable
 from evsmap.errors import EvsmapError
 
 if TYPE_CHECKING:
@@ -69,9 +70,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "sequences (tum_fr1_xyz/, rtabmap.bag, asl.bag, ours1.bag, ours2.bag) "
                         "are found (default $EVSMAP_DATA_ROOT or ../shared/data; datasets/ is "
                         "always searched too)")
-    p.add_argument("--weights-dir", type=Path, metavar="DIR",
-                   help="trained weights named <segmenter>@<dataset>.pt, e.g. "
-                        "feagnet-v2@nyuv2.pt")
+    p.add_argument("--weights", "--weights-dir", dest="weights_dir", type=Path, metavar="DIR",
+                   help="a folder of trained weights named <segmenter>@<dataset>.pt, e.g. "
+                        "feagnet-v2@nyuv2.pt: the mIoU cells and the maps with a network's "
+                        "classes need them (speed and complexity do not: they run each "
+                        "network's random initialisation, seed 0, stated in the records)")
     p.add_argument("--quick", action=argparse.BooleanOptionalAction, default=None,
                    help="smoke test (under 3 minutes): 8 frames at 320x240, speed timed with "
                         "torch for a 3 s budget per cell (3 passes at least), speed cells above "
@@ -180,6 +183,7 @@ def run(args: argparse.Namespace) -> int:
     elif out.exists() and any(out.iterdir()):
         raise EvsmapError(f"--out {out}: folder exists and is not empty (use --resume to "
                           f"continue a run there)")
+    check_writable(Output("--out", out / "run.json"))  # before minutes of work
     for name, value in SETTING_DEFAULTS.items():
         if getattr(args, name) is None:
             setattr(args, name, value)
@@ -194,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
         args.weights_dir = (out / "cache" / "weights" if args.quick else default_weights_dir())
         args.weights_dir.mkdir(parents=True, exist_ok=True)
     if args.weights_dir is not None and not args.weights_dir.is_dir():
-        raise EvsmapError(f"--weights-dir {args.weights_dir}: no such folder")
+        raise EvsmapError(f"--weights {args.weights_dir}: no such folder")
     # checked before anything is written: an unknown or missing executor is a usage error
     executor = make_executor(args.executor, address=args.address)
     systems = _systems(args, out)

@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from evsmap.cli.outputs import Output, claim_outputs
+
+    claim_outputs([Output("--out", args.out, folder=True)], overwrite=args.overwrite)
     from evsmap.synth.sequence import SyntheticSequence  # numba and Open3D: only when run
     from evsmap.synth.write import write_synthetic
 

@@ -150,7 +150,9 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
              f"median of {rec.runs} passes after {rec.warmup} warm-up, "
              f"{precision_text(rec.as_dict())}; untrained weights (speed does not depend on "
              f"them)"]
-    details = rec.as_dict()
+    from evsmap.segmenters.create import RANDOM_INIT_SEED, weights_fields
+
+    details = {**rec.as_dict(), **weights_fields(segmenter, RANDOM_INIT_SEED)}
     if export is not None:
         details["export"] = {"path": export.path.name, "size_free": export.size_free,
                              "export_s": export.export_s, "cached": export.export_s is None,
