@@ -67,16 +67,24 @@ def backend_for(args: argparse.Namespace, model: str | None = None) -> str | Non
             segmenter that has no backend (not a network: the oracle).
     """
     if args.precision != "int8":
+        if args.backend is not None and model is not None:
+            _require_network(model, f"--backend {args.backend}")
         return args.backend
     if args.backend == "torch":
         raise EvsmapError("--precision int8 runs on ONNX Runtime: pass --backend onnxruntime "
                           "or leave --backend out")
     if model is not None:
-        from evsmap.registry import SEGMENTERS
-
-        if "backend" not in SEGMENTERS.get(model).parameters():
-            raise EvsmapError(f"--precision int8: segmenter {model!r} is not a network")
+        _require_network(model, "--precision int8")
     return "onnxruntime"
+
+
+def _require_network(model: str, option: str) -> None:
+    from evsmap.registry import SEGMENTERS
+
+    if "backend" not in SEGMENTERS.get(model).parameters():
+        raise EvsmapError(f"{option}: segmenter {model!r} is not a network and has no "
+                          f"inference backend (pass --segmenter NAME, a network, or leave "
+                          f"{option.split()[0]} out)")
 
 
 def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,

@@ -22,8 +22,13 @@ def detect_reader(path: Path) -> str:
         detect = entry.extras.get("detect")
         if detect is not None and detect(path):
             return entry.name
+    if path.is_dir() and not any(path.iterdir()):
+        raise DataFormatError(f"{path}: the folder is empty (give a sequence or dataset folder, "
+                              f"or a bag)")
     known = [e.name for e in READERS.entries() if e.extras.get("detect")]
-    raise DataFormatError(f"{path}: layout not recognised (readers tried: {', '.join(known)})")
+    raise DataFormatError(f"{path}: layout not recognised (readers tried: {', '.join(known)}); "
+                          f"name the reader with --reader NAME, or see the layouts each expects "
+                          f"in docs/readers.md")
 
 
 def pathless_reader(text: str, reader: str | None = None) -> str | None:

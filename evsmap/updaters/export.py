@@ -106,10 +106,10 @@ def check_color_by(updater, color_by: str | None = None) -> str:
     name = getattr(updater, "name", "") or type(updater).__name__
     if color_by == "rgb" and colour is None:
         raise InvalidDataError(f"map updater {name!r} stores no colours: export it coloured by "
-                               "class (color_by='class', --ply-color class)")
+                               "class (--ply-color class; color_by='class' in Python)")
     if color_by == "class" and label is None:
         raise InvalidDataError(f"map updater {name!r} stores no classes: export it with its "
-                               "colours (color_by='rgb', --ply-color rgb)")
+                               "colours (--ply-color rgb; color_by='rgb' in Python)")
     return color_by
 
 
