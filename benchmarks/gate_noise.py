@@ -27,7 +27,7 @@ from evsmap.gate.compare import Thresholds, compare, entry_of
 def _run(i: int, args: argparse.Namespace) -> dict:
     results = args.out / f"run{i:02d}.json"
     cmd = [sys.executable, "-m", "evsmap", "gate", "--baseline", str(args.baseline),
-           "--results", str(results), "--budget", str(args.budget),
+           "--results", str(results), "--overwrite", "--budget", str(args.budget),
            "--confirm", str(args.confirm)]
     if args.only:
         cmd += ["--only", *args.only]

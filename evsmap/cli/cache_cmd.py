@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from evsmap.cache import KINDS, clear, info
+from evsmap.cache import KINDS, cache_dir, clear, folder_size, info
 from evsmap.errors import EvsmapError
 
 
@@ -25,7 +25,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(run=run_clear)
 
 
+def _check_root() -> None:
+    """A cache root that is not a folder: one line naming it and the variable that sets it."""
+    from evsmap.cache import CACHE_ENV, cache_root
+
+    root = cache_root()
+    if root.exists() and not root.is_dir():
+        raise EvsmapError(f"{root}: is a file, not a cache folder (set ${CACHE_ENV} to a folder, "
+                          "or unset it for ~/.cache/evsmap)")
+
+
 def run_info(args: argparse.Namespace) -> int:
+    _check_root()
     data = info()
     if args.json:
         print(json.dumps(data, indent=2))
@@ -41,9 +52,20 @@ def run_clear(args: argparse.Namespace) -> int:
     unknown = [k for k in args.kinds if k not in KINDS]
     if unknown:
         raise EvsmapError(f"unknown cache kind {unknown[0]!r} (known: {', '.join(KINDS)})")
-    if args.all == bool(args.kinds):
+    if args.all and args.kinds:
+        raise EvsmapError(f"--all clears every kind: leave out {' '.join(args.kinds)}, or "
+                          "leave out --all to clear only those")
+    if not args.all and not args.kinds:
         raise EvsmapError("name the kinds to clear (" + ", ".join(KINDS) + ") or pass --all")
-    kinds = list(KINDS) if args.all else args.kinds
+    _check_root()
+    kinds = list(KINDS) if args.all else list(dict.fromkeys(args.kinds))
     freed = clear(kinds)
+    left = {k: folder_size(cache_dir(k)) for k in kinds}
+    left = {k: v for k, v in left.items() if v[0]}
+    if left:  # files that could not be removed (permissions, a busy file system)
+        kind, (files, size) = next(iter(left.items()))
+        raise EvsmapError(f"{cache_dir(kind)}: {files} files ({size / 1e6:.1f} MB) could not be "
+                          f"removed (check their permissions); {freed / 1e6:.1f} MB freed "
+                          f"before that")
     print(f"cleared {', '.join(kinds)}: {freed / 1e6:.1f} MB freed")
     return 0

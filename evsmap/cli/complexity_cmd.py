@@ -8,7 +8,6 @@ from typing import Any
 
 from evsmap.cli.options import key_value, positive_int
 from evsmap.errors import EvsmapError
-from evsmap.registry import SEGMENTERS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -40,21 +39,35 @@ def add_model_options(p: argparse.ArgumentParser) -> None:
 
 def build_network(args: argparse.Namespace) -> tuple[Any, int, int]:
     """The segmenter named by ``args.model`` and the input size to measure it at."""
-    config = dict(args.option)
-    if args.classes is not None:
-        config["num_classes"] = args.classes
-    import torch
+    from evsmap.segmenters.create import RANDOM_INIT_SEED, create_segmenter
 
+    config = model_config(args)
     # untrained networks get the same random weights every run: results are repeatable and the
     # ONNX export cache (keyed by the weights) is reused between runs
-    torch.manual_seed(0)
-    segmenter = SEGMENTERS.create(args.model, **config)
+    segmenter = create_segmenter(args.model, init_seed=RANDOM_INIT_SEED, **config)
     if segmenter.module is None:
-        raise EvsmapError(f"segmenter {args.model!r} is not a network; nothing to measure")
+        raise EvsmapError(f"segmenter {args.model!r} is not a network; nothing to measure "
+                          "(the networks are listed by `evsmap list`)")
     default_h, default_w = segmenter.default_size
     height, width = args.height or default_h, args.width or default_w
     check_input_size(segmenter, args.model, height, width)
     return segmenter, height, width
+
+
+def model_config(args: argparse.Namespace) -> dict[str, Any]:
+    """The segmenter options of ``-o`` and ``--classes`` (the two must agree); the input size
+    is ``--height``/``--width``, never ``-o input_size``."""
+    config = dict(args.option)
+    if args.classes is not None:
+        given = config.get("num_classes")
+        if given is not None and str(given) != str(args.classes):
+            raise EvsmapError(f"--classes {args.classes} and -o num_classes={given} disagree: "
+                              "give one of them")
+        config["num_classes"] = args.classes
+    if "input_size" in config:
+        raise EvsmapError(f"-o input_size={config['input_size']} does not set the size measured "
+                          "here: pass --height H --width W")
+    return config
 
 
 def check_input_size(segmenter: Any, model: str, height: int, width: int) -> None:

@@ -83,7 +83,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "list", help="list prepared datasets under a data root",
         description="List the prepared datasets (folders with evsmap-dataset.json, or layouts a "
                     "dataset reader recognises) directly under --root.")
-    lst.add_argument("--root", type=Path, default=DEFAULT_ROOT, metavar="DIR",
+    lst.add_argument("--root", type=Path, metavar="DIR",
                      help="data root (default: datasets/ under the current folder)")
     lst.add_argument("--json", action="store_true", help="print the list as JSON")
     lst.set_defaults(run=run_list)
@@ -148,11 +148,15 @@ def run_prepare(args: argparse.Namespace) -> int:
         raise EvsmapError(f"{', '.join(given)} applies to synthrooms only")
     if args.source is None:
         raise EvsmapError(f"{name} needs --from DIR ({_SOURCES[name]})")
+    if not args.source.is_dir():
+        state = "is a file, not a folder" if args.source.exists() else "no such folder"
+        raise EvsmapError(f"--from {args.source}: {state} (give the {_SOURCES[name]})")
     options: dict = {"limit": args.limit, "overwrite": args.overwrite}
     if args.raw_depth:
         if name != "sunrgbd":
             raise EvsmapError("--raw-depth applies to sunrgbd only")
         options["raw_depth"] = True
+    _claim_folder(args.out, out, overwrite=args.overwrite, source=args.source)
     prepare = get_preparer(name)
     t0 = time.perf_counter()
     manifest = prepare(args.source, out,
@@ -170,6 +174,21 @@ def run_prepare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _claim_folder(given: Path | None, out: Path, *, overwrite: bool,
+                  source: Path | None = None) -> None:
+    """The output folder checked before any work (:func:`evsmap.cli.outputs.claim_outputs`):
+    ``--out`` when ``given``, else the default ``out``, named as such."""
+    from evsmap.cli.outputs import Output, claim_outputs
+
+    option = "--out" if given is not None else "the output folder"
+    if source is not None:
+        src, dst = source.resolve(), out.resolve()
+        if dst == src or dst in src.parents:
+            raise EvsmapError(f"{option} {out}: would replace the --from folder; give another "
+                              "--out")
+    claim_outputs([Output(option, out, folder=True)], overwrite=overwrite)
+
+
 def _run_generate(args: argparse.Namespace, out: Path) -> int:
     from evsmap.datasets import synthrooms as sr
 
@@ -178,9 +197,19 @@ def _run_generate(args: argparse.Namespace, out: Path) -> int:
         if value is not None:
             raise EvsmapError(f"{option} does not apply to {args.dataset} (it is rendered, not "
                               "converted; size it with --rooms and --frames-per-room)")
-    size = sr.parse_size(args.size) if args.size is not None else sr.DEFAULT_SIZE
+    try:
+        size = sr.parse_size(args.size) if args.size is not None else sr.DEFAULT_SIZE
+    except EvsmapError as exc:
+        why = (f"height and width must each be in {sr.MIN_SIDE}..{sr.MAX_SIDE} pixels"
+               if "must be in" in str(exc) else "must be HEIGHTxWIDTH in pixels, e.g. 240x320")
+        raise EvsmapError(f"--size {args.size}: {why}") from None
     rooms = args.rooms if args.rooms is not None else sr.DEFAULT_ROOMS
-    sr.split_rooms(rooms)  # too few rooms: a one-line error before anything is rendered
+    if rooms < sr.MIN_ROOMS:  # a one-line error before anything is rendered
+        raise EvsmapError(f"--rooms {rooms}: {args.dataset} needs at least {sr.MIN_ROOMS} rooms "
+                          f"(one each for train, val and test): pass --rooms {sr.MIN_ROOMS} or "
+                          "more")
+    sr.split_rooms(rooms)
+    _claim_folder(args.out, out, overwrite=args.overwrite)
     frames = args.frames_per_room if args.frames_per_room is not None \
         else sr.DEFAULT_FRAMES_PER_ROOM
     seed = args.seed if args.seed is not None else sr.DEFAULT_SEED
@@ -224,9 +253,15 @@ def _describe(folder: Path) -> dict | None:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    root: Path = args.root
+    root: Path = args.root if args.root is not None else DEFAULT_ROOT
+    if args.root is None and not root.exists():
+        raise DataFormatError(f"no {root}/ folder here (the default data root): pass --root DIR, "
+                              "or prepare a dataset with `evsmap datasets prepare`")
+    where = "--root " if args.root is not None else ""
+    if root.exists() and not root.is_dir():
+        raise DataFormatError(f"{where}{root}: is a file, not a folder of datasets")
     if not root.is_dir():
-        raise DataFormatError(f"{root}: no such folder (pass --root DIR)")
+        raise DataFormatError(f"{where}{root}: no such folder")
     found = [d for d in (_describe(p) for p in sorted(root.iterdir()) if p.is_dir()) if d]
     if args.json:
         print(json.dumps(found, indent=2))
@@ -271,11 +306,32 @@ def run_fetch(args: argparse.Namespace) -> int:
         return _list_samples(args)
     if args.json:
         raise EvsmapError("--json applies to the list (--list or no NAME)")
+    from evsmap.samples import SAMPLES
+
     root = args.out if args.out is not None else default_data_root()
+    _check_root(args, root)
+    sample = SAMPLES[args.name]
+    target = root / sample.folder
     shared = shared_data_dir()
-    if args.overwrite and shared is not None and root.resolve() == shared.resolve():
-        raise EvsmapError(f"{root}: the shared data folder is read-only for evsmap; pass --out "
-                          "DIR to fetch elsewhere")
+    if shared is not None and root.resolve() == shared.resolve():
+        if target.exists():
+            raise EvsmapError(f"{target}: {args.name} is already in the shared data folder, "
+                              "which is read-only for evsmap: nothing to fetch (pass --out DIR "
+                              "to fetch another copy elsewhere)")
+        if args.overwrite:
+            raise EvsmapError(f"{root}: the shared data folder is read-only for evsmap; pass "
+                              "--out DIR to fetch elsewhere")
+    # every output checked before any download: the sample, and the download folder
+    from evsmap.cli.outputs import Output, check_writable, claim_outputs
+
+    option = "--out" if args.out is not None else "the data root"
+    claim_outputs([Output(option, target, folder=not sample.single_file)],
+                  overwrite=args.overwrite)
+    if args.cache_dir is not None:
+        if args.cache_dir.exists() and not args.cache_dir.is_dir():
+            raise EvsmapError(f"--cache-dir {args.cache_dir}: is a file, not a folder")
+        if not args.cache_dir.exists():
+            check_writable(Output("--cache-dir", args.cache_dir, folder=True))
     interactive = sys.stdin.isatty() and sys.stderr.isatty()
     from evsmap.interrupt import set_resume_hint
 
@@ -286,12 +342,19 @@ def run_fetch(args: argparse.Namespace) -> int:
                             cache_dir=args.cache_dir, retries=args.retries,
                             keep_archive=args.keep_archive,
                             confirm=_ask if interactive else None, log=_say)
-    from evsmap.samples import SAMPLES
-
-    target = root / SAMPLES[args.name].folder
     print(f"fetched {args.name} into {target} ({summarize(manifest)}, "
           f"{time.perf_counter() - t0:.1f} s)")
     return 0
+
+
+def _check_root(args: argparse.Namespace, root: Path) -> None:
+    """A data root that is a file: one line naming it (and the option that gave it)."""
+    if root.exists() and not root.is_dir():
+        if args.out is not None:
+            raise EvsmapError(f"--out {root}: is a file, not a folder (give the data root "
+                              "folder the samples go under)")
+        raise EvsmapError(f"{root}: the data root is a file, not a folder (set "
+                          "$EVSMAP_DATA_ROOT to a folder, or pass --out DIR)")
 
 
 def _sample_rows(root: Path) -> list[dict]:
@@ -318,6 +381,7 @@ def _list_samples(args: argparse.Namespace) -> int:
     from evsmap.paths import default_data_root
 
     root = args.out if args.out is not None else default_data_root()
+    _check_root(args, root)
     rows = _sample_rows(root)
     if args.json:
         print(json.dumps({"root": str(root), "samples": rows}, indent=2))

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from evsmap.cli.options import positive_float, positive_int
+from evsmap.cli.options import nonnegative_int, positive_float, positive_int
 from evsmap.errors import EvsmapError
 
 
@@ -46,7 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="fresh processes per workload, in rounds, the median kept (default 1; "
                         "5 with --update, in rounds spread over the run, so a baseline is not "
                         "one process's or one slow spell's luck)")
-    p.add_argument("--confirm", type=int, default=4, metavar="N",
+    p.add_argument("--confirm", type=nonnegative_int, default=4, metavar="N",
                    help="a workload whose time or peak is outside the band after the first "
                         "pass is measured in N more processes and judged on the median of all "
                         "(default 4: a verdict is then the median of five processes, like the "
@@ -56,10 +57,38 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "use; two cores of a VM can differ in speed by 25 %%, and a process "
                         "that migrates between them mixes both)")
     p.add_argument("--results", type=Path, metavar="FILE",
-                   help="also write every measurement (all repeats' summaries) as JSON here")
+                   help="also write every measurement (all repeats' summaries) as JSON here "
+                        "(a new file unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --results file (once the new one is complete)")
     p.add_argument("--json", action="store_true",
                    help="print the verdicts and measurements as JSON instead of the table")
     p.set_defaults(run=run)
+
+
+def claim(args: argparse.Namespace) -> None:
+    """The files the gate writes, checked before anything is measured: ``--results`` (a new
+    file unless ``--overwrite``; never the baseline) and, with ``--update``, the baseline (a
+    file that can be written); and a ``--baseline`` that is a folder.
+
+    Raises:
+        EvsmapError: one line naming the option and the path.
+    """
+    from evsmap.cli.outputs import Output, check_writable, claim_outputs
+
+    if args.baseline.is_dir():
+        raise EvsmapError(f"--baseline {args.baseline}: is a folder, not a baseline file (give "
+                          "the JSON file, e.g. benchmarks/baseline.json)")
+    if args.overwrite and args.results is None:
+        raise EvsmapError("--overwrite applies to --results FILE only (--update rewrites the "
+                          "baseline without it)")
+    if args.results is not None:
+        if os.path.abspath(args.results) == os.path.abspath(args.baseline):
+            raise EvsmapError(f"--results {args.results} is the baseline file: write the "
+                              "measurements to another file")
+        claim_outputs([Output("--results", args.results)], overwrite=args.overwrite)
+    if args.update:
+        check_writable(Output("--baseline", args.baseline))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,13 +108,16 @@ def run(args: argparse.Namespace) -> int:
     )
     from evsmap.gate.workloads import plan
 
+    if not args.list:
+        claim(args)
     baseline = None
     if not (args.update and not args.baseline.exists()) and not args.list:
         baseline = read_baseline(args.baseline)
         threads = baseline.get("settings", {}).get("threads")
         if threads is not None and int(threads) != args.threads and not args.update:
             raise EvsmapError(f"{args.baseline} was measured with --threads {threads}, not "
-                              f"{args.threads}: time ratios differ with the thread count")
+                              f"{args.threads}: time ratios differ with the thread count (pass "
+                              f"--threads {threads})")
     from evsmap.gate.run import machine_info
 
     here = machine_info(args.threads)
@@ -97,11 +129,7 @@ def run(args: argparse.Namespace) -> int:
                           f"record every workload here (no --only) or use another --baseline")
     log = (lambda msg: sys.stderr.write(f"evsmap gate: {msg}\n")) if not args.json else \
         (lambda msg: None)
-    if baseline is not None:
-        their_isa = theirs.get("instruction_set", "instruction set not recorded")
-        log(f"this machine: {here['cpu']}, {here['instruction_set']}; the baseline's: "
-            f"{theirs.get('cpu', '?')}, {their_isa}"
-            + ("" if same else " (another kind: only exact counts are compared)"))
+    cpu = pick_cpu(args.cpu) if not args.list else None
     t0 = time.perf_counter()
     context, built = discover(threads=args.threads)
     workloads = plan(context)
@@ -110,7 +138,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"{w.name:44s} {w.calibration:8s} {w.description}")
         return 0
     chosen = select(workloads, args.only)
-    context["cpus"] = [pick_cpu(args.cpu)]
+    context["cpus"] = [cpu]
+    if baseline is not None:  # after the checks above: a refusal is one line on its own
+        their_isa = theirs.get("instruction_set", "instruction set not recorded")
+        log(f"this machine: {here['cpu']}, {here['instruction_set']}; the baseline's: "
+            f"{theirs.get('cpu', '?')}, {their_isa}"
+            + ("" if same else " (another kind: only exact counts are compared)"))
     repeats = args.repeats or (5 if args.update else 1)
     base_entries = {}
     if baseline is not None:

@@ -33,12 +33,16 @@ class Output:
         path: the file or folder.
         folder: whether the output is a folder (written whole through a staging folder).
         suffixes: the endings a file output may have (empty: any).
+        in_place: a folder written into where it is (a training run, a report run, which
+            continue or resume there): an existing one is not refused, and the files must be
+            creatable inside it.
     """
 
     option: str
     path: Path
     folder: bool = False
     suffixes: tuple[str, ...] = ()
+    in_place: bool = False
 
     @property
     def label(self) -> str:
@@ -71,7 +75,7 @@ def _check_one(out: Output, *, overwrite: bool, overwrite_option: str) -> None:
     if out.folder:
         if path.exists() and not path.is_dir():
             raise EvsmapError(f"{out.label}: exists and is a file, not a folder")
-        if path.is_dir() and any(path.iterdir()) and not overwrite:
+        if path.is_dir() and any(path.iterdir()) and not overwrite and not out.in_place:
             raise EvsmapError(f"{out.label}: folder exists and is not empty (pass "
                               f"{overwrite_option} to replace it once the new one is complete)")
     else:
@@ -83,10 +87,12 @@ def _check_one(out: Output, *, overwrite: bool, overwrite_option: str) -> None:
 
 
 def check_writable(out: Output) -> None:
-    """That a file can be created where ``out`` goes: in its folder, or (where that folder does
-    not exist yet) in the nearest folder above it that does; tried by creating and removing a
-    hidden file, which also catches a read-only file system and a full quota of inodes."""
-    folder = Path(os.path.abspath(out.path)).parent
+    """That a file can be created where ``out`` goes: in its folder (in the folder itself for an
+    ``in_place`` folder that exists), or where that folder does not exist yet in the nearest
+    folder above it that does; tried by creating and removing a hidden file, which also catches
+    a read-only file system and a full quota of inodes."""
+    path = Path(os.path.abspath(out.path))
+    folder = path if out.in_place and path.is_dir() else path.parent
     while not folder.exists():
         folder = folder.parent
     if not folder.is_dir():

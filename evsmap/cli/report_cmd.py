@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import errno
 from pathlib import Path
+
+from evsmap.errors import EvsmapError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +22,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from evsmap.report.build import build_report
 
-    for path in build_report(args.dir):
+    if args.dir.exists() and not args.dir.is_dir():
+        raise EvsmapError(f"{args.dir}: is a file, not a run folder (give the folder "
+                          "`evsmap reproduce --out` wrote, with run.json in it)")
+    try:
+        written = build_report(args.dir)
+    except OSError as exc:
+        # a report file whose place is taken by a folder (or a folder by a file): one line
+        # naming it; the files written before it are complete (each is written by rename)
+        if exc.errno not in (errno.EISDIR, errno.ENOTDIR, errno.ENOTEMPTY, errno.EEXIST):
+            raise
+        target = exc.filename2 if exc.filename2 is not None else exc.filename
+        raise EvsmapError(f"{target}: cannot write the report file there ({exc.strerror}): "
+                          "move that away and run the command again") from None
+    for path in written:
         print(path)
     return 0

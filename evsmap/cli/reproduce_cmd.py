@@ -129,7 +129,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "rooms (synthrooms, prepared if missing) and report their mIoU and, "
                         "with Table IV, TFEAGMap's and EVSMap's maps made with the trained "
                         "network, in 'Synthetic proxy' sections (never in the paper's columns); "
-                        "weights go to --weights-dir (default ~/.cache/evsmap/weights; with "
+                        "weights go to --weights DIR (default ~/.cache/evsmap/weights; with "
                         "--quick, the run's cache)")
     p.add_argument("--proxy-models", type=_models, default=None, metavar="LIST",
                    help="with --train: networks to train (default "
@@ -183,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     elif out.exists() and any(out.iterdir()):
         raise EvsmapError(f"--out {out}: folder exists and is not empty (use --resume to "
                           f"continue a run there)")
-    check_writable(Output("--out", out / "run.json"))  # before minutes of work
+    check_writable(Output("--out", out, folder=True, in_place=True))  # before minutes of work
     for name, value in SETTING_DEFAULTS.items():
         if getattr(args, name) is None:
             setattr(args, name, value)

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from evsmap.cli.complexity_cmd import add_model_options, check_input_size
+from evsmap.cli.complexity_cmd import add_model_options, check_input_size, model_config
 from evsmap.cli.options import nonnegative_int, positive_int
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
 from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
@@ -45,9 +45,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     backend = backend_for(args) or "torch"
-    config = dict(args.option)
-    if args.classes is not None:
-        config["num_classes"] = args.classes
+    config = model_config(args)
     segmenter, weights_record = make_segmenter(args, args.model, config, command="evsmap speed",
                                                depends=False)
     if segmenter.module is None:

@@ -108,11 +108,30 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def check_out(out: Path) -> None:
+    """The run's folder checked before anything is loaded: not a file, and a place this process
+    can write in (a run continues or resumes in an existing folder, so that is not refused here:
+    whether it already holds a run is :func:`evsmap.train.loop.train`'s check).
+
+    Raises:
+        EvsmapError: one line naming --out.
+    """
+    from evsmap.cli.outputs import Output, check_writable
+    from evsmap.errors import EvsmapError
+
+    if out.exists() and not out.is_dir():
+        raise EvsmapError(f"--out {out}: is a file, not a folder (the run's folder: choose "
+                          "another --out)")
+    check_writable(Output("--out", out, folder=True, in_place=True))
+
+
 def run(args: argparse.Namespace) -> int:
     import os
     import sys
 
     from evsmap.interrupt import set_resume_hint
+
+    check_out(args.out)
 
     def hint() -> str:
         from evsmap.train.checkpoint import CHECKPOINT

@@ -74,7 +74,7 @@ def make_segmenter(args: argparse.Namespace, name: str, config: dict[str, Any], 
                               f"weights (drop --weights)")
         if weights.is_dir():
             raise EvsmapError(f"--weights {weights}: is a folder; give the weights file")
-        config["weights"] = weights
+        config["weights"] = str(weights)
     seed = getattr(args, "seed", 0)
     segmenter = create_segmenter(name, init_seed=seed, **config)
     fields = weights_fields(segmenter, seed)

@@ -54,6 +54,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import textwrap
 from collections.abc import Mapping
 from pathlib import Path
@@ -113,7 +114,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    metavar="KEY=VALUE",
                    help="a segmenter option, repeatable (default: the configuration found in "
                         "the file, e.g. dataset=cityscapes)")
-    c.add_argument("--force", action="store_true", help="overwrite DST")
+    c.add_argument("--overwrite", "--force", dest="overwrite", action="store_true",
+                   help="replace an existing DST (once the new file is complete)")
     c.add_argument("--json", action="store_true", help="print the card as JSON")
     c.set_defaults(run=run_convert)
 
@@ -246,7 +248,15 @@ def pretty_card(card: Mapping[str, Any], indent: int = 2, width: int = 100) -> l
     return lines
 
 
+def _weights_file(path: Path, what: str) -> None:
+    """Refuse a folder given where a weights file goes (``what``: how the command names it)."""
+    if path.is_dir():
+        raise EvsmapError(f"{what}{path}: is a folder, not a weights file (`evsmap weights "
+                          f"list DIR` lists the weights files in a folder)")
+
+
 def run_show(args: argparse.Namespace) -> int:
+    _weights_file(args.file, "")
     info, state = open_weights(args.file)
     verified, message, digest = verify_tensors(info.card, state)
     if args.json:
@@ -264,23 +274,30 @@ def run_show(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- convert
 def convert(source: Path, out: Path, *, model: str | None = None,
-            options: dict[str, Any] | None = None, force: bool = False) -> dict[str, Any]:
+            options: dict[str, Any] | None = None, overwrite: bool = False) -> dict[str, Any]:
     """Convert ``source`` to an evsmap weights file ``out``; returns the card.
+
+    ``out`` is claimed first (:func:`evsmap.cli.outputs.claim_outputs`: an existing file is
+    refused without ``overwrite``, a folder or an unwritable place always), before the source
+    is read.
 
     Raises:
         EvsmapError: unreadable or unconvertible source, unknown segmenter or options, weights
-            that do not fit the segmenter, or ``out`` exists (without ``force``).
+            that do not fit the segmenter, or an ``out`` that is taken or cannot be written.
     """
+    from evsmap.cli.outputs import Output, claim_outputs
+
+    _weights_file(source, "SRC ")  # the checks first: they need no torch, which takes seconds
+    if source.exists() and Path(os.path.abspath(out)) == Path(os.path.abspath(source)) or \
+            out.exists() and source.exists() and out.resolve() == source.resolve():
+        raise EvsmapError(f"--out {out} is the source file: write to another file")
+    claim_outputs([Output("--out", out)], overwrite=overwrite)
+
     import torch
 
     from evsmap.registry import SEGMENTERS
     from evsmap.segmenters.cards import make_card
     from evsmap.segmenters.weights import load_state, read_weights, tensors_sha256
-
-    if out.exists() and not force:
-        raise EvsmapError(f"{out} exists: pass --force to overwrite it")
-    if out.exists() and source.exists() and out.resolve() == source.resolve():
-        raise EvsmapError(f"--out {out} is the source file: write to another file")
     converted = read_weights(source)
     name = model or converted.segmenter
     if name is None:
@@ -325,7 +342,7 @@ def run_convert(args: argparse.Namespace) -> int:
 
     try:
         card = convert(args.source, args.out, model=args.model, options=dict(args.option),
-                       force=args.force)
+                       overwrite=args.overwrite)
     except EvsmapError as exc:  # names and options may come from the file: any text
         if one_line(str(exc)) == str(exc):
             raise

@@ -28,7 +28,7 @@ def detect_reader(path: Path) -> str:
     known = [e.name for e in READERS.entries() if e.extras.get("detect")]
     raise DataFormatError(f"{path}: layout not recognised (readers tried: {', '.join(known)}); "
                           f"name the reader with --reader NAME, or see the layouts each expects "
-                          f"in docs/readers.md")
+                          f"in docs/datasets.md")
 
 
 def pathless_reader(text: str, reader: str | None = None) -> str | None:

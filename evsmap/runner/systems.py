@@ -12,7 +12,7 @@ A TOML file lists systems, each a registered map updater with an optional regist
 Each system maps every sequence Table IV maps, at the same voxel size and frames, through the
 same mapping cell as the paper's systems (each in a fresh process, timed alone), and its records
 appear in the report's extra section. Labels: a segmenter that is a network needs trained
-weights (``<segmenter>@nyuv2.pt`` in ``--weights-dir``), or stands in for the oracle's labels on
+weights (``<segmenter>@nyuv2.pt`` in ``--weights``), or stands in for the oracle's labels on
 a labelled sequence and is only timed, exactly as for Table IV's systems; a segmenter that is not
 a network (no torch module: it needs no weights) supplies its own labels.
 

@@ -268,6 +268,9 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
     out = Path(opts.out)
     ckpt_path = out / CHECKPOINT
     saved: dict[str, Any] | None = None
+    if out.exists() and not out.is_dir():
+        raise EvsmapError(f"--out {out}: is a file, not a folder (the run's folder: choose "
+                          f"another --out)")
     if opts.resume:
         if not ckpt_path.is_file():
             raise EvsmapError(f"{ckpt_path}: no checkpoint to resume (start the run without "
@@ -399,7 +402,11 @@ def _train(opts: RunOptions, procs: Processes) -> dict[str, Any]:
             created=datetime.now(UTC).isoformat(timespec="seconds"))
 
     if procs.main:
-        out.mkdir(parents=True, exist_ok=True)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # a file on the way, no permission: one line, not a traceback
+            raise EvsmapError(f"--out {out}: cannot create the run's folder "
+                              f"({exc.strerror or type(exc).__name__})") from None
         for line in report.lines() if report else []:
             _say(procs, opts, line)
         where = f"{splits.reader}" + (f", train split {splits.train_split}, val split "

@@ -97,7 +97,8 @@ def test_info_on_real_tum(capsys, tum_dir):
         (["synth", "--out", "x", "--frames", "0"], "--frames: expected a positive integer"),
         (["synth", "--frames", "2"], "--out"),
         (["info", "/no/such/folder"], "/no/such/folder: no such file or folder"),
-        (["info", "."], "layout not recognised"),
+        (["info", "."], ".: the folder is empty"),
+        (["info", "/proc/self"], "layout not recognised (readers tried"),
         (["frobnicate"], "invalid choice"),
     ],
 )

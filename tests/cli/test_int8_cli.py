@@ -113,7 +113,7 @@ def test_predict_int8_held_out_calibration(capsys, tiny, tmp_path):
 def test_map_int8_and_its_errors(capsys, tiny):
     code, out, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater",
                          "multiclass-bayes", "--segmenter", tiny, "-s", "num_classes=40",
-                         "--frames", "2", *INT8, "--json")
+                         "--allow-random", "--frames", "2", *INT8, "--json")
     assert code == 0, err
     r = json.loads(out)
     assert (r["precision"], r["int8_scheme"]) == ("int8", auto_scheme())

@@ -28,8 +28,9 @@ def test_prepare_list_and_info(capsys, nyu_source, tmp_path, monkeypatch):
 
     code, out, err = run(capsys, "datasets", "prepare", "nyuv2", "--from", str(nyu_source[0]))
     assert code == 2 and out == ""
-    assert err == ("evsmap datasets: error: datasets/nyuv2: folder exists and is not empty "
-                   "(pass --overwrite)\n")
+    assert err == ("evsmap datasets: error: the output folder datasets/nyuv2: folder exists and "
+                   "is not empty (pass --overwrite to replace it once the new one is "
+                   "complete)\n")
     code, out, _ = run(capsys, "datasets", "prepare", "nyuv2", "--from", str(nyu_source[0]),
                        "--limit", "1", "--overwrite")
     assert code == 0 and "limited to the first 1 frames of each split" in out

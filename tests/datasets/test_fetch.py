@@ -235,8 +235,8 @@ def test_fetch_bag_manifest_and_existing_output(capsys, tmp_path, server, bag):
 
     code, out, err = fetch_cli(capsys, tmp_path, "lidar-odometry-bag")
     assert code == 2 and out == ""
-    assert err == (f"evsmap datasets: error: {target}: exists (pass --overwrite to replace "
-                   "it)\n")
+    assert err == (f"evsmap datasets: error: --out {target}: exists (pass --overwrite to "
+                   "replace it)\n")
     code, out, err = fetch_cli(capsys, tmp_path, "lidar-odometry-bag", "--overwrite",
                                "--keep-archive")
     assert code == 0, err

@@ -221,8 +221,8 @@ def test_cli_prepare_and_bad_options(capsys, tmp_path):
     code, stdout, err = run(capsys, "datasets", "prepare", "synthrooms", "--out", out,
                             "--rooms", 3, "--frames-per-room", 1, "--size", "16x24")
     assert code == 2 and stdout == ""
-    assert err == (f"evsmap datasets: error: {out}: folder exists and is not empty "
-                   "(pass --overwrite)\n")
+    assert err == (f"evsmap datasets: error: --out {out}: folder exists and is not empty "
+                   "(pass --overwrite to replace it once the new one is complete)\n")
     assert _files(out) == before
     code, _, err = run(capsys, "datasets", "prepare", "synthrooms", "--out", out,
                        "--rooms", 3, "--frames-per-room", 1, "--size", "16x24", "--overwrite")
@@ -230,8 +230,8 @@ def test_cli_prepare_and_bad_options(capsys, tmp_path):
     assert read_manifest(out)["options"]["seed"] == 0
 
     bad = [
-        (["--size", "10"], "size must be HEIGHTxWIDTH in pixels (e.g. 240x320), got '10'"),
-        (["--size", "10x640"], "height and width must be in 16..4096"),
+        (["--size", "10"], "--size 10: must be HEIGHTxWIDTH in pixels, e.g. 240x320"),
+        (["--size", "10x640"], "height and width must each be in 16..4096"),
         (["--rooms", "0"], "argument --rooms: expected a positive integer, got '0'"),
         (["--rooms", "2"], "needs at least 3 rooms"),
         (["--frames-per-room", "-1"], "argument --frames-per-room"),

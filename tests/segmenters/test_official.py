@@ -475,7 +475,7 @@ def test_convert_round_trip(create, capsys, tmp_path, hardnet_release):
     assert "evsmap checkpoint" in message and "dataset=cityscapes" in message
 
     code, _, err = _cli(capsys, "weights", "convert", src, "--out", dst)
-    assert code == 2 and "exists" in err and "--force" in err and err.count("\n") == 1
+    assert code == 2 and "exists" in err and "--overwrite" in err and err.count("\n") == 1
     code, out, _ = _cli(capsys, "weights", "convert", dst, "--out", tmp_path / "again.pt")
     assert code == 0 and "wrote" in out and "-o dataset=cityscapes" in out
     assert read_checkpoint(tmp_path / "again.pt")["card"]["source_layout"] == EVSMAP

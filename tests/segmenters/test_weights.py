@@ -106,13 +106,13 @@ def test_folder_instead_of_a_file(create, tmp_path):
 def test_corrupt_file(create, tmp_path):
     path = tmp_path / "corrupt.pth"
     path.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
-    assert "cannot read weights" in _error(create, path)
+    assert "not a PyTorch checkpoint" in _error(create, path)
 
 
 def test_empty_file(create, tmp_path):
     path = tmp_path / "empty.pth"
     path.write_bytes(b"")
-    assert "cannot read weights" in _error(create, path)
+    assert "the weights file is empty" in _error(create, path)
 
 
 @pytest.mark.parametrize(
