@@ -1,4 +1,5 @@
-"""Write ``evsmap/runner/reference_durations.json`` from a finished ``evsmap reproduce`` run:
+"""Write ``evsmap/runner/reference_durations.json`` (``reference_durations_quick.json`` for a
+``--quick`` run) from a finished ``evsmap reproduce`` run:
 how long each cell took on that machine, with the machine's calibration, so that a new user's
 first run can estimate its time (:mod:`evsmap.runner.estimate` scales these by the two
 machines' calibrations).
@@ -18,7 +19,7 @@ from pathlib import Path
 
 from evsmap.fileio import atomic_write_text
 from evsmap.report.build import read_records
-from evsmap.runner.estimate import REFERENCE_FILE
+from evsmap.runner.estimate import REFERENCE_FILES
 
 
 def main() -> int:
@@ -37,8 +38,9 @@ def main() -> int:
                     "git_commit": env.get("git_commit"), "quick": run.get("quick"),
                     "extended": (run.get("settings") or {}).get("extended")},
             "cells": dict(sorted(cells.items()))}
-    atomic_write_text(REFERENCE_FILE, json.dumps(data, indent=1) + "\n")
-    print(f"{len(cells)} cells, {sum(cells.values()) / 60:.1f} min in all -> {REFERENCE_FILE}")
+    target = REFERENCE_FILES[bool(run.get("quick"))]
+    atomic_write_text(target, json.dumps(data, indent=1) + "\n")
+    print(f"{len(cells)} cells, {sum(cells.values()) / 60:.1f} min in all -> {target}")
     return 0
 
 

@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from typing import Any
 
 from evsmap.cli.options import key_value, positive_int
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
-from evsmap.cli.sequence_args import add_sequence_options
+from evsmap.cli.sequence_args import add_sequence_options, skipped_warning
 from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
 from evsmap.datasets.lookup import dataset_classes, open_dataset
 from evsmap.errors import EvsmapError
@@ -109,6 +110,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(record, indent=2))
     else:
         print(format_eval(record))
+    warning = skipped_warning(record["skipped"], frames)
+    if warning:
+        sys.stderr.write(f"evsmap eval: warning: {warning}\n")
     return 0
 
 

@@ -12,7 +12,7 @@ from typing import Any
 from evsmap.cli.options import key_value, positive_float, positive_int
 from evsmap.cli.outputs import Output, claim_outputs
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
-from evsmap.cli.sequence_args import add_sequence_options, reader_options
+from evsmap.cli.sequence_args import add_sequence_options, reader_options, skipped_warning
 from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
 from evsmap.errors import EvsmapError
 from evsmap.interfaces import FILE_FORMATS
@@ -256,13 +256,9 @@ def empty_result_warnings(r: dict[str, Any], args: argparse.Namespace) -> list[s
     """Warnings for a run that succeeded and holds (almost) nothing: no occupied voxel, most
     frames skipped."""
     lines = []
-    skipped = r.get("extra", {}).get("skipped")
-    if skipped is not None:
-        count = skipped.get("count", 0)
-        tried = count + r["frames"]
-        if tried and count / tried > 0.5:
-            lines.append(f"{count} of {tried} frames were skipped as unreadable (--skip-bad); "
-                         f"the map holds {r['frames']} (the reasons are listed above)")
+    skipped = skipped_warning(r.get("extra", {}).get("skipped"), r["frames"])
+    if skipped:
+        lines.append(skipped)
     if r.get("occupied_voxels") == 0:
         why = ""
         survey = r.get("range_survey")
@@ -315,7 +311,7 @@ def format_record(r: dict[str, Any]) -> str:
             [(f["index"], f["reason"]) for f in skipped["frames"]]).summary())
     return "\n".join([
         f"updater      {r['updater']}  (segmenter {seg}, {r['frames']} frames of "
-        f"{r['sequence']}, {r['resolution']} m)",
+        f"{r['sequence']}, {r['resolution']:.4g} m)",
         f"update       {r['hz_median']:.2f} Hz median (map update only)",
         f"end to end   {r['hz_end_to_end']:.2f} Hz (frames / wall time, reading included, "
         f"{'pipelined' if r['pipeline'].get('enabled') else 'one stage after the other'})",

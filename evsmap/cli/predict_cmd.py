@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,7 @@ from typing import Any
 from evsmap.cli.options import image_size, key_value, positive_int
 from evsmap.cli.outputs import Output, claim_outputs
 from evsmap.cli.precision import add_precision_options, apply_precision, backend_for
-from evsmap.cli.sequence_args import add_sequence_options
+from evsmap.cli.sequence_args import add_sequence_options, skipped_warning
 from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
 from evsmap.errors import EvsmapError
 
@@ -240,6 +241,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(record, indent=2))
     else:
         print(format_record(record))
+    warning = skipped_warning(record["skipped"], record["frames"])
+    if warning:
+        sys.stderr.write(f"evsmap predict: warning: {warning}\n")
     return 0
 
 

@@ -18,6 +18,17 @@ def reader_options(args: argparse.Namespace, sequence: str) -> list[tuple[str, o
     return options
 
 
+def skipped_warning(skipped: dict | None, kept: int) -> str | None:
+    """The warning for a ``--skip-bad`` run that left out most of the frames it tried (more than
+    half): its result stands on few frames. ``skipped``: the record's ``skipped`` field."""
+    count = int((skipped or {}).get("count", 0))
+    tried = count + kept
+    if not tried or count / tried <= 0.5:
+        return None
+    return (f"{count} of {tried} frames were skipped as unreadable (--skip-bad); the result "
+            f"stands on {kept} (the reasons are in the record's 'skipped')")
+
+
 def add_sequence_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reader", metavar="NAME",
                    help="use this reader instead of detecting one from the path (evsmap list)")

@@ -24,7 +24,10 @@ from pathlib import Path
 
 from evsmap.fileio import atomic_write_text, read_json_object
 
-REFERENCE_FILE = Path(__file__).with_name("reference_durations.json")
+REFERENCE_FILES = {False: Path(__file__).with_name("reference_durations.json"),
+                   True: Path(__file__).with_name("reference_durations_quick.json")}
+"""The shipped durations of a first full run and of a first ``--quick`` run, each on an empty
+cache (``benchmarks/reference_durations.py`` writes them)."""
 DURATIONS_FILE = "durations.json"
 DEFAULT_S = {"complexity": 10.0, "speed": 30.0, "accuracy": 120.0, "mapping": 60.0}
 """Seconds assumed for a cell of each kind that neither the history nor the reference knows."""
@@ -66,14 +69,15 @@ class Estimator:
              cache_root: Path | None = None, quick: bool = False) -> Estimator:
         """The estimator of this machine: its history under ``cache_root`` (default: evsmap's
         cache) and the shipped reference scaled by ``calibration_gmacs`` (None: unscaled);
-        ``quick``: a ``--quick`` run's (the reference is a full run's: not used)."""
+        ``quick``: a ``--quick`` run's (its own history and reference; a reference of the
+        other kind is not used)."""
         from evsmap.cache import cache_root as default_root
 
         root = cache_root if cache_root is not None else default_root()
         path = root / DURATIONS_FILE
         machine = machine_id(threads, quick=quick)
         history = read_json_object(path).get(machine, {})
-        reference_data = read_json_object(REFERENCE_FILE)
+        reference_data = read_json_object(REFERENCE_FILES[quick])
         same_kind = bool((reference_data.get("run") or {}).get("quick")) == quick
         reference = reference_data.get("cells", {}) if same_kind else {}
         ref_cal = (reference_data.get("machine") or {}).get("calibration_gmacs")

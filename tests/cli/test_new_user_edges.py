@@ -168,18 +168,48 @@ def test_lidar_bag_with_the_rgbd_range_warns_twice_and_says_the_fix(lidar_bag, c
     assert json.loads(out)["occupied_voxels"] > 0
 
 
-def test_most_frames_skipped_is_a_warning():
+@pytest.fixture(scope="module")
+def mostly_broken(tmp_path_factory):
+    """A 5-frame synthetic sequence whose depth images 1, 2 and 3 are truncated."""
+    out = tmp_path_factory.mktemp("broken") / "seq"
+    assert main(["synth", "--out", str(out), "--frames", "5", "--width", "80",
+                 "--height", "60"]) == 0
+    depth = sorted((out / "depth").iterdir(), key=lambda p: float(p.stem))
+    for path in depth[1:4]:
+        path.write_bytes(path.read_bytes()[:40])
+    return out
+
+
+@pytest.mark.parametrize("argv", [
+    ("map", "{seq}", "--updater", "orgb", "--resolution", "0.2"),
+    ("eval", "oracle", "--dataset", "{seq}"),
+    ("predict", "oracle", "{seq}", "--out", "{tmp}/pred"),
+], ids=["map", "eval", "predict"])
+def test_most_frames_skipped_is_a_warning(mostly_broken, tmp_path, capsys, argv):
+    argv = [a.format(seq=mostly_broken, tmp=tmp_path) for a in argv]
+    code, _, err = run(capsys, *argv, "--skip-bad")
+    assert code == 0, err
+    assert (f"evsmap {argv[0]}: warning: 3 of 5 frames were skipped as unreadable (--skip-bad); "
+            f"the result stands on 2 (the reasons are in the record's 'skipped')") in err
+
+
+def test_a_map_of_free_space_only_writes_no_ply():
     class Args:
         max_range = 5.0
-        ply = None
+        ply = Path("cloud.ply")
 
-    record = {"frames": 2, "occupied_voxels": 10,
-              "extra": {"skipped": {"count": 8, "frames": []}}}
+    record = {"frames": 4, "occupied_voxels": 0, "range_survey": {"share_beyond": 0.1}}
     assert empty_result_warnings(record, Args()) == [
-        "8 of 10 frames were skipped as unreadable (--skip-bad); the map holds 2 (the reasons "
-        "are listed above)"]
-    record["extra"]["skipped"]["count"] = 1
-    assert empty_result_warnings(record, Args()) == []
+        "the map holds no occupied voxel, only free space; no PLY was written"]
+
+
+def test_ply_of_a_cpp_octomap_says_what_to_do_instead(capsys):
+    line = error_line(*run(capsys, "map", "synthetic", "--updater", "octomap-cpp", "--ply",
+                           "cloud.ply", "--frames", "1")[::2])
+    assert line == ("evsmap map: error: --ply: updater 'octomap-cpp' keeps its map in C++ "
+                    "OctoMap, which evsmap cannot list as points; write it with --out (.ot or "
+                    ".bt, for octovis) or map with one of evsmap's updaters")
+    assert "OctoMapAdapter" not in line
 
 
 # -- one weights policy -----------------------------------------------------------------------

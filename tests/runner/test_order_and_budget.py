@@ -79,7 +79,8 @@ def test_estimates_come_from_history_then_reference_then_defaults(tmp_path, monk
     reference = tmp_path / "reference.json"
     reference.write_text(json.dumps({"machine": {"calibration_gmacs": 100.0},
                                      "cells": {"a": 10.0, "b": 4.0}}))
-    monkeypatch.setattr("evsmap.runner.estimate.REFERENCE_FILE", reference)
+    monkeypatch.setattr("evsmap.runner.estimate.REFERENCE_FILES",
+                        {False: reference, True: reference})
     est = Estimator.load(threads=2, calibration_gmacs=50.0, cache_root=tmp_path)
     assert est.seconds("a", "speed") == (20.0, "reference")  # a machine half as fast
     assert est.seconds("z", "mapping") == (60.0, "default")
@@ -109,7 +110,8 @@ def test_quick_runs_keep_their_own_history_and_skip_the_full_reference(tmp_path,
     reference = tmp_path / "reference.json"
     reference.write_text(json.dumps({"machine": {"calibration_gmacs": 100.0},
                                      "run": {"quick": False}, "cells": {"a": 10.0}}))
-    monkeypatch.setattr("evsmap.runner.estimate.REFERENCE_FILE", reference)
+    monkeypatch.setattr("evsmap.runner.estimate.REFERENCE_FILES",
+                        {False: reference, True: reference})
     quick = Estimator.load(threads=2, calibration_gmacs=100.0, cache_root=tmp_path, quick=True)
     assert quick.seconds("a", "speed") == (30.0, "default")
     quick.learn("a", "speed", 2.0)
