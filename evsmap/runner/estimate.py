@@ -33,6 +33,9 @@ DEFAULT_S = {"complexity": 10.0, "speed": 30.0, "accuracy": 120.0, "mapping": 60
 """Seconds assumed for a cell of each kind that neither the history nor the reference knows."""
 CORRECTION_LIMITS = (0.5, 3.0)
 """The running correction of the estimates left is kept within these factors."""
+CORRECTION_PRIOR_S = 60.0
+"""Seconds of "as estimated" the correction starts from, so that the first short cells (whose
+time is mostly a process's start-up: 8 s for a 2 s cell) do not triple the time left."""
 
 
 def machine_id(threads: int, *, quick: bool = False) -> str:
@@ -125,11 +128,13 @@ class Estimator:
                 pass  # a read-only cache: the estimate stays in memory
 
     def correction(self) -> float:
-        """Time taken over time estimated for the cells finished so far (1 before any)."""
+        """Time taken over time estimated for the cells finished so far, each side starting
+        from :data:`CORRECTION_PRIOR_S` (1 before any cell, and near 1 while little is done)."""
         if self._estimated <= 0:
             return 1.0
         low, high = CORRECTION_LIMITS
-        return min(high, max(low, self._taken / self._estimated))
+        ratio = (self._taken + CORRECTION_PRIOR_S) / (self._estimated + CORRECTION_PRIOR_S)
+        return min(high, max(low, ratio))
 
     def remaining_s(self, items: Iterable[tuple[str, str]]) -> float:
         """The estimate of the cells left, corrected by how the finished ones went."""
