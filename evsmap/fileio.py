@@ -70,13 +70,16 @@ def atomic_path(path: str | os.PathLike[str], *, durable: bool = False,
     in ``suffix``, for writers that choose the format by extension); when
     the block ends without error the file written there replaces ``path`` (``os.replace``,
     with the mode a new file gets under the umask); on error it is removed and ``path`` is left
-    as it was. ``durable``: flush the file and its folder to disk before returning.
+    as it was. Missing folders above ``path`` are created first. ``durable``: flush the file and
+    its folder to disk before returning.
 
     OS errors propagate (as :class:`OSError`); callers turn them into their own one-line error.
     """
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}{suffix}")
     try:
+        if not path.parent.is_dir():
+            path.parent.mkdir(parents=True, exist_ok=True)
         yield tmp
         if not tmp.exists():
             raise OSError(f"nothing was written to {tmp}")

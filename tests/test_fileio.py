@@ -46,3 +46,12 @@ def test_bytes_and_text_modes(tmp_path):
     assert (tmp_path / "a.bin").read_bytes() == b"\x00\x01"
     with pytest.raises(ValueError, match="mode"), atomic_write(tmp_path / "b", "a"):
         pass
+
+
+def test_atomic_write_creates_the_missing_folders_above(tmp_path):
+    """The output policy: a folder above an output that does not exist yet is made when the
+    file is written (the commands checked beforehand that it can be)."""
+    target = tmp_path / "new" / "deeper" / "map.json"
+    atomic_write_text(target, "{}")
+    assert target.read_text() == "{}"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["map.json"]

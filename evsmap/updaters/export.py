@@ -160,8 +160,6 @@ def _write_point_cloud(path: Path, points: np.ndarray, colors: np.ndarray) -> No
     o3d = load_open3d()
 
     folder = path.parent
-    if not folder.is_dir():
-        raise DataFormatError(f"cannot write {path}: folder {folder} does not exist")
     if path.is_dir():
         raise DataFormatError(f"cannot write {path}: it is a folder")
     cloud = o3d.geometry.PointCloud()
