@@ -195,9 +195,12 @@ def test_empty_map_is_refused(tmp_path):
 
 
 def test_unwritable_path_names_it(orgb, tmp_path):
-    missing = tmp_path / "no" / "such" / "cloud.ply"
-    with pytest.raises(DataFormatError, match=str(missing)):
-        export_ply(orgb, missing)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")  # a file where the folder above the output should be
+    under_file = blocker / "cloud.ply"
+    with pytest.raises((DataFormatError, OSError), match=str(blocker)):
+        export_ply(orgb, under_file)
+    blocker.unlink()
     folder = tmp_path / "folder.ply"
     folder.mkdir()
     with pytest.raises(DataFormatError, match="folder.ply"):
@@ -236,10 +239,12 @@ def test_cli_map_ply_class_colours_text_output(tmp_path):
 
 
 def test_cli_map_ply_errors_are_one_line_and_early(tmp_path):
+    (tmp_path / "blocker").write_text("a file where a folder should be")
     cases = [
         (("--updater", "multiclass-bayes", "-o", "front_end=direct", "--ply",
           str(tmp_path / "a.ply"), "--ply-color", "rgb"), "stores no colours"),
-        (("--updater", "orgb", "--ply", str(tmp_path / "no" / "a.ply")), "does not exist"),
+        (("--updater", "orgb", "--ply", str(tmp_path / "blocker" / "b.ply")),
+         "blocker is a file, not a folder"),
         (("--updater", "orgb", "--ply", str(tmp_path / "a.ply"), "--ply-color", "depth"),
          "invalid choice"),
     ]
