@@ -99,7 +99,8 @@ def fetch_sample(sample: Sample | str, out_root: str | Path | None = None, *,
     timeout = _download.TIMEOUT if timeout is None else timeout
     root = Path(out_root) if out_root is not None else default_data_root()
     target = root / sample.folder
-    if target.exists() and not overwrite:
+    empty_folder = target.is_dir() and not any(target.iterdir())
+    if target.exists() and not overwrite and not empty_folder:  # the commands' output policy
         raise FetchError(f"{target}: exists (pass --overwrite to replace it)")
     if not sample.sources:
         raise FetchError(f"sample {sample.name!r} has no download source")

@@ -235,9 +235,9 @@ def prepare_nyuv2(source_dir: str | Path, out_dir: str | Path, *, limit: int | N
     src = Path(source_dir)
     require_dir(src, "NYUv2 source")
     check_limit(limit)
-    labelled = require_file(src / LABELLED_MAT, f"NYUv2 labelled data ({LABELLED_MAT})")
-    require_file(src / SPLITS_MAT, f"NYUv2 split file ({SPLITS_MAT})")
-    require_file(src / MAPPING_MAT, f"NYUv2 894->40 class mapping ({MAPPING_MAT})")
+    labelled = require_file(src / LABELLED_MAT, "NYUv2 labelled data")
+    require_file(src / SPLITS_MAT, "NYUv2 split file")
+    require_file(src / MAPPING_MAT, "NYUv2 894->40 class mapping")
     lut = _mapping_lut(src / MAPPING_MAT)
     if not is_hdf5(labelled):
         raise DataFormatError(f"{labelled}: not a MATLAB v7.3 (HDF5) file; expected the official "

@@ -197,7 +197,7 @@ class _MetaEntry:
 
 
 def _load_meta(path: Path) -> list[_MetaEntry]:
-    require_file(path, "SUN RGB-D frame metadata (SUNRGBDMeta.mat)")
+    require_file(path, "SUN RGB-D frame metadata")
     data = loadmat_checked(path, variable_names=["SUNRGBDMeta"], squeeze_me=True,
                            struct_as_record=False)
     if "SUNRGBDMeta" not in data:
@@ -328,8 +328,8 @@ def prepare_sunrgbd(source_dir: str | Path, out_dir: str | Path, *, limit: int |
     require_dir(src, "SUN RGB-D source")
     check_limit(limit)
     data_dir = require_dir(src / DATA_DIR, "SUN RGB-D data (SUNRGBD.zip unpacked)")
-    seg_path = require_file(src / SEG_MAT, "SUN RGB-D 2D segmentation (SUNRGBD2Dseg.mat)")
-    require_file(src / SPLIT_MAT, "SUN RGB-D split (allsplit.mat)")
+    seg_path = require_file(src / SEG_MAT, "SUN RGB-D 2D segmentation")
+    require_file(src / SPLIT_MAT, "SUN RGB-D split")
     meta = _load_meta(src / META_MAT)
     split_keys = _split_keys(src / SPLIT_MAT)
     assigned: dict[str, list[_MetaEntry]] = {s: [] for s in SPLITS}

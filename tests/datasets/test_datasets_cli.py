@@ -66,7 +66,7 @@ def test_one_line_errors(capsys, nyu_prepared, tmp_path):
                          "--out", str(tmp_path / "o"))
     assert code == 2 and out == ""
     assert err == (f"evsmap datasets: error: {tmp_path / 'nyu_depth_v2_labeled.mat'}: NYUv2 "
-                   "labelled data (nyu_depth_v2_labeled.mat) not found\n")
+                   "labelled data not found\n")
 
     code, _, err = run(capsys, "datasets", "prepare", "nyuv2", "--from", str(tmp_path),
                        "--raw-depth")
