@@ -92,7 +92,7 @@ def test_map_interrupted_writes_nothing_and_a_rerun_equals_a_straight_one(straig
     target.parent.mkdir()
     target.write_bytes(b"an older map")  # what was there stays until a new map is whole
     after = RNG.uniform(START_S, 8.0)
-    code, err = interrupt([*MAP, "--out", str(target)], tmp_path, after_s=after,
+    code, err = interrupt([*MAP, "--out", str(target), "--overwrite"], tmp_path, after_s=after,
                           sig=signal.SIGTERM)
     assert_whole(target.parent)
     # the old map, or the whole new one when the run finished before the signal took effect
@@ -101,7 +101,7 @@ def test_map_interrupted_writes_nothing_and_a_rerun_equals_a_straight_one(straig
     if code == 128 + signal.SIGTERM:
         assert ("run the same command again" in err) if now == b"an older map" else \
             (f"{target} is written" in err), err
-    run_evsmap([*MAP, "--out", str(target)], tmp_path)
+    run_evsmap([*MAP, "--out", str(target), "--overwrite"], tmp_path)
     assert target.read_bytes() == straight_map
 
 

@@ -126,7 +126,11 @@ def test_the_doc_systems_map_beside_table_iv_in_the_runner(plugin_package, tmp_p
     assert record.status == "ok", record.error
     assert record.values["map_bytes"] > 0 and record.values["nodes"] > 100
     assert any("labels from row-bands(first_class=10)" in n for n in record.notes)
-    assert len(record.details["segment_ms"]) == len(record.details["update_ms"]) > 0
+    segment_ms, update_ms = record.details["segment_ms"], record.details["update_ms"]
+    if "segment_timing" in record.details:  # labels from the shared cache: timed on their own,
+        assert len(segment_ms) >= 3 and len(update_ms) > 0  # under the timing policy
+    else:  # segmented in the mapping loop: one time a frame
+        assert len(segment_ms) == len(update_ms) > 0
     with np.load(tmp_path / "run" / "artifacts" / "map-maxconf-synthetic.npz") as saved:
         labels = saved["labels"]
     assert set(np.unique(labels[labels >= 0]).tolist()) <= {10, 11, 12, 13}

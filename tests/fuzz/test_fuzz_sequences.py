@@ -602,7 +602,7 @@ def _fuzz_cli(root: Path, lists: tuple[str, ...], target: str, capsys, tmp: Path
     restore = Restore(root)
     commands = [["info", str(root)], ["info", str(root), "--skip-bad"],
                 ["map", str(root), "--updater", "orgb", "--frames", "2",
-                 "--out", str(tmp / "map.ot")],
+                 "--out", str(tmp / "map.ot"), "--overwrite"],
                 ["map", str(root), "--updater", "orgb", "--frames", "2", "--skip-bad"]]
 
     @given(_cli_strategy(root, lists), st.sampled_from(commands))

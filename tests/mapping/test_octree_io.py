@@ -265,8 +265,11 @@ def test_corrupt_files_raise_data_format_error(tmp_path):
             reader(p)
     with pytest.raises(DataFormatError, match="missing"):
         read_ot(tmp_path / "missing.ot")
+    (tmp_path / "a_file").write_text("x")  # a file where the folder above should be
     with pytest.raises(DataFormatError, match=r"x\.ot"):
-        write_ot(tmp_path / "no_dir" / "x.ot", t, RES)
+        write_ot(tmp_path / "a_file" / "x.ot", t, RES)
+    write_ot(tmp_path / "new_dir" / "x.ot", t, RES)  # a missing folder is made (fileio)
+    assert read_ot(tmp_path / "new_dir" / "x.ot") is not None
 
 
 def test_random_corruption_never_leaks_numpy_errors(tmp_path):
