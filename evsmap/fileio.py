@@ -126,6 +126,34 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, *,
 
 
 @contextlib.contextmanager
+def quiet_native_output():
+    """Silence what native code writes to the process's stdout and stderr for the block: a
+    failed TorchScript export prints the whole traced graph (thousands of lines) from C++, a
+    failed Open3D write its own error line, past Python's ``sys.stdout``. The exception (or
+    the writer's return value) still says what failed."""
+    import sys
+
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    try:
+        saved = [os.dup(1), os.dup(2)]
+    except OSError:  # no file descriptors to redirect (an embedded interpreter)
+        yield
+        return
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
+
+
+@contextlib.contextmanager
 def staging_folder(out: Path, *, overwrite: bool, source: Path | None = None,
                    what: str = "") -> Iterator[Path]:
     """Yield an empty hidden folder beside ``out``; once the block ends without error it replaces

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from evsmap.fileio import quiet_native_output
 from evsmap.interrupt import reraise_interruption
 from evsmap.models.module_utils import as_inputs, eval_mode
 from evsmap.models.onnx_export import OPSET, OUTPUT_NAMES, OnnxExportError, state_digest
@@ -228,33 +229,6 @@ def export_lean(module: torch.nn.Module, inputs: Sequence[torch.Tensor], names: 
     except Exception as exc:
         raise OnnxExportError(f"ONNX export of {type(module).__name__} does not check: "
                               f"{_first_line(exc)}") from exc
-
-
-@contextlib.contextmanager
-def quiet_native_output():
-    """Silence what native code writes to the process's stdout and stderr for the block: a
-    failed TorchScript export prints the whole traced graph (thousands of lines) from C++,
-    past Python's ``sys.stdout``. The exception still says what failed."""
-    import sys
-
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    try:
-        saved = [os.dup(1), os.dup(2)]
-    except OSError:  # no file descriptors to redirect (an embedded interpreter)
-        yield
-        return
-    null = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(null, 1)
-        os.dup2(null, 2)
-        yield
-    finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, null):
-            os.close(fd)
 
 
 def _attach_weights(model, state: Mapping[str, torch.Tensor], names: set[str],

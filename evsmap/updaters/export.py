@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from evsmap.errors import DataFormatError, InvalidDataError
-from evsmap.fileio import atomic_path
+from evsmap.fileio import atomic_path, quiet_native_output
 from evsmap.interfaces import OCCUPIED
 from evsmap.mapping.keys import key_to_coord, unpack
 from evsmap.updaters.base import OctreeUpdater
@@ -167,7 +167,9 @@ def _write_point_cloud(path: Path, points: np.ndarray, colors: np.ndarray) -> No
     cloud.colors = o3d.utility.Vector3dVector(np.asarray(colors, dtype=np.float64) / 255.0)
     try:
         with atomic_path(path, suffix=".ply") as tmp:  # Open3D picks the format by extension
-            with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            # Open3D reports a failure itself (a warning, or past Python's streams): quiet
+            with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error), \
+                    quiet_native_output():
                 ok = o3d.io.write_point_cloud(str(tmp), cloud, write_ascii=False)
             if not ok:
                 raise DataFormatError(f"cannot write {path}: Open3D could not write the point "

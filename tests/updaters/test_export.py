@@ -254,3 +254,13 @@ def test_cli_map_ply_errors_are_one_line_and_early(tmp_path):
         assert message in r.stderr and "Traceback" not in r.stderr
         assert len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert not (tmp_path / "a.ply").exists()
+
+
+def test_a_failed_write_prints_nothing_of_open3d(orgb, capfd):
+    """Open3D reports a failed write on the process's own stderr; evsmap's one line is the
+    only message (the issue's `--ply` into a read-only folder printed both)."""
+    target = "/proc/self/cloud.ply"  # a folder no file can be created in
+    with pytest.raises((DataFormatError, OSError)):
+        export_ply(orgb, target)
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
