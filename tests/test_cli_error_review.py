@@ -335,7 +335,7 @@ def test_datasets_fetch_into_the_shared_folder_says_it_is_there(capsys, tmp_path
 # ----------------------------------------------------------------------------- train
 def test_train_out_is_a_file(capsys, blocker):
     err = _fails(capsys, "train", "feagnet-v2", "--dataset", "synthetic", "--out", blocker)
-    assert f"--out {blocker}: is a file, not a folder" in err
+    assert f"--out {blocker}: exists and is a file, not a folder" in err  # the output policy's line
     _named_once(err, blocker)
 
 

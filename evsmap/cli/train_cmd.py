@@ -116,13 +116,9 @@ def check_out(out: Path) -> None:
     Raises:
         EvsmapError: one line naming --out.
     """
-    from evsmap.cli.outputs import Output, check_writable
-    from evsmap.errors import EvsmapError
+    from evsmap.cli.outputs import Output, claim_outputs
 
-    if out.exists() and not out.is_dir():
-        raise EvsmapError(f"--out {out}: is a file, not a folder (the run's folder: choose "
-                          "another --out)")
-    check_writable(Output("--out", out, folder=True, in_place=True))
+    claim_outputs([Output("--out", out, folder=True, in_place=True)], overwrite=False)
 
 
 def run(args: argparse.Namespace) -> int:
