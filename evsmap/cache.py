@@ -15,6 +15,9 @@ tables, plots and small artifacts:
   run folder);
 * ``sequences/`` - the built-in synthetic scene rendered once, keyed by its options and a digest
   of the renderer's source code;
+* ``gate/`` - what ``evsmap gate --against REF`` keeps per reference commit (its ONNX exports
+  and other caches, ``gate/reference/<commit>``) and the virtual environments of references
+  whose lock differs from this tree's (``gate/envs/<lock digest>``);
 * ``calibration.json`` - the best calibration each machine has shown
   (:mod:`evsmap.measure.contention`).
 
@@ -29,7 +32,7 @@ import shutil
 from pathlib import Path
 
 CACHE_ENV = "EVSMAP_CACHE_DIR"
-KINDS = ("onnx", "complexity", "segmentation", "sequences")
+KINDS = ("onnx", "complexity", "segmentation", "sequences", "gate")
 
 
 def cache_root() -> Path:

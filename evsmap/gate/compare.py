@@ -21,6 +21,7 @@ Rules (``docs/gates.md``):
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -76,14 +77,22 @@ def entry_of(record: dict[str, Any]) -> dict[str, Any]:
             **record.get("counts", {}), "context": ctx}
 
 
-def _measured_row(name: str, key: str, base: float, now: float, th: Thresholds) -> Row:
+def _verdict(key: str, change: float, grown_bytes: float, th: Thresholds) -> str:
+    """``FAIL``, ``better`` or ``ok`` for a relative ``change`` of ``key``; a peak must also
+    have moved by more than the slack (``grown_bytes``, negative when it shrank)."""
     limit = th.time if key == "time_ratio" else th.memory
+    moved = key == "time_ratio" or abs(grown_bytes) > th.memory_slack_bytes
+    if change > limit and moved:
+        return "FAIL"
+    if change < -limit and moved:
+        return "better"
+    return "ok"
+
+
+def _measured_row(name: str, key: str, base: float, now: float, th: Thresholds) -> Row:
     change = now / base - 1.0 if base > 0 else (0.0 if now == base else math.inf)
-    verdict = "ok"
-    if change > limit and (key == "time_ratio" or now - base > th.memory_slack_bytes):
-        verdict = "FAIL"
-    elif change < -limit and (key == "time_ratio" or base - now > th.memory_slack_bytes):
-        verdict = "better"
+    verdict = _verdict(key, change, now - base, th)
+    limit = th.time if key == "time_ratio" else th.memory
     why = f"more than {limit:.0%} above the baseline" if verdict == "FAIL" else ""
     return Row(name, key, base, now, change, verdict, why)
 
@@ -124,16 +133,87 @@ def compare(baseline: dict[str, dict[str, Any]], measured: dict[str, dict[str, A
             if not same_machine:
                 row = Row(name, key, row.baseline, row.now, row.change, "not compared", other)
             rows.append(row)
-        for key in sorted(set(base) - NOT_COUNTS | set(now) - NOT_COUNTS):
-            b, n = base.get(key), now.get(key)
-            if b == n:
-                continue
-            if not same_machine and key in MACHINE_DEPENDENT and b is not None and n is not None:
-                rows.append(Row(name, key, b, n, None, "not compared", other))
-                continue
-            rows.append(Row(name, key, b, n, None, "FAIL",
-                            "an exact count changed" if b is not None and n is not None
-                            else "a count is missing on one side"))
+        rows += _count_rows(name, base, now, same_machine=same_machine)
+    return rows
+
+
+def _count_rows(name: str, base: dict[str, Any], now: dict[str, Any], *,
+                same_machine: bool) -> list[Row]:
+    rows = []
+    for key in sorted(set(base) - NOT_COUNTS | set(now) - NOT_COUNTS):
+        b, n = base.get(key), now.get(key)
+        if b == n:
+            continue
+        if not same_machine and key in MACHINE_DEPENDENT and b is not None and n is not None:
+            rows.append(Row(name, key, b, n, None, "not compared",
+                            "another machine kind than the baseline's"))
+            continue
+        rows.append(Row(name, key, b, n, None, "FAIL",
+                        "an exact count changed" if b is not None and n is not None
+                        else "a count is missing on one side"))
+    return rows
+
+
+def compare_paired(pairs: dict[str, list[tuple[dict[str, Any], dict[str, Any]]]],
+                   thresholds: Thresholds | None = None, *,
+                   only_reference: Iterable[str] = (),
+                   only_here: dict[str, dict[str, Any]] | None = None) -> list[Row]:
+    """Verdict rows of a paired run: ``pairs`` maps a workload to its (reference, this tree)
+    worker records, measured back to back on the same CPU. The reference column holds the
+    reference's median, ``now`` this tree's, and ``change`` the median over the pairs of this
+    tree's figure over the reference's: the verdict comes from the paired ratios, with the
+    thresholds of :func:`compare`. Every count is held (both sides ran on this machine).
+    Workloads in ``only_reference`` (the reference has them, this tree does not) fail; those in
+    ``only_here`` (workload -> this tree's record) are ``new``."""
+    from evsmap.gate.run import combine
+
+    th = thresholds or Thresholds()
+    rows: list[Row] = [Row(n, "-", "measured", None, None, "FAIL",
+                           "the reference has this workload, this tree does not")
+                       for n in sorted(only_reference)]
+    for name in sorted(pairs):
+        refs, nows = [p[0] for p in pairs[name]], [p[1] for p in pairs[name]]
+        ref, now = combine(refs), combine(nows)
+        if "skipped" in now:
+            rows.append(Row(name, "-", None, None, None, "skipped", now["skipped"]))
+        elif "error" in now:
+            rows.append(Row(name, "-", "measured", None, None, "FAIL", now["error"]))
+        elif "error" in ref or "skipped" in ref:
+            rows.append(Row(name, "-", None, "measured", None, "not compared",
+                            "the reference could not measure it: "
+                            + str(ref.get("error") or ref.get("skipped"))))
+        else:
+            rows += _paired_rows(name, refs, nows, ref, now, th)
+    rows += [Row(r.workload, r.measure, r.baseline, r.now, r.change, r.verdict,
+                 r.why.replace("not in the baseline", "not in the reference"))
+             for r in compare({}, only_here or {}, th)]
+    return rows
+
+
+def _paired_rows(name: str, refs: list[dict[str, Any]], nows: list[dict[str, Any]],
+                 ref: dict[str, Any], now: dict[str, Any], th: Thresholds) -> list[Row]:
+    import numpy as np
+
+    rows = []
+    same_calibration = ref.get("calibration") == now.get("calibration")
+    time_key = "time_ratio" if same_calibration else "workload_ms"
+    for key in MEASURED_KEYS:
+        pick = time_key if key == "time_ratio" else key
+        pairs = list(zip(refs, nows, strict=True))
+        ratios = [b[pick] / a[pick] if a[pick] > 0 else math.inf for a, b in pairs]
+        change = float(np.median(ratios)) - 1.0
+        grown = float(np.median([b[pick] - a[pick] for a, b in pairs]))
+        verdict = _verdict(key, change, grown, th)
+        limit = th.time if key == "time_ratio" else th.memory
+        why = f"more than {limit:.0%} above the reference" if verdict == "FAIL" else ""
+        if key == "time_ratio" and not same_calibration:
+            why = (f"the two sides divide by other calibrations ({ref.get('calibration')}, "
+                   f"{now.get('calibration')}): judged on raw times. {why}").strip()
+        rows.append(Row(name, key, ref[key], now[key], change, verdict, why))
+    rows += [Row(r.workload, r.measure, r.baseline, r.now, r.change, r.verdict,
+                 r.why.replace("an exact count changed", "an exact count differs from the "
+                               "reference's"))
+             for r in _count_rows(name, entry_of(ref), entry_of(now), same_machine=True)]
     return rows
 
 
@@ -149,10 +229,11 @@ def _fmt(measure: str, value: Any) -> str:
     return str(value)
 
 
-def table(rows: list[Row], *, all_rows: bool = True) -> str:
-    """The verdict table as Markdown: workload, measure, baseline, now, change, verdict."""
+def table(rows: list[Row], *, all_rows: bool = True, against: str = "baseline") -> str:
+    """The verdict table as Markdown: workload, measure, ``against`` (the baseline or the
+    reference), now, change, verdict."""
     shown = rows if all_rows else [r for r in rows if r.verdict != "ok"]
-    lines = ["| workload | measure | baseline | now | change | verdict |",
+    lines = [f"| workload | measure | {against} | now | change | verdict |",
              "|---|---|---|---|---|---|"]
     for r in shown:
         change = "-" if r.change is None else f"{r.change:+.1%}"
@@ -162,9 +243,10 @@ def table(rows: list[Row], *, all_rows: bool = True) -> str:
     return "\n".join(lines)
 
 
-def summary(rows: list[Row]) -> tuple[bool, str]:
+def summary(rows: list[Row], *, paired: bool = False) -> tuple[bool, str]:
     """(passed, one paragraph): how many workloads failed and which, and the ``--update``
-    hint when some figure is clearly better or a workload is new."""
+    hint when some figure is clearly better or a workload is new (``paired``: better than
+    or new to the reference commit measured beside this tree)."""
     failed = sorted({r.workload for r in rows if r.failed})
     better = sorted({r.workload for r in rows if r.verdict in ("better", "new")})
     workloads = len({r.workload for r in rows})
@@ -174,11 +256,15 @@ def summary(rows: list[Row]) -> tuple[bool, str]:
                      f"changed: {', '.join(failed)}")
     else:
         lines.append(f"gate passed: {workloads} workloads within the thresholds")
-    if any(r.verdict == "not compared" for r in rows):
+    if any(r.verdict == "not compared" and r.why.startswith("another machine kind")
+           for r in rows):
         lines.append("WARNING: this machine is of another kind than the baseline's: time "
                      "ratios, peaks and floating-point counts were not compared (record a "
                      "baseline on this kind of machine with `evsmap gate --update`)")
-    if better:
+    if better and paired:
+        lines.append(f"{len(better)} workloads are clearly better than or new to the reference "
+                     f"({', '.join(better)})")
+    elif better:
         lines.append(f"{len(better)} workloads are clearly better than or new to the baseline "
                      f"({', '.join(better)}): run `evsmap gate --update` to record them")
     return not failed, "\n".join(lines)

@@ -1,124 +1,27 @@
-"""Run the gate: prepare the shared inputs, measure every selected workload in a fresh process,
-read and write the baseline file."""
+"""Run the gate's workers: select workloads, measure each in fresh processes (this tree's, or
+another checkout's through its own interpreter and import path), combine their records."""
 
 from __future__ import annotations
 
 import fnmatch
 import json
-import math
 import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
-from datetime import UTC, datetime
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.errors import EvsmapError
+from evsmap.gate.prepare import CONTEXT_FILE, missing_input
 from evsmap.gate.worker import THREAD_VARIABLES
-from evsmap.gate.workloads import (
-    MAP_NETWORK,
-    NETWORK_SIZE,
-    UPDATE_FRAMES,
-    Workload,
-    tum_sequence,
-)
+from evsmap.gate.workloads import Workload
 
-BASELINE_FORMAT = 1
-DEFAULT_BASELINE = Path("benchmarks") / "baseline.json"
 WORKER_TIMEOUT_S = 600
-
-
-# -- the baseline file ---------------------------------------------------------------------------
-
-
-def read_baseline(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """A baseline file: ``{"format", "machine", "settings", "workloads": {name: entry}}``.
-
-    Raises:
-        DataFormatError: the file cannot be read or is not a baseline (names the file).
-    """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DataFormatError(f"{path}: no such baseline file (make one with "
-                              f"`evsmap gate --update --baseline {path}`)") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DataFormatError(f"{path}: not a readable JSON baseline ({exc})") from None
-    except RecursionError:
-        raise DataFormatError(f"{path}: not a readable JSON baseline (nested too deeply)") \
-            from None
-    workloads = data.get("workloads") if isinstance(data, dict) else None
-    if not isinstance(workloads, dict):
-        raise DataFormatError(f"{path}: no top-level \"workloads\" object")
-    for name, entry in workloads.items():
-        if not isinstance(entry, dict):
-            raise DataFormatError(f"{path}: workload {name!r} is not an object")
-        for key in ("time_ratio", "peak_rss_bytes"):
-            value = entry.get(key)
-            if not _finite_nonnegative(value):
-                raise DataFormatError(f"{path}: workload {name!r} has no valid {key!r} (a "
-                                      f"finite number >= 0)")
-    return data
-
-
-def _finite_nonnegative(value: Any) -> bool:
-    if not isinstance(value, (int, float)) or isinstance(value, bool):
-        return False
-    try:
-        return math.isfinite(value) and value >= 0
-    except OverflowError:  # an integer beyond the float range
-        return False
-
-
-def write_baseline(path: str | os.PathLike[str], data: dict[str, Any]) -> None:
-    from evsmap.fileio import atomic_write_text
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, json.dumps(data, indent=1, sort_keys=False) + "\n")
-
-
-def machine_info(threads: int) -> dict[str, Any]:
-    """Facts about this machine and its libraries, and ``kind``: what must match for a
-    baseline to hold here (CPU model, the vector extensions the kernels pick, cores, python
-    and library versions)."""
-    from evsmap.environment import describe
-    from evsmap.measure.speed import library_versions
-
-    info: dict[str, Any] = {**describe(), **library_versions(), "threads": threads}
-    info["kind"] = machine_kind(info)
-    return info
-
-
-def machine_kind(info: dict[str, Any]) -> str:
-    """A short fingerprint of what a baseline's figures depend on (see :func:`machine_info`)."""
-    import hashlib
-
-    keys = ("cpu", "cpus", "machine", "instruction_set", "cpu_flags", "python", "torch",
-            "onnxruntime", "numpy")
-    text = json.dumps({k: info.get(k) for k in keys}, sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()[:12]
-
-
-def updated_baseline(old: dict[str, Any] | None, measured: dict[str, dict[str, Any]],
-                     settings: dict[str, Any]) -> dict[str, Any]:
-    """``old`` with the measured workloads replaced (others kept), new machine facts."""
-    from evsmap.gate.compare import entry_of
-
-    workloads = dict((old or {}).get("workloads", {}))
-    for name, rec in measured.items():
-        if "error" not in rec and "skipped" not in rec:
-            workloads[name] = entry_of(rec)
-    return {"format": BASELINE_FORMAT,
-            "updated": datetime.now(UTC).isoformat(timespec="seconds"),
-            "machine": machine_info(int(settings.get("threads", 1))),
-            "settings": settings,
-            "workloads": dict(sorted(workloads.items()))}
 
 
 # -- selection ----------------------------------------------------------------------------------
@@ -148,115 +51,40 @@ def selected_names(names: Iterable[str], patterns: Sequence[str] | None) -> set[
             if not patterns or any(fnmatch.fnmatchcase(n, p) for p in patterns)}
 
 
-# -- shared inputs --------------------------------------------------------------------------------
-
-
-def _sample(folder: str) -> tuple[str | None, str | None]:
-    from evsmap.paths import default_data_root
-
-    path = default_data_root() / folder
-    if path.exists():
-        return str(path), None
-    return None, (f"needs the sample {path} (data root: $EVSMAP_DATA_ROOT, ../shared/data or "
-                  f"~/.cache/evsmap/data; `evsmap datasets fetch`)")
-
-
-def discover(*, threads: int) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The gate context (the samples' paths, the networks and the updaters registered here)
-    and the seeded networks built to find out which segmenters are networks."""
-    import torch
-
-    from evsmap.registry import SEGMENTERS, UPDATERS
-
-    context: dict[str, Any] = {"threads": threads, "networks": {},
-                               "updaters": list(UPDATERS.names()), "missing": {},
-                               "observations": None}
-    context["tum"], context["missing"]["tum"] = _sample("tum_fr1_xyz")
-    context["bag"], context["missing"]["bag"] = _sample("ros/lidar_odometry.bag")
-    context["missing"]["observations"] = context["missing"]["tum"]
-    torch.set_num_threads(threads)
-    built = {}
-    for name in SEGMENTERS.names():
-        if SEGMENTERS.get(name).extras.get("gate") is False:
-            # a plug-in that asks not to be gated (the compared networks of Tables I-II:
-            # timed beside FEAGNet in every reproduce run; several are 100-500 GFLOPs)
-            context.setdefault("not_gated", []).append(name)
-            continue
-        torch.manual_seed(0)
-        try:
-            segmenter = SEGMENTERS.create(name)
-        except EvsmapError as exc:  # a plug-in that cannot be built with its defaults
-            context["missing"][f"net:{name}"] = str(exc)
-            continue
-        if segmenter.module is None:
-            continue  # not a network (the oracle)
-        context["networks"][name] = {"uses_depth": bool(segmenter.uses_depth)}
-        built[name] = segmenter
-    return context, built
-
-
-def prepare_inputs(context: dict[str, Any], built: dict[str, Any],
-                   workloads: Sequence[Workload], out: Path, *,
-                   log: Callable[[str], Any] = lambda _: None) -> None:
-    """What the selected workloads share, into ``context``: the ONNX exports (in the export
-    cache shared across runs) and the top-3 of the seeded FEAGNet-V1 on the TUM frames the
-    updaters integrate (``out/observations.npz``)."""
-    import torch
-
-    from evsmap.models.onnx_export import cached_onnx
-    from evsmap.registry import SEGMENTERS
-
-    for w in workloads:
-        if w.kind == "net" and w.name.endswith("/onnxruntime"):
-            name = w.name.split("/")[1]
-            segmenter, info = built[name], context["networks"][name]
-            log(f"ONNX export of {name} (cached across runs)")
-            try:
-                info["onnx"] = str(cached_onnx(segmenter.module,
-                                               segmenter.example_inputs(*NETWORK_SIZE),
-                                               segmenter.input_names, key=name))
-            except EvsmapError as exc:
-                info["onnx_error"] = str(exc)
-    if context["tum"] and any(w.kind == "update" for w in workloads):
-        log(f"top-3 of the seeded {MAP_NETWORK} on {len(UPDATE_FRAMES)} TUM frames")
-        torch.manual_seed(0)
-        segmenter = SEGMENTERS.create(MAP_NETWORK)
-        seq = tum_sequence(context["tum"])
-        obs = [segmenter.predict(seq[i]) for i in UPDATE_FRAMES]
-        path = out / "observations.npz"
-        np.savez(path, classes=np.stack([o.classes for o in obs]),
-                 probs=np.stack([o.probs for o in obs]), num_classes=obs[0].num_classes)
-        context["observations"] = str(path)
-
-
-def missing_input(workload: Workload, context: dict[str, Any]) -> str | None:
-    """Why ``workload`` cannot run here, or None."""
-    for need in workload.needs:
-        if need in ("tum", "bag") and not context.get(need):
-            return context["missing"].get(need) or f"needs {need}"
-        if need == "observations" and not context.get("observations"):
-            return context["missing"].get("observations") or "no observations were prepared"
-    return None
-
-
 # -- measuring ------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class Checkout:
+    """Where a worker's code comes from: this tree (the defaults: this interpreter, this
+    process's import path) or another commit's files (``cwd`` first on the import path,
+    ``env`` added to the environment, its own ``python`` where its dependencies differ)."""
+
+    python: str = sys.executable
+    cwd: Path | None = None
+    env: dict[str, str] = field(default_factory=dict)
+
+
+THIS_TREE = Checkout()
+
+
 def run_worker(workload: Workload, context_file: Path, out_dir: Path, *, budget_s: float,
-               threads: int) -> dict[str, Any]:
-    """Measure ``workload`` in a fresh Python process; its record (or ``{"error": ...}``)."""
+               threads: int, checkout: Checkout = THIS_TREE) -> dict[str, Any]:
+    """Measure ``workload`` in a fresh Python process of ``checkout``; its record (or
+    ``{"error": ...}``)."""
     out = out_dir / (workload.name.replace("/", "__") + ".json")
-    env = dict(os.environ)
+    env = {**os.environ, **checkout.env}
     for var in THREAD_VARIABLES:
         env[var] = str(threads)
-    cmd = [sys.executable, "-m", "evsmap.gate.worker", "--workload", workload.name,
+    started = time.time_ns()
+    cmd = [checkout.python, "-m", "evsmap.gate.worker", "--workload", workload.name,
            "--context", str(context_file), "--out", str(out), "--budget", str(budget_s)]
     try:
         proc = subprocess.run(cmd, env=env, capture_output=True, text=True,
-                              timeout=WORKER_TIMEOUT_S)
+                              timeout=WORKER_TIMEOUT_S, cwd=checkout.cwd)
     except subprocess.TimeoutExpired:
         return {"name": workload.name, "error": f"timed out after {WORKER_TIMEOUT_S} s"}
-    if not out.exists():
+    if not out.exists() or out.stat().st_mtime_ns < started:
         tail = (proc.stderr or "").strip().splitlines()[-1:] or [f"exit {proc.returncode}"]
         return {"name": workload.name, "error": f"the worker died: {tail[0]}"}
     record = json.loads(out.read_text())
@@ -274,7 +102,7 @@ def measure_all(workloads: Sequence[Workload], context: dict[str, Any], workdir:
 
     threads = int(context["threads"])
     results: dict[str, list[dict[str, Any]]] = {}
-    context_file = workdir / "context.json"
+    context_file = workdir / CONTEXT_FILE
     context_file.write_text(json.dumps(context))
     jobs = [w for _ in range(repeats) for w in workloads]
     bar = tqdm(jobs, desc="gate", unit="process", file=sys.stderr, disable=not progress,
@@ -321,6 +149,8 @@ def combine(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """One workload's processes as one record: the median ``time_ratio`` and
     ``peak_rss_bytes``, the counts (an error if two processes disagree: the workload is not
     deterministic), every process's ratio and peak under ``processes``."""
+    if not records:
+        return {"error": "not measured"}
     bad = [r for r in records if "error" in r or "skipped" in r]
     if bad:
         return dict(bad[0])

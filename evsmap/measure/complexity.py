@@ -107,7 +107,7 @@ def cached_complexity(module: torch.nn.Module, inputs: torch.Tensor | Sequence[t
 
     from evsmap.cache import cache_dir
     from evsmap.fileio import atomic_write_text
-    from evsmap.models.speed_export import structure_digest
+    from evsmap.models.onnx_export import structure_digest
 
     inputs = as_inputs(inputs)
     h = hashlib.sha256()

@@ -114,6 +114,28 @@ def state_digest(module: torch.nn.Module) -> str:
     return h.hexdigest()
 
 
+def structure_digest(module: torch.nn.Module) -> str:
+    """SHA-256 of what fixes a module's graph besides its weights: its ``repr``, the source
+    code of every module class in it, and every submodule's plain attributes (numbers,
+    strings, tuples: e.g. a pooling size computed from the input size the network was built
+    for)."""
+    import inspect
+
+    h = hashlib.sha256(repr(module).encode())
+    for cls in sorted({type(m) for m in module.modules()},
+                      key=lambda c: f"{c.__module__}.{c.__qualname__}"):
+        try:
+            h.update(inspect.getsource(cls).encode())
+        except (OSError, TypeError):  # no source (a compiled class): its name stands in
+            h.update(f"{cls.__module__}.{cls.__qualname__}".encode())
+    for name, sub in module.named_modules():
+        plain = {k: v for k, v in vars(sub).items()
+                 if not k.startswith("_") and isinstance(v, (bool, int, float, str, tuple))}
+        h.update(f"{name}:{type(sub).__module__}.{type(sub).__qualname__}:"
+                 f"{sorted(plain.items(), key=lambda kv: kv[0])!r}".encode())
+    return h.hexdigest()
+
+
 def cached_onnx(
     module: torch.nn.Module,
     inputs: torch.Tensor | Sequence[torch.Tensor],
@@ -125,8 +147,9 @@ def cached_onnx(
     """Path of an ONNX export of ``module``, exported only when not already cached.
 
     The file name holds ``key`` (readable) and a hash of ``key``, the module's class, the input
-    names, shapes and dtypes, the opset, the torch version and :func:`state_digest`, so new
-    weights or another input size export again. The export goes to a temporary file in the
+    names, shapes and dtypes, the opset, the torch version, :func:`structure_digest` (the
+    code of its module classes) and :func:`state_digest`, so new weights, changed code or
+    another input size export again. The export goes to a temporary file in the
     cache folder and is renamed into place, so a partial file is never picked up.
     """
     inputs = as_inputs(inputs)
@@ -135,7 +158,8 @@ def cached_onnx(
     for part in (key, f"{type(module).__module__}.{type(module).__qualname__}",
                  ",".join(input_names),
                  ";".join(f"{t.dtype}{tuple(t.shape)}" for t in inputs),
-                 str(OPSET), torch.__version__, state_digest(module)):
+                 str(OPSET), torch.__version__, structure_digest(module),
+                 state_digest(module)):
         h.update(part.encode())
         h.update(b"\0")
     stem = re.sub(r"[^A-Za-z0-9._-]+", "_", key).strip("._") or "model"

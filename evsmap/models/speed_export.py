@@ -40,7 +40,13 @@ import torch
 from evsmap.fileio import quiet_native_output
 from evsmap.interrupt import reraise_interruption
 from evsmap.models.module_utils import as_inputs, eval_mode
-from evsmap.models.onnx_export import OPSET, OUTPUT_NAMES, OnnxExportError, state_digest
+from evsmap.models.onnx_export import (
+    OPSET,
+    OUTPUT_NAMES,
+    OnnxExportError,
+    state_digest,
+    structure_digest,
+)
 
 HEIGHT, WIDTH = "height", "width"
 """The free dimensions of a size-free export (the output's are ``out_height`` and
@@ -70,28 +76,6 @@ class SpeedExport:
     def free_dimensions(self, height: int, width: int) -> dict[str, int]:
         """The session's dimension overrides for a ``height`` x ``width`` input."""
         return {HEIGHT: height, WIDTH: width} if self.size_free else {}
-
-
-def structure_digest(module: torch.nn.Module) -> str:
-    """SHA-256 of what fixes a module's graph besides its weights: its ``repr``, the source
-    code of every module class in it, and every submodule's plain attributes (numbers,
-    strings, tuples: e.g. a pooling size computed from the input size the network was built
-    for)."""
-    import inspect
-
-    h = hashlib.sha256(repr(module).encode())
-    for cls in sorted({type(m) for m in module.modules()},
-                      key=lambda c: f"{c.__module__}.{c.__qualname__}"):
-        try:
-            h.update(inspect.getsource(cls).encode())
-        except (OSError, TypeError):  # no source (a compiled class): its name stands in
-            h.update(f"{cls.__module__}.{cls.__qualname__}".encode())
-    for name, sub in module.named_modules():
-        plain = {k: v for k, v in vars(sub).items()
-                 if not k.startswith("_") and isinstance(v, (bool, int, float, str, tuple))}
-        h.update(f"{name}:{type(sub).__module__}.{type(sub).__qualname__}:"
-                 f"{sorted(plain.items(), key=lambda kv: kv[0])!r}".encode())
-    return h.hexdigest()
 
 
 def export_key(module: torch.nn.Module, inputs: Sequence[torch.Tensor],

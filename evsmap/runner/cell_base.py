@@ -6,11 +6,9 @@ from __future__ import annotations
 
 import os
 import socket
-import subprocess
 from datetime import UTC, datetime
 from typing import Any
 
-from evsmap.paths import REPO_ROOT
 from evsmap.runner.context import RunContext
 from evsmap.runner.records import CellRecord, needs_text
 from evsmap.tables.schema import CellSpec, load_tables
@@ -44,12 +42,11 @@ def environment(threads: int | None = None) -> dict[str, Any]:
 
 
 def git_commit() -> str | None:
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True,
-                             text=True, timeout=10, check=False)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() or None
+    """The commit of the evsmap checkout, ``+dirty`` with uncommitted changes
+    (:func:`evsmap.gitinfo.head_commit`: the same as a weights card names)."""
+    from evsmap.gitinfo import head_commit
+
+    return head_commit()
 
 
 def now() -> str:

@@ -35,10 +35,8 @@ from __future__ import annotations
 
 import math
 import os
-import subprocess
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -62,22 +60,11 @@ def tensor_sha256(state_dict: Mapping[str, Any]) -> str:
     return tensors_sha256(state_dict)
 
 
-@cache
 def git_commit() -> str | None:
-    """The commit of the git checkout evsmap runs from (``<sha>+dirty`` with uncommitted changes
-    to tracked files), None when it is not a checkout or git is unavailable."""
-    root = Path(__file__).resolve().parents[2]
-    try:
-        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
-                             text=True, timeout=10, check=True).stdout.strip()
-        status = subprocess.run(["git", "-C", str(root), "status", "--porcelain",
-                                 "--untracked-files=no"], capture_output=True, text=True,
-                                timeout=30, check=True).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return None
-    if not sha:
-        return None
-    return sha + ("+dirty" if status else "")
+    """The commit of the evsmap checkout (:func:`evsmap.gitinfo.head_commit`)."""
+    from evsmap.gitinfo import head_commit
+
+    return head_commit()
 
 
 def make_card(*, model: str, options: Mapping[str, Any], num_classes: int,
