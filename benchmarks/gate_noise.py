@@ -1,9 +1,10 @@
-"""The gate's own noise: run ``evsmap gate`` N times on an unchanged tree against one baseline
-and report the false-alarm rate (runs that failed) and, per workload, the spread of the time
-ratio and peak changes. This is how docs/gates.md's figures were taken.
+"""The gate's own noise: run ``evsmap gate`` N times on an unchanged tree, against one baseline
+or (``--against REF``) paired with a reference commit measured beside it, and report the
+false-alarm rate (runs that failed) and, per workload, the spread of the time ratio and peak
+changes the gate judged. This is how docs/gates.md's figures were taken.
 
     python benchmarks/gate_noise.py --runs 10 --out /tmp/gate-noise [--baseline FILE]
-        [--only PATTERN ...] [--budget S] [--confirm N]
+        [--against REF] [--only PATTERN ...] [--budget S] [--confirm N]
 
 Every run's ``--results`` JSON and printed table are kept under ``--out``; ``summary.md`` holds
 the table below. Run it on an otherwise idle machine (the load average is recorded per run).
@@ -21,8 +22,6 @@ from pathlib import Path
 
 import numpy as np
 
-from evsmap.gate.compare import Thresholds, compare, entry_of
-
 
 def _run(i: int, args: argparse.Namespace) -> dict:
     results = args.out / f"run{i:02d}.json"
@@ -31,13 +30,17 @@ def _run(i: int, args: argparse.Namespace) -> dict:
            "--confirm", str(args.confirm)]
     if args.only:
         cmd += ["--only", *args.only]
+    if args.against:
+        cmd += ["--against", args.against]
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     seconds = time.perf_counter() - t0
     (args.out / f"run{i:02d}.txt").write_text(proc.stdout + proc.stderr)
+    data = json.loads(results.read_text())
     return {"run": i, "exit": proc.returncode, "seconds": seconds, "load_before": load,
-            "workloads": json.loads(results.read_text())["workloads"]}
+            "workloads": data["workloads"], "rows": data.get("rows", []),
+            "pairs": data.get("pairs", {})}
 
 
 def main() -> int:
@@ -47,38 +50,32 @@ def main() -> int:
     p.add_argument("--baseline", type=Path, default=Path("benchmarks/baseline.json"))
     p.add_argument("--only", nargs="+")
     p.add_argument("--budget", type=float, default=4.0)
-    p.add_argument("--confirm", type=int, default=2)
+    p.add_argument("--confirm", type=int, default=4)
+    p.add_argument("--against", metavar="REF", help="paired runs against this commit")
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    baseline = json.loads(args.baseline.read_text())["workloads"]
     runs = []
     for i in range(args.runs):
         runs.append(_run(i, args))
         r = runs[-1]
         print(f"run {i}: exit {r['exit']}, {r['seconds']:.0f} s, load before "
               f"{r['load_before']:.2f}", flush=True)
-    th = Thresholds()
-    lines = [f"# Gate noise: {args.runs} runs of an unchanged tree against {args.baseline}", "",
+    mode = f"paired against {args.against}" if args.against else f"against {args.baseline}"
+    lines = [f"# Gate noise: {args.runs} runs of an unchanged tree, {mode}", "",
              "| run | exit | seconds | load before | outside the band after the first pass "
              "(measured again) | failed workloads |", "|---|---|---|---|---|---|"]
     changes: dict[str, dict[str, list[float]]] = {}
     for r in runs:
-        names = {k for k in r["workloads"] if k in baseline}
-        rows = compare({k: baseline[k] for k in names},
-                       {k: r["workloads"][k] for k in names}, th)
-        failed = sorted({row.workload for row in rows if row.failed})
-        again = sorted(k for k in names if len(r["workloads"][k].get("processes", [])) > 1)
+        failed = sorted({row["workload"] for row in r["rows"] if row["verdict"] == "FAIL"})
+        again = sorted(k for k, rec in r["workloads"].items()
+                       if len(r["pairs"].get(k, [])) > 1 or len(rec.get("processes", [])) > 1)
         lines.append(f"| {r['run']} | {r['exit']} | {r['seconds']:.0f} | "
                      f"{r['load_before']:.2f} | {', '.join(again) or '-'} | "
                      f"{', '.join(failed) or '-'} |")
-        for name in names:
-            rec = r["workloads"][name]
-            if "error" in rec or "skipped" in rec:
-                continue
-            now, base = entry_of(rec), baseline[name]
-            c = changes.setdefault(name, {"time_ratio": [], "peak_rss_bytes": []})
-            for key in c:
-                c[key].append(now[key] / base[key] - 1.0)
+        for row in r["rows"]:
+            if row["measure"] in ("time_ratio", "peak_rss_bytes") and row["change"] is not None:
+                c = changes.setdefault(row["workload"], {"time_ratio": [], "peak_rss_bytes": []})
+                c[row["measure"]].append(row["change"])
     alarms = sum(1 for r in runs if r["exit"] != 0)
     lines += ["", f"False alarms: {alarms} of {len(runs)} runs.", "",
               "| workload | time change median | min | max | peak change median | min | max |",
