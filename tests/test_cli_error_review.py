@@ -105,9 +105,9 @@ def test_gate_refuses_an_existing_results_file(capsys, tmp_path):
 
 
 def test_gate_checks_results_before_measuring(capsys, blocker, monkeypatch):
-    import evsmap.gate.run as gate_run
+    import evsmap.gate.prepare as gate_prepare
 
-    monkeypatch.setattr(gate_run, "discover", lambda **kw: pytest.fail("measured"))
+    monkeypatch.setattr(gate_prepare, "discover", lambda **kw: pytest.fail("measured"))
     results = blocker / "results.json"
     err = _fails(capsys, "gate", "--results", results)
     assert f"--results {results}:" in err and "is a file, not a folder" in err
@@ -141,7 +141,11 @@ def test_gate_update_checks_the_baseline_is_writable(capsys, blocker):
 
 def test_gate_thread_mismatch_says_the_fix(capsys, tmp_path):
     baseline = tmp_path / "baseline.json"
-    baseline.write_text(json.dumps({"settings": {"threads": 1}, "workloads": {}}))
+    from evsmap.gate.baseline import machine_info
+
+    kind = machine_info(2)["kind"]
+    baseline.write_text(json.dumps({"machine": {"kind": kind}, "settings": {"threads": 1},
+                                    "workloads": {}}))
     err = _fails(capsys, "gate", "--baseline", baseline, "--threads", "2")
     assert "(pass --threads 1)" in err
     _named_once(err, baseline)

@@ -185,6 +185,9 @@ def _load(args: argparse.Namespace, here: dict[str, Any]) -> dict[str, Any] | No
     data = read_baseline(args.baseline)
     entry = kind_entry(data, here["kind"])
     threads = (entry or {}).get("settings", {}).get("threads")
+    if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool)):
+        raise EvsmapError(f"{args.baseline}: this machine kind's settings.threads is not an "
+                          f"integer ({threads!r})")
     if threads is not None and int(threads) != args.threads and not (args.update or
                                                                       args.against):
         raise EvsmapError(f"{args.baseline} was measured with --threads {threads} on this "

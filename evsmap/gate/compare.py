@@ -162,7 +162,9 @@ def compare_paired(pairs: dict[str, list[tuple[dict[str, Any], dict[str, Any]]]]
     worker records, measured back to back on the same CPU. The reference column holds the
     reference's median, ``now`` this tree's, and ``change`` the median over the pairs of this
     tree's figure over the reference's: the verdict comes from the paired ratios, with the
-    thresholds of :func:`compare`. Every count is held (both sides ran on this machine).
+    thresholds of :func:`compare`. Every count is held (both sides ran on this machine). A
+    workload this tree could not measure (an error, missing data) fails, as a baselined one
+    does.
     Workloads in ``only_reference`` (the reference has them, this tree does not) fail; those in
     ``only_here`` (workload -> this tree's record) are ``new``."""
     from evsmap.gate.run import combine
@@ -174,10 +176,9 @@ def compare_paired(pairs: dict[str, list[tuple[dict[str, Any], dict[str, Any]]]]
     for name in sorted(pairs):
         refs, nows = [p[0] for p in pairs[name]], [p[1] for p in pairs[name]]
         ref, now = combine(refs), combine(nows)
-        if "skipped" in now:
-            rows.append(Row(name, "-", None, None, None, "skipped", now["skipped"]))
-        elif "error" in now:
-            rows.append(Row(name, "-", "measured", None, None, "FAIL", now["error"]))
+        if "error" in now or "skipped" in now:  # the reference has it: like a baselined one
+            rows.append(Row(name, "-", "measured", None, None, "FAIL",
+                            now.get("error") or now.get("skipped")))
         elif "error" in ref or "skipped" in ref:
             rows.append(Row(name, "-", None, "measured", None, "not compared",
                             "the reference could not measure it: "

@@ -212,26 +212,32 @@ def test_report_cli_on_broken_folders(tmp_path, run_template, capsys):
 @st.composite
 def generated_baseline(draw: st.DrawFn, real: dict[str, Any]) -> str:
     data = json.loads(json.dumps(real))
-    names = sorted(data["workloads"])
+    (kind,) = list(data["kinds"])[:1]
+    names = sorted(data["kinds"][kind]["workloads"])
     for _ in range(draw(st.integers(1, 4))):
-        where = draw(st.sampled_from(["workload", "field", "top", "document"]))
+        where = draw(st.sampled_from(["workload", "field", "kind", "top", "document"]))
+        entry = data.get("kinds", {}).get(kind) if isinstance(data.get("kinds"), dict) else None
         if where == "document":
             return draw(st.one_of(_VALUE.map(_json_text), st.just(_deep(50_000, "dict"))))
         if where == "top":
-            data[draw(st.sampled_from(["workloads", "format", "machine", "settings"]))] = \
+            data[draw(st.sampled_from(["kinds", "format", "workloads"]))] = draw(_VALUE)
+        elif not isinstance(entry, dict):
+            continue
+        elif where == "kind":
+            entry[draw(st.sampled_from(["workloads", "machine", "settings", "commit"]))] = \
                 draw(_VALUE)
-        elif where == "workload" and isinstance(data.get("workloads"), dict):
-            data["workloads"][draw(st.sampled_from(names))] = draw(_VALUE)
-        elif isinstance(data.get("workloads"), dict):
-            entry = data["workloads"].get(draw(st.sampled_from(names)))
-            if isinstance(entry, dict):
-                entry[draw(st.sampled_from(["time_ratio", "peak_rss_bytes", "frames"]))] = \
-                    draw(_SCALAR)
+        elif where == "workload" and isinstance(entry.get("workloads"), dict):
+            entry["workloads"][draw(st.sampled_from(names))] = draw(_VALUE)
+        elif isinstance(entry.get("workloads"), dict):
+            figures = entry["workloads"].get(draw(st.sampled_from(names)))
+            if isinstance(figures, dict):
+                figures[draw(st.sampled_from(["time_ratio", "peak_rss_bytes", "frames"]))] = \
+                    draw(_VALUE if draw(st.booleans()) else _SCALAR)
     return _json_text(data)
 
 
 def test_fuzz_gate_baseline(tmp_path_factory):
-    from evsmap.gate.run import read_baseline
+    from evsmap.gate.baseline import read_baseline
 
     folder = tmp_path_factory.mktemp("gate")
     raw = (ROOT / "benchmarks" / "baseline.json").read_bytes()
@@ -521,7 +527,7 @@ def test_gate_baseline_refuses_nan_and_huge(tmp_path):
     """A NaN or infinite ratio (json reads NaN / Infinity) compared as nothing: refused, as an
     integer beyond the float range is."""
     from evsmap.errors import DataFormatError
-    from evsmap.gate.run import read_baseline
+    from evsmap.gate.baseline import read_baseline
 
     for value in ("NaN", "Infinity", "-1", "1" + "0" * 400, "true"):
         entry = '{"time_ratio": ' + value + ', "peak_rss_bytes": 1}'

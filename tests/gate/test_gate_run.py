@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.gate.run import read_baseline, select, updated_baseline
+from evsmap.gate.baseline import read_baseline, updated_baseline
+from evsmap.gate.run import select
 from evsmap.gate.workloads import Workload, digest, frame_digest, make_job
 
 
@@ -24,7 +25,9 @@ def _evsmap(*args: str, timeout: int = 600):
 @pytest.mark.parametrize("content, message", [
     (None, "no such baseline file"),
     ("{not json", "not a readable JSON baseline"),
-    ('{"format": 1}', 'no top-level "workloads" object'),
+    ('{"format": 2}', 'no top-level "kinds" object'),
+    ('[]', 'not a baseline'),
+    ('{"kinds": {"k": {"machine": {}}}}', "machine kind 'k' has no \"workloads\" object"),
     ('{"workloads": {"read/tum": {"time_ratio": 3.0}}}', "has no valid 'peak_rss_bytes'"),
     ('{"workloads": {"read/tum": {"time_ratio": -1, "peak_rss_bytes": 5}}}',
      "has no valid 'time_ratio'"),
@@ -80,17 +83,36 @@ def test_select_by_name_and_pattern_and_an_unknown_pattern_is_a_user_error():
         make_job("net/a/tensorflow", {})
 
 
-def test_update_keeps_other_workloads_and_records_no_failed_ones():
-    old = {"workloads": {"read/tum": {"time_ratio": 3.0, "peak_rss_bytes": 10, "frames": 37}}}
+def test_update_keeps_other_workloads_and_other_kinds_and_records_no_failed_ones():
+    old = {"kinds": {
+        "k1": {"machine": {"kind": "k1"}, "workloads": {
+            "read/tum": {"time_ratio": 3.0, "peak_rss_bytes": 10, "frames": 37}}},
+        "k2": {"machine": {"kind": "k2"}, "workloads": {
+            "read/tum": {"time_ratio": 9.0, "peak_rss_bytes": 12, "frames": 37}}}}}
     measured = {
         "read/rosbag": {"name": "read/rosbag", "time_ratio": 2.0, "peak_rss_bytes": 7,
                         "counts": {"frames": 5}, "pairs": 5},
         "report/build": {"name": "report/build", "error": "boom"},
     }
-    new = updated_baseline(old, measured, {"threads": 1})
-    assert set(new["workloads"]) == {"read/tum", "read/rosbag"}
-    assert new["workloads"]["read/rosbag"]["frames"] == 5
-    assert new["settings"] == {"threads": 1} and new["machine"]["threads"] == 1
+    new = updated_baseline(old, measured, {"threads": 1}, machine={"kind": "k1", "threads": 1},
+                           commit="abc")
+    k1 = new["kinds"]["k1"]
+    assert set(k1["workloads"]) == {"read/tum", "read/rosbag"}
+    assert k1["workloads"]["read/rosbag"]["frames"] == 5 and k1["commit"] == "abc"
+    assert k1["settings"] == {"threads": 1} and k1["machine"]["threads"] == 1
+    assert new["kinds"]["k2"] == old["kinds"]["k2"]  # another kind's figures untouched
+    new = updated_baseline(new, measured, {"threads": 1}, machine={"kind": "k3"}, commit=None)
+    assert set(new["kinds"]) == {"k1", "k2", "k3"}
+
+
+def test_a_format_1_baseline_reads_as_one_kind(tmp_path):
+    path = tmp_path / "b.json"
+    path.write_text(json.dumps({"format": 1, "machine": {"kind": "k9", "cpu": "X"},
+                                "settings": {"threads": 1}, "workloads": {
+                                    "read/tum": {"time_ratio": 3.0, "peak_rss_bytes": 10}}}))
+    data = read_baseline(path)
+    assert data["format"] == 2 and list(data["kinds"]) == ["k9"]
+    assert data["kinds"]["k9"]["workloads"]["read/tum"]["time_ratio"] == 3.0
 
 
 def test_digests_see_dtype_shape_and_values():
@@ -122,9 +144,11 @@ def test_gate_end_to_end_passes_on_its_baseline_and_fails_on_the_scaled_ones(tmp
                 "--budget", "0.5", "--repeats", "2")
     assert r.returncode == 0, r.stderr
     data = json.loads(base.read_text())
-    entry = data["workloads"]["read/rosbag"]
+    (kind,) = data["kinds"].values()
+    entry = kind["workloads"]["read/rosbag"]
     assert entry["frames"] == 5 and entry["time_ratio"] > 0 and entry["peak_rss_bytes"] > 0
-    assert entry["context"]["pairs"] >= 5 and data["settings"]["threads"] == 1
+    assert entry["context"]["pairs"] >= 5 and kind["settings"]["threads"] == 1
+    assert kind["commit"]
     assert len(entry["context"]["processes"]) == 2 and len(entry["context"]["cpus"]) == 1
 
     r = _evsmap("gate", "--only", "read/rosbag", "--baseline", str(base), "--budget", "0.5",
@@ -140,7 +164,8 @@ def test_gate_end_to_end_passes_on_its_baseline_and_fails_on_the_scaled_ones(tmp
     for key, factor, why in (("time_ratio", 0.5, "time_ratio"),
                              ("peak_rss_bytes", 0.8, "peak_rss_bytes")):
         scaled = json.loads(base.read_text())
-        w = scaled["workloads"]["read/rosbag"]
+        (kind,) = scaled["kinds"].values()
+        w = kind["workloads"]["read/rosbag"]
         w[key] = w[key] * factor
         if key == "peak_rss_bytes":
             w[key] = int(w[key])
@@ -154,7 +179,7 @@ def test_gate_end_to_end_passes_on_its_baseline_and_fails_on_the_scaled_ones(tmp
 
 
 def test_networks_registered_with_gate_false_are_left_out_unbuilt(monkeypatch):
-    from evsmap.gate.run import discover
+    from evsmap.gate.prepare import discover
     from evsmap.registry import SEGMENTERS
 
     built_names = []
