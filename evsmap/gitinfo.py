@@ -87,6 +87,21 @@ def last_commit_of(path: str | os.PathLike[str]) -> str | None:
     return out.stdout.strip() or None
 
 
+def is_shallow_boundary(root: Path, commit: str) -> bool:
+    """Whether ``commit`` is where a shallow clone's history was cut (its parents are missing,
+    so ``git log`` takes it for the commit that made every file it holds)."""
+    try:
+        out = _git(root, "rev-parse", "--git-path", "shallow")
+    except (OSError, subprocess.SubprocessError):
+        return False
+    path = Path(out.stdout.strip())
+    path = path if path.is_absolute() else root / path
+    try:
+        return commit in path.read_text().split()
+    except OSError:
+        return False
+
+
 def export_tree(root: Path, commit: str, dest: Path) -> None:
     """Write the files of ``commit`` (as ``git archive`` gives them) into ``dest``: a checkout
     that leaves the repository's own state untouched.

@@ -134,7 +134,7 @@ def choose_comparison(args: argparse.Namespace, data: dict[str, Any] | None,
             --only`` on a kind the baseline has no figures for.
     """
     from evsmap.gate.baseline import describe_machine, kind_entry, newest_entry
-    from evsmap.gitinfo import last_commit_of, resolve_commit, toplevel
+    from evsmap.gitinfo import is_shallow_boundary, last_commit_of, resolve_commit, toplevel
     from evsmap.paths import REPO_ROOT
 
     this = describe_machine(here)
@@ -165,6 +165,13 @@ def choose_comparison(args: argparse.Namespace, data: dict[str, Any] | None,
                                     f"kind ({this}; it has: {kinds}): only exact counts that "
                                     f"do not go through floating point are compared", other)
     commit = last_commit_of(args.baseline)
+    if commit is not None and root is not None and is_shallow_boundary(root, commit):
+        return Comparison("counts", f"the baseline has no figures of this machine kind ({this}; "
+                                    f"it has: {kinds}) and this clone is shallow, so the commit "
+                                    f"that last changed {args.baseline} is not known (fetch the "
+                                    f"history: `git fetch --unshallow`, or `fetch-depth: 0` in "
+                                    f"GitHub Actions): only exact counts that do not go through "
+                                    f"floating point are compared", other)
     if commit is None or root is None:
         return Comparison("counts", f"the baseline has no figures of this machine kind ({this}; "
                                     f"it has: {kinds}) and {args.baseline} is not committed in "

@@ -175,6 +175,17 @@ def test_another_kind_pairs_with_the_commit_that_last_changed_the_baseline(repo)
     assert c.mode == "paired" and c.commit == _git(repo, "rev-parse", "HEAD")
 
 
+def test_a_shallow_clone_does_not_pair_with_its_cut_and_says_so(repo, tmp_path):
+    from evsmap.cli.gate_cmd import choose_comparison
+
+    clone = tmp_path / "shallow"
+    subprocess.run(["git", "clone", "-q", "--depth", "1", f"file://{repo}", str(clone)],
+                   check=True, capture_output=True)
+    path = clone / "benchmarks" / "baseline.json"
+    c = choose_comparison(_args(path), _data("otherkind"), HERE)
+    assert c.mode == "counts" and "this clone is shallow" in c.why
+
+
 def test_an_uncommitted_baseline_of_another_kind_compares_counts_and_says_why(tmp_path):
     from evsmap.cli.gate_cmd import choose_comparison
 
@@ -293,3 +304,38 @@ def test_a_paired_run_fails_on_a_planted_slowdown_and_allocation(tmp_path):
     assert not [row for row in out["rows"] if row["measure"] in ("frames", "frames_sha256")]
     assert all(len(p) >= 1 for p in out["pairs"].values())
     assert set(out["reference"]) == {"read/rosbag", "read/tum"}
+
+
+def test_a_reference_with_another_lock_gets_its_own_environment(tmp_path, monkeypatch):
+    """The commands that build it (venv, torch pinned alone, the source through its own lock),
+    made once per lock digest; a failed step is one line with pip's last words."""
+    from evsmap.gate import paired
+
+    monkeypatch.setenv("EVSMAP_CACHE_DIR", str(tmp_path / "cache"))
+    source = tmp_path / "ref"
+    source.mkdir()
+    (source / "constraints.txt").write_text("numpy==2.4.6\ntorch==2.13.0\n")
+    calls = []
+
+    def fake_run(cmd, **kw):
+        calls.append(cmd)
+        if cmd[1:3] == ["-m", "venv"]:
+            Path(cmd[-1]).mkdir(parents=True)
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    monkeypatch.setattr(paired.subprocess, "run", fake_run)
+    python = paired.own_environment(source, "d1", lambda _: None)
+    assert python.endswith("gate/envs/d1/bin/python")
+    assert calls[0][1:3] == ["-m", "venv"]
+    assert calls[1][-1] == "torch==2.13.0" and str(source / "constraints.txt") in calls[1]
+    assert calls[2][-1] == str(source) and "-c" in calls[2]
+    calls.clear()
+    assert paired.own_environment(source, "d1", lambda _: None) == python and calls == []
+
+    def failing(cmd, **kw):
+        return subprocess.CompletedProcess(cmd, 1, "", "ERROR: No matching distribution\n")
+
+    monkeypatch.setattr(paired.subprocess, "run", failing)
+    with pytest.raises(EvsmapError, match="cannot build the reference's environment.*No "
+                                          "matching distribution"):
+        paired.own_environment(source, "d2", lambda _: None)
