@@ -60,7 +60,7 @@ def test_describe_carries_the_instruction_set():
 
 
 def test_every_machine_record_uses_the_one_collector():
-    from evsmap.gate.run import machine_info
+    from evsmap.gate.baseline import machine_info
     from evsmap.runner.cell_base import environment as cell_environment
     from evsmap.segmenters.cards import make_card
 
@@ -73,7 +73,7 @@ def test_every_machine_record_uses_the_one_collector():
 
 
 def test_the_machine_kind_changes_with_the_instruction_set():
-    from evsmap.gate.run import machine_info, machine_kind
+    from evsmap.gate.baseline import machine_info, machine_kind
 
     info = machine_info(1)
     assert machine_kind(info) == info["kind"]

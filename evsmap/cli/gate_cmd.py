@@ -262,7 +262,8 @@ def _stored(args: argparse.Namespace, comparison: Comparison, cpu: int, tmp: Pat
     """Measure this tree and hold it against the stored figures (``record``: just measure)."""
     from evsmap.gate.compare import compare
     from evsmap.gate.prepare import prepare
-    from evsmap.gate.run import combine, measure_all, outside_band, selected_names
+    from evsmap.gate.run import combine, measure_all, outside_band
+    from evsmap.gate.workloads import selected_names
 
     context, chosen = prepare(tmp, threads=args.threads, cpu=cpu, patterns=args.only, log=log)
     repeats = args.repeats or (5 if args.update else 1)

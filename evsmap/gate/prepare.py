@@ -29,6 +29,8 @@ from evsmap.gate.workloads import (
     UPDATE_FRAMES,
     Workload,
     plan,
+    select,
+    selected_names,
     tum_sequence,
 )
 
@@ -137,8 +139,6 @@ def prepare(workdir: Path, *, threads: int, cpu: int, patterns: Sequence[str] | 
     Raises:
         EvsmapError: with ``strict``, a pattern matches no workload.
     """
-    from evsmap.gate.run import select, selected_names
-
     workdir.mkdir(parents=True, exist_ok=True)
     context, built = discover(threads=threads)
     workloads = plan(context)

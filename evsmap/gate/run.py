@@ -3,13 +3,12 @@ another checkout's through its own interpreter and import path), combine their r
 
 from __future__ import annotations
 
-import fnmatch
 import json
 import os
 import subprocess
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,33 +21,6 @@ from evsmap.gate.worker import THREAD_VARIABLES
 from evsmap.gate.workloads import Workload
 
 WORKER_TIMEOUT_S = 600
-
-
-# -- selection ----------------------------------------------------------------------------------
-
-
-def select(workloads: Sequence[Workload], patterns: Sequence[str] | None) -> list[Workload]:
-    """The workloads whose name matches one of ``patterns`` (exact names or shell patterns,
-    ``net/*``); all of them without patterns.
-
-    Raises:
-        EvsmapError: a pattern matches no workload (names the pattern and the known ones).
-    """
-    if not patterns:
-        return list(workloads)
-    chosen = []
-    for pattern in patterns:
-        hit = [w for w in workloads if fnmatch.fnmatchcase(w.name, pattern)]
-        if not hit:
-            known = ", ".join(w.name for w in workloads)
-            raise EvsmapError(f"--only {pattern!r} matches no gate workload (known: {known})")
-        chosen += [w for w in hit if w not in chosen]
-    return chosen
-
-
-def selected_names(names: Iterable[str], patterns: Sequence[str] | None) -> set[str]:
-    return {n for n in names
-            if not patterns or any(fnmatch.fnmatchcase(n, p) for p in patterns)}
 
 
 # -- measuring ------------------------------------------------------------------------------------

@@ -23,11 +23,13 @@ Names:
 from __future__ import annotations
 
 import abc
+import fnmatch
 import hashlib
 import shutil
 import tarfile
 import tempfile
 import warnings
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -105,6 +107,33 @@ def plan(context: dict[str, Any]) -> list[Workload]:
     out.append(Workload("report/build", "report", "build the report of a stored reproduce run",
                         calibration="memory"))
     return out
+
+
+# -- selection ----------------------------------------------------------------------------------
+
+
+def select(workloads: Sequence[Workload], patterns: Sequence[str] | None) -> list[Workload]:
+    """The workloads whose name matches one of ``patterns`` (exact names or shell patterns,
+    ``net/*``); all of them without patterns.
+
+    Raises:
+        EvsmapError: a pattern matches no workload (names the pattern and the known ones).
+    """
+    if not patterns:
+        return list(workloads)
+    chosen = []
+    for pattern in patterns:
+        hit = [w for w in workloads if fnmatch.fnmatchcase(w.name, pattern)]
+        if not hit:
+            known = ", ".join(w.name for w in workloads)
+            raise EvsmapError(f"--only {pattern!r} matches no gate workload (known: {known})")
+        chosen += [w for w in hit if w not in chosen]
+    return chosen
+
+
+def selected_names(names: Iterable[str], patterns: Sequence[str] | None) -> set[str]:
+    return {n for n in names
+            if not patterns or any(fnmatch.fnmatchcase(n, p) for p in patterns)}
 
 
 class Job(abc.ABC):

@@ -13,8 +13,7 @@ import pytest
 
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.gate.baseline import read_baseline, updated_baseline
-from evsmap.gate.run import select
-from evsmap.gate.workloads import Workload, digest, frame_digest, make_job
+from evsmap.gate.workloads import Workload, digest, frame_digest, make_job, select
 
 
 def _evsmap(*args: str, timeout: int = 600):
