@@ -29,8 +29,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "in a fresh process: its time as a ratio to a calibration workload "
                     "alternated with it, its peak resident memory above the idle process, and "
                     "exact counts. Compare with the baseline's figures of this machine kind "
-                    "or, where the baseline has none, with the commit it was recorded at, "
-                    "measured beside this tree in the same run (--against): a count that "
+                    "or, where the baseline has none, with the commit that last changed the "
+                    "baseline file, measured beside this tree in the same run (--against): a "
+                    "count that "
                     f"changed, a time ratio more than {TIME_THRESHOLD:.0%} or a peak more than "
                     f"{MEMORY_THRESHOLD:.0%} above it fails (exit 1). See docs/gates.md.")
     p.add_argument("--baseline", type=Path, default=DEFAULT_BASELINE, metavar="FILE",
