@@ -33,7 +33,7 @@ def toplevel(path: str | os.PathLike[str]) -> Path | None:
     folder = Path(path)
     folder = folder if folder.is_dir() else folder.parent
     try:
-        out = _git(folder if str(folder) else ".", "rev-parse", "--show-toplevel")
+        out = _git(folder, "rev-parse", "--show-toplevel")
     except (OSError, subprocess.SubprocessError):
         return None
     return Path(out.stdout.strip()) if out.returncode == 0 and out.stdout.strip() else None

@@ -160,29 +160,25 @@ def choose_comparison(args: argparse.Namespace, data: dict[str, Any] | None,
                                     f"{str(entry.get('commit') or '?')[:12]}", entry)
     kinds = "; ".join(describe_machine(e.get("machine", {}))
                       for e in (data or {}).get("kinds", {}).values())
+    none_here = f"the baseline has no figures of this machine kind ({this}; it has: {kinds})"
+    counts_only = "only exact counts that do not go through floating point are compared"
     other = newest_entry(data)
     if args.stored:
-        return Comparison("counts", f"--stored: the baseline has no figures of this machine "
-                                    f"kind ({this}; it has: {kinds}): only exact counts that "
-                                    f"do not go through floating point are compared", other)
+        return Comparison("counts", f"--stored: {none_here}: {counts_only}", other)
     commit = last_commit_of(args.baseline)
     if commit is not None and root is not None and is_shallow_boundary(root, commit):
-        return Comparison("counts", f"the baseline has no figures of this machine kind ({this}; "
-                                    f"it has: {kinds}) and this clone is shallow, so the commit "
-                                    f"that last changed {args.baseline} is not known (fetch the "
+        return Comparison("counts", f"{none_here} and this clone is shallow, so the commit that "
+                                    f"last changed {args.baseline} is not known (fetch the "
                                     f"history: `git fetch --unshallow`, or `fetch-depth: 0` in "
-                                    f"GitHub Actions): only exact counts that do not go through "
-                                    f"floating point are compared", other)
+                                    f"GitHub Actions): {counts_only}", other)
     if commit is None or root is None:
-        return Comparison("counts", f"the baseline has no figures of this machine kind ({this}; "
-                                    f"it has: {kinds}) and {args.baseline} is not committed in "
-                                    f"a git checkout, so no reference commit can be measured "
-                                    f"beside this tree: only exact counts that do not go "
-                                    f"through floating point are compared", other)
-    return Comparison("paired", f"the baseline has no figures of this machine kind ({this}; it "
-                                f"has: {kinds}): commit {commit[:12]}, the last to change "
+        return Comparison("counts", f"{none_here} and {args.baseline} is not committed in a git "
+                                    f"checkout, so no reference commit can be measured beside "
+                                    f"this tree: {counts_only}", other)
+    return Comparison("paired", f"{none_here}: commit {commit[:12]}, the last to change "
                                 f"{args.baseline}, measured beside this tree", commit=commit,
                       root=root)
+
 
 
 def _load(args: argparse.Namespace, here: dict[str, Any]) -> dict[str, Any] | None:

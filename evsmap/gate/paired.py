@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.errors import EvsmapError
-from evsmap.gate.prepare import PROTOCOL, missing_input, prepare, read_prepared
+from evsmap.gate.prepare import CONTEXT_FILE, PROTOCOL, missing_input, prepare, read_prepared
 from evsmap.gate.run import THIS_TREE, Checkout, outside_band, run_worker
 from evsmap.gate.workloads import Workload
 
@@ -51,7 +51,7 @@ class Side:
 
     @property
     def context_file(self) -> Path:
-        return self.workdir / "context.json"
+        return self.workdir / CONTEXT_FILE
 
 
 @dataclass
@@ -187,14 +187,13 @@ def prepare_reference(checkout: Checkout, workdir: Path, *, threads: int, cpu: i
 
 
 def _run(side: Side, name: str, *, budget_s: float) -> dict[str, Any]:
-    workload = side.workloads[name]
-    why = missing_input(workload, side.context)
+    why = missing_input(side.workloads[name], side.context)
     if why:
         return {"name": name, "skipped": why}
     out = side.workdir / "records"
     out.mkdir(exist_ok=True)
     t0 = time.perf_counter()
-    record = run_worker(workload, side.context_file, out, budget_s=budget_s,
+    record = run_worker(side.workloads[name], side.context_file, out, budget_s=budget_s,
                         threads=int(side.context["threads"]), checkout=side.checkout)
     record["seconds"] = time.perf_counter() - t0
     return record
@@ -214,13 +213,16 @@ def measure_pairs(names: Sequence[str], reference: Side, here: Side, *, rounds: 
                disable=not progress, leave=False)
     for r, name in jobs:
         bar.set_postfix_str(name)
+        why = missing_input(here.workloads[name], here.context)
+        if why:  # neither side runs it
+            skipped = {"name": name, "skipped": why}
+            pairs.setdefault(name, []).append((skipped, skipped))
+            bar.update(2)
+            continue
         order = (reference, here) if r % 2 == 0 else (here, reference)
-        records: dict[str, dict[str, Any]] = {}
+        records = {}
         for side in order:
-            if records.get("here", {}).get("skipped"):
-                records[side.label] = {"name": name, "skipped": records["here"]["skipped"]}
-            else:
-                records[side.label] = _run(side, name, budget_s=budget_s)
+            records[side.label] = _run(side, name, budget_s=budget_s)
             bar.update(1)
         pairs.setdefault(name, []).append((records["reference"], records["here"]))
     bar.close()

@@ -121,8 +121,6 @@ def combine(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """One workload's processes as one record: the median ``time_ratio`` and
     ``peak_rss_bytes``, the counts (an error if two processes disagree: the workload is not
     deterministic), every process's ratio and peak under ``processes``."""
-    if not records:
-        return {"error": "not measured"}
     bad = [r for r in records if "error" in r or "skipped" in r]
     if bad:
         return dict(bad[0])

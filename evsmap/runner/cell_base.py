@@ -9,6 +9,7 @@ import socket
 from datetime import UTC, datetime
 from typing import Any
 
+from evsmap.gitinfo import head_commit as git_commit
 from evsmap.runner.context import RunContext
 from evsmap.runner.records import CellRecord, needs_text
 from evsmap.tables.schema import CellSpec, load_tables
@@ -39,14 +40,6 @@ def environment(threads: int | None = None) -> dict[str, Any]:
 
     env["lock"] = lock_status()
     return env
-
-
-def git_commit() -> str | None:
-    """The commit of the evsmap checkout, ``+dirty`` with uncommitted changes
-    (:func:`evsmap.gitinfo.head_commit`: the same as a weights card names)."""
-    from evsmap.gitinfo import head_commit
-
-    return head_commit()
 
 
 def now() -> str:

@@ -42,6 +42,7 @@ from typing import Any
 
 from evsmap.environment import cpu_model, instruction_set
 from evsmap.errors import DataFormatError, EvsmapError
+from evsmap.gitinfo import head_commit as git_commit
 from evsmap.version import evsmap_version
 
 CARD_VERSION = 1
@@ -58,13 +59,6 @@ def tensor_sha256(state_dict: Mapping[str, Any]) -> str:
     from evsmap.segmenters.weights import tensors_sha256
 
     return tensors_sha256(state_dict)
-
-
-def git_commit() -> str | None:
-    """The commit of the evsmap checkout (:func:`evsmap.gitinfo.head_commit`)."""
-    from evsmap.gitinfo import head_commit
-
-    return head_commit()
 
 
 def make_card(*, model: str, options: Mapping[str, Any], num_classes: int,

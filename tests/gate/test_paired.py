@@ -17,6 +17,7 @@ import pytest
 from evsmap.errors import EvsmapError
 from evsmap.gate.compare import compare_paired, summary, table
 from evsmap.paths import REPO_ROOT
+from evsmap.testing import missing
 
 MiB = 2**20
 GIT_ENV = {"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@example.org",
@@ -96,7 +97,7 @@ def _git(root: Path, *args: str) -> str:
 @pytest.fixture
 def repo(tmp_path):
     if shutil.which("git") is None:
-        pytest.skip("needs git")
+        missing("needs git")
     root = tmp_path / "repo"
     root.mkdir()
     _git(root, "init", "-q")
@@ -275,7 +276,7 @@ def test_a_paired_run_fails_on_a_planted_slowdown_and_allocation(tmp_path):
     require_sample("lidar-odometry-bag")
     require_sample("tum-fr1-xyz")
     if shutil.which("git") is None:
-        pytest.skip("needs git")
+        missing("needs git")
     root = tmp_path / "repo"
     root.mkdir()
     _copy_of_this_tree(root)
@@ -302,7 +303,6 @@ def test_a_paired_run_fails_on_a_planted_slowdown_and_allocation(tmp_path):
     assert verdict[("read/rosbag", "time_ratio")] == "FAIL"
     assert verdict[("read/tum", "peak_rss_bytes")] == "FAIL"
     assert not [row for row in out["rows"] if row["measure"] in ("frames", "frames_sha256")]
-    assert all(len(p) >= 1 for p in out["pairs"].values())
     assert set(out["reference"]) == {"read/rosbag", "read/tum"}
 
 
