@@ -1,31 +1,32 @@
-"""Downloading: HTTP(S) with resume, progress, checks and staging (the mechanics behind
-``evsmap datasets fetch``; :mod:`evsmap.fetch` applies them to the sample catalogue).
+"""Downloading through pooch: the mechanics behind ``evsmap datasets fetch`` (:mod:`evsmap.fetch`
+applies them to the sample catalogue).
 
-* :func:`remote_size` asks the server for a file's size (a ``HEAD`` request; redirects keep the
-  method) so that a multi-GB download can be announced and confirmed before it starts.
-* :func:`download` fetches a URL into a cache folder through ``<name>.part``: an interrupted
-  transfer is resumed with an HTTP ``Range`` request (by the next attempt, or by the next call);
-  the finished file is checked against the expected size and sha256 (when known) and only then
-  renamed to ``<name>``. A file that fails its check is deleted.
+* :func:`remote_size` asks the server for a file's size (a ``HEAD`` request, redirects followed
+  as ``HEAD``) so that a multi-GB download can be announced and confirmed before it starts.
+* :func:`download` gets a URL into a cache folder with :meth:`pooch.Pooch.fetch`: pooch keeps a
+  cached file whose sha256 matches, downloads into a temporary file, checks the sha256 (deleting
+  a file that fails it) and renames it into place. The transfer itself is
+  :class:`ResumingDownloader`, a pooch downloader that writes ``<name>.part`` and resumes it with
+  HTTP ``Range`` requests (by the next attempt, or by the next call), with a progress bar on a
+  terminal only.
 
 Every failure is a :class:`FetchError` (an :class:`~evsmap.errors.EvsmapError`: one line naming the
-URL or file, exit status 2 on the command line). Only the standard library does the HTTP.
+URL or file, exit status 2 on the command line).
 """
 
 from __future__ import annotations
 
 import contextlib
 import hashlib
-import http.client
+import logging
 import os
-import shutil
+import re
 import sys
-import tempfile
 import time
-import urllib.error
-import urllib.request
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import IO, Any
 
 from evsmap.errors import EvsmapError
 from evsmap.paths import user_cache_dir
@@ -47,6 +48,8 @@ RETRIES = 3
 RETRY_DELAY = 2.0
 """Seconds before the first retry (doubled for each further one, at most 30)."""
 
+Log = Callable[[str], None]
+
 
 class FetchError(EvsmapError):
     """A download or sample fetch that failed (one line naming the URL or file)."""
@@ -54,7 +57,7 @@ class FetchError(EvsmapError):
 
 class CorruptArchiveError(FetchError):
     """A downloaded archive that cannot be read (truncated, damaged, not the expected format):
-    :func:`fetch_sample` deletes it, so that the next call downloads it again."""
+    :func:`~evsmap.fetch.fetch_sample` deletes it, so that the next call downloads it again."""
 
     def __init__(self, message: str, path: Path) -> None:
         super().__init__(message)
@@ -81,7 +84,7 @@ def format_size(n: int | None) -> str:
     raise AssertionError("unreachable")  # pragma: no cover
 
 
-def _bar(total: int | None, initial: int, desc: str):
+def _bar(total: int | None, initial: int, desc: str) -> Any:
     from tqdm import tqdm
 
     return tqdm(total=total, initial=initial, desc=desc, unit="B", unit_scale=True,
@@ -102,43 +105,45 @@ def sha256_file(path: Path, *, desc: str | None = None) -> str:
     return h.hexdigest()
 
 
-def _user_agent() -> str:
+def _headers() -> dict[str, str]:
     from importlib.metadata import PackageNotFoundError, version
 
     try:
-        return f"evsmap/{version('evsmap')} (datasets fetch)"
+        agent = f"evsmap/{version('evsmap')} (datasets fetch)"
     except PackageNotFoundError:
-        return "evsmap (datasets fetch)"
-
+        agent = "evsmap (datasets fetch)"
+    return {"User-Agent": agent, "Accept-Encoding": "identity"}
 
 
 def _reason(exc: BaseException) -> str:
-    if isinstance(exc, urllib.error.URLError) and not isinstance(exc, urllib.error.HTTPError):
-        exc = exc.reason if isinstance(exc.reason, BaseException) else exc
-    text = str(exc) or type(exc).__name__
-    if isinstance(exc, http.client.IncompleteRead):
-        text = "connection closed early"
-    return " ".join(text.split())
+    """The innermost cause of a network error in a few words (requests wraps urllib3's errors,
+    which wrap the socket's)."""
+    seen: set[int] = set()
+    while id(exc) not in seen:
+        seen.add(id(exc))
+        if type(exc).__name__ == "IncompleteRead":  # http.client's or urllib3's
+            return "connection closed early"
+        reason = getattr(exc, "reason", None)
+        inner = next((a for a in exc.args if isinstance(a, BaseException)), None) or (
+            reason if isinstance(reason, BaseException) else None) or exc.__cause__
+        if inner is None:
+            break
+        exc = inner
+    return " ".join((str(exc) or type(exc).__name__).split())
 
 
-class _KeepMethodRedirect(urllib.request.HTTPRedirectHandler):
-    """Redirects that keep ``HEAD`` a ``HEAD`` (urllib turns every redirect into a ``GET``)."""
+def _request(method: str, url: str, *, timeout: float, offset: int = 0) -> Any:
+    """A streamed ``requests`` response (redirects followed, ``Range`` from ``offset``); a URL
+    that is not HTTP(S) is a :class:`FetchError`, a network error a ``RequestException``."""
+    import requests
 
-    def redirect_request(self, req, fp, code, msg, headers, newurl):
-        new = super().redirect_request(req, fp, code, msg, headers, newurl)
-        if new is not None and req.get_method() == "HEAD":
-            new.method = "HEAD"
-        return new
-
-
-_OPENER = urllib.request.build_opener(_KeepMethodRedirect)
-
-
-def _open(url: str, *, method: str = "GET", headers: dict[str, str] | None = None,
-          timeout: float):
-    req = urllib.request.Request(url, method=method, headers={
-        "User-Agent": _user_agent(), "Accept-Encoding": "identity", **(headers or {})})
-    return _OPENER.open(req, timeout=timeout)
+    headers = _headers() | ({"Range": f"bytes={offset}-"} if offset else {})
+    try:
+        return requests.request(method, url, headers=headers, timeout=timeout, stream=True,
+                                allow_redirects=True)
+    except (requests.exceptions.InvalidURL, requests.exceptions.InvalidSchema,
+            requests.exceptions.MissingSchema) as exc:
+        raise FetchError(f"{url}: not an HTTP(S) URL ({_reason(exc)})") from None
 
 
 # -- HTTP ---------------------------------------------------------------------------------------
@@ -146,193 +151,225 @@ def remote_size(url: str, *, timeout: float | None = None) -> int | None:
     """The size the server reports for ``url`` (``HEAD``'s Content-Length), ``None`` when it does
     not say. A missing file (404 and other error statuses) or an unreachable host is a
     :class:`FetchError`; a server that refuses ``HEAD`` itself (405, 501) gives ``None``."""
+    import requests
+
     try:
-        with _open(url, method="HEAD", timeout=TIMEOUT if timeout is None else timeout) as resp:
-            length = resp.headers.get("Content-Length")
-    except urllib.error.HTTPError as exc:
-        if exc.code in (405, 501):
-            return None
-        raise FetchError(f"{url}: HTTP {exc.code} {exc.reason}") from None
-    except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:
+        with _request("HEAD", url, timeout=TIMEOUT if timeout is None else timeout) as resp:
+            status, why, length = resp.status_code, resp.reason, resp.headers.get("Content-Length")
+    except (requests.RequestException, OSError) as exc:
         raise FetchError(f"{url}: cannot connect ({_reason(exc)})") from None
+    if status in (405, 501):
+        return None
+    if status >= 400:
+        raise FetchError(f"{url}: HTTP {status} {why}")
     try:
         return int(length) if length is not None else None
     except ValueError:
         return None
 
 
-def _content_range(value: str | None) -> tuple[int, int | None] | None:
-    """``bytes START-END/TOTAL`` -> (START, TOTAL or None)."""
-    if not value or not value.startswith("bytes "):
-        return None
-    span, _, total = value[6:].partition("/")
-    start = span.partition("-")[0]
-    try:
-        return int(start), (None if total.strip() in ("", "*") else int(total))
-    except ValueError:
-        return None
-
-
 def download(url: str, dest: Path, *, size: int | None = None, sha256: str | None = None,
              retries: int = RETRIES, timeout: float | None = None,
-             log: Callable[[str], None] | None = None) -> Path:
-    """Download ``url`` to ``dest`` through ``dest.part``, resuming a ``.part`` left by an earlier
-    call, and check the result.
+             log: Log | None = None) -> Path:
+    """Download ``url`` to ``dest`` (through ``dest.part``, resuming one left by an earlier call)
+    with pooch, and check the result.
 
     ``size``/``sha256`` are the expected size and hex sha256 (``None``: not known; the size is
-    then the server's Content-Length). A transfer that breaks off is resumed with a ``Range``
-    request up to ``retries`` more times, then the ``.part`` is kept for the next call and a
-    :class:`FetchError` says so. A result of the wrong size or sha256 is deleted. An existing
-    ``dest`` is kept when it passes the checks (and downloaded again when it does not).
+    then the server's Content-Length). A transfer that breaks off is resumed up to ``retries``
+    more times, then the ``.part`` is kept for the next call and a :class:`FetchError` says so.
+    A result of the wrong size or sha256 is deleted. An existing ``dest`` is kept when it passes
+    the checks (and downloaded again when it does not).
     """
+    import pooch
+
     dest = Path(dest)
-    timeout = TIMEOUT if timeout is None else timeout
-    if dest.is_file():
-        if _matches(dest, size, sha256):
-            return dest
-        dest.unlink()
-    part = dest.with_name(dest.name + ".part")
-    total = size
-    failures = 0
-    say = log or (lambda _msg: None)
-    while True:
-        offset = part.stat().st_size if part.is_file() else 0
-        if total is not None and offset > total:
-            part.unlink()  # more than the whole file: not a prefix of it
-            offset = 0
-        if total is not None and offset == total:
-            break
-        headers = {"Range": f"bytes={offset}-"} if offset else {}
-        try:
-            resp = _open(url, headers=headers, timeout=timeout)
-        except urllib.error.HTTPError as exc:
-            if exc.code == 416 and offset:
-                # nothing left to send from here: the .part is complete, or not this file
-                if total is None:  # "bytes */TOTAL"
-                    tail = (exc.headers.get("Content-Range") or "").rpartition("/")[2].strip()
-                    total = int(tail) if tail.isdigit() else None
-                if total == offset:
-                    break
-                part.unlink()
-                failures += 1
-                if failures > retries:
-                    raise FetchError(f"{url}: the server refuses to resume from byte {offset} "
-                                     "(HTTP 416); the partial download was deleted") from None
-                continue
-            raise FetchError(f"{url}: HTTP {exc.code} {exc.reason}") from None
-        except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:
-            failures += 1
-            if failures > retries:
-                kept = f"; run the command again to resume from {part}" if offset else ""
-                raise FetchError(f"{url}: cannot connect ({_reason(exc)}){kept}") from None
-            say(f"  {url}: {_reason(exc)}; retrying")
-            time.sleep(min(RETRY_DELAY * 2 ** (failures - 1), 30.0))
-            continue
-        with resp:
-            if resp.status == 206:
-                crange = _content_range(resp.headers.get("Content-Range"))
-                if crange is None or crange[0] != offset:
-                    raise FetchError(f"{url}: asked for bytes {offset}- and got "
-                                     f"{resp.headers.get('Content-Range')!r}")
-                if crange[1] is not None:
-                    if total is not None and crange[1] != total:
-                        raise FetchError(f"{url}: the server has {crange[1]} bytes, expected "
-                                         f"{total}")
-                    total = crange[1]
-                mode = "ab"
-            elif resp.status == 200:
-                if offset:
-                    say(f"  {url}: the server does not resume; starting again")
-                offset = 0
-                length = resp.headers.get("Content-Length")
-                if length is not None and length.isdigit():
-                    if total is not None and int(length) != total:
-                        raise FetchError(f"{url}: the server sends {length} bytes, expected "
-                                         f"{total}")
-                    total = int(length)
-                mode = "wb"
-            else:
-                raise FetchError(f"{url}: unexpected HTTP status {resp.status}")
-            error = _receive(resp, part, mode, total, offset, dest.name)
-        got = part.stat().st_size if part.is_file() else 0
-        if error is None and (total is None or got >= total):
-            break
-        failures += 1
-        why = _reason(error) if error is not None else "connection closed early"
-        if failures > retries:
-            raise FetchError(f"{url}: connection lost after {got} of "
-                             f"{total if total is not None else '?'} bytes ({why}); run the "
-                             f"command again to resume from {part}")
-        say(f"  {url}: {why} after {got} bytes; resuming")
-        time.sleep(min(RETRY_DELAY * 2 ** (failures - 1), 30.0))
-    got = part.stat().st_size
-    if total is not None and got != total:
-        part.unlink()
-        raise FetchError(f"{url}: got {got} bytes, expected {total}; the download was deleted")
-    if sha256 is not None:
-        digest = sha256_file(part, desc=f"checking {dest.name}")
-        if digest != sha256.lower():
-            part.unlink()
-            raise FetchError(f"{url}: sha256 {digest} is not the expected {sha256.lower()}; the "
-                             "download was deleted")
-    part.replace(dest)
+    if dest.is_file() and size is not None and dest.stat().st_size != size:
+        dest.unlink()  # pooch checks the sha256 only
+    known = f"sha256:{sha256.lower()}" if sha256 else None
+    getter = ResumingDownloader(dest, size=size, retries=retries, log=log,
+                                timeout=TIMEOUT if timeout is None else timeout)
+    store = pooch.Pooch(path=dest.parent, base_url="", registry={dest.name: known},
+                        urls={dest.name: url})
+    _mkdir(dest.parent, getter.part)
+    try:
+        with _quiet(pooch.get_logger()):
+            store.fetch(dest.name, downloader=getter)
+    except ValueError as exc:  # pooch: the sha256 does not match (the download is deleted)
+        if "does not match the known hash" not in str(exc):
+            raise
+        got = re.search(r"but got (\w+)", str(exc))
+        raise FetchError(f"{url}: sha256 {got.group(1) if got else '?'} is not the expected "
+                         f"{sha256.lower() if sha256 else '?'}; the download was deleted") \
+            from None
+    except OSError as exc:
+        raise FetchError(f"{dest.parent}: cannot write ({_reason(exc)})") from None
     return dest
 
 
-def _receive(resp, part: Path, mode: str, total: int | None, offset: int, desc: str
-             ) -> BaseException | None:
-    """Append (``ab``) or write (``wb``) the body of ``resp`` to ``part``; the network error that
-    ended it early, or ``None``."""
+def _mkdir(folder: Path, part: Path) -> None:
     try:
-        part.parent.mkdir(parents=True, exist_ok=True)
-        fh = open(part, mode)  # noqa: SIM115 (closed below)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise FetchError(f"{part}: cannot write ({_reason(exc)})") from None
-    with fh, _bar(total, offset, desc) as bar:
-        while True:
-            try:
-                chunk = resp.read(CHUNK)
-            except (OSError, http.client.HTTPException) as exc:
-                return exc
-            if not chunk:
-                return None
-            try:
-                fh.write(chunk)
-            except OSError as exc:
-                raise FetchError(f"{part}: cannot write ({_reason(exc)})") from None
-            bar.update(len(chunk))
 
 
-def _matches(path: Path, size: int | None, sha256: str | None) -> bool:
-    if size is not None and path.stat().st_size != size:
-        return False
-    return sha256 is None or sha256_file(path, desc=f"checking {path.name}") == sha256.lower()
-
-
-# -- staging ------------------------------------------------------------------------------------
 @contextlib.contextmanager
-def staging_file(target: Path, *, overwrite: bool) -> Iterator[Path]:
-    """Yield an empty hidden folder beside the file ``target``; when the block ends without error,
-    the file of ``target``'s name written into it (and its manifest, if any) replace ``target``.
-    On error the folder is removed and ``target`` is untouched."""
-    target = Path(target)
-    if target.exists() and not overwrite:
-        raise FetchError(f"{target}: exists (pass --overwrite to replace it)")
-    if target.exists() and not target.is_file():
-        raise FetchError(f"{target}: exists and is not a file")
-    parent = target.parent
+def _quiet(logger: logging.Logger) -> Iterator[None]:
+    """pooch's log (to stderr) held to warnings: evsmap says what it does itself."""
+    level = logger.level
+    logger.setLevel(logging.WARNING)
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=parent))
-    except OSError as exc:
-        raise FetchError(f"{target}: cannot create the folder ({exc})") from None
-    try:
-        yield stage
-        manifest = stage / f"{target.name}.{MANIFEST}"
-        if manifest.is_file():
-            manifest.replace(parent / manifest.name)
-        (stage / target.name).replace(target)
-    except OSError as exc:
-        raise FetchError(f"{target}: cannot write ({exc})") from None
+        yield
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        logger.setLevel(level)
+
+
+@dataclass
+class _Broken:
+    """An attempt that may be tried again: the error if it was the last, the note before the
+    next (``None``: none), whether to wait first."""
+
+    final: str
+    note: str | None
+    wait: bool = True
+
+
+class ResumingDownloader:
+    """A pooch downloader (``downloader(url, output_file, pooch)``) that transfers through
+    ``dest.part``: a transfer that breaks off is resumed with an HTTP ``Range`` request up to
+    ``retries`` more times (the ``.part`` is kept for a later call after that); the complete
+    ``.part`` of the right size becomes pooch's ``output_file``, which pooch then checks."""
+
+    def __init__(self, dest: Path, *, size: int | None, retries: int, timeout: float,
+                 log: Log | None) -> None:
+        self.dest = Path(dest)
+        self.part = self.dest.with_name(self.dest.name + ".part")
+        self.total = size
+        self.retries = retries
+        self.timeout = timeout
+        self.say: Log = log or (lambda _msg: None)
+
+    def __call__(self, url: str, output_file: str, pooch: Any, check_only: bool = False) -> None:
+        self.dest.unlink(missing_ok=True)  # pooch found it missing or failing its check
+        failures = 0
+        while (broken := self._attempt(url)) is not None:
+            failures += 1
+            if failures > self.retries:
+                raise FetchError(broken.final)
+            if broken.note is not None:
+                self.say(broken.note)
+            if broken.wait:
+                time.sleep(min(RETRY_DELAY * 2 ** (failures - 1), 30.0))
+        got = self._have()
+        if self.total is not None and got != self.total:
+            self.part.unlink()
+            raise FetchError(f"{url}: got {got} bytes, expected {self.total}; the download was "
+                             "deleted")
+        self.part.replace(output_file)
+
+    def _have(self) -> int:
+        return self.part.stat().st_size if self.part.is_file() else 0
+
+    def _attempt(self, url: str) -> _Broken | None:
+        """One request from where the ``.part`` ends; ``None`` once the ``.part`` is complete."""
+        import requests
+
+        offset = self._have()
+        if self.total is not None and offset > self.total:
+            self.part.unlink()  # more than the whole file: not a prefix of it
+            offset = 0
+        if self.total is not None and offset == self.total:
+            return None
+        try:
+            resp = _request("GET", url, timeout=self.timeout, offset=offset)
+        except (requests.RequestException, OSError) as exc:
+            kept = f"; run the command again to resume from {self.part}" if offset else ""
+            return _Broken(f"{url}: cannot connect ({_reason(exc)}){kept}",
+                           f"  {url}: {_reason(exc)}; retrying")
+        with resp:
+            if resp.status_code == 416 and offset:
+                return self._refused(url, resp, offset)
+            mode = self._accept(url, resp, offset)
+            error = self._receive(resp, mode)
+        got = self._have()
+        if error is None and (self.total is None or got >= self.total):
+            return None
+        why = _reason(error) if error is not None else "connection closed early"
+        total = self.total if self.total is not None else "?"
+        return _Broken(f"{url}: connection lost after {got} of {total} bytes ({why}); run the "
+                       f"command again to resume from {self.part}",
+                       f"  {url}: {why} after {got} bytes; resuming")
+
+    def _refused(self, url: str, resp: Any, offset: int) -> _Broken | None:
+        """HTTP 416: nothing left to send from ``offset``: the ``.part`` is complete, or it is not
+        this file (then it is deleted)."""
+        if self.total is None:  # "bytes */TOTAL"
+            tail = (resp.headers.get("Content-Range") or "").rpartition("/")[2].strip()
+            self.total = int(tail) if tail.isdigit() else None
+        if self.total == offset:
+            return None
+        self.part.unlink()
+        return _Broken(f"{url}: the server refuses to resume from byte {offset} (HTTP 416); the "
+                       "partial download was deleted", None, wait=False)
+
+    def _accept(self, url: str, resp: Any, offset: int) -> str:
+        """Check the answer to a request from ``offset`` against what is known of the file; the
+        mode to open the ``.part`` in (``ab`` to append, ``wb`` to start again)."""
+        status = resp.status_code
+        if status == 206:
+            crange = _content_range(resp.headers.get("Content-Range"))
+            if crange is None or crange[0] != offset:
+                raise FetchError(f"{url}: asked for bytes {offset}- and got "
+                                 f"{resp.headers.get('Content-Range')!r}")
+            if crange[1] is not None:
+                if self.total is not None and crange[1] != self.total:
+                    raise FetchError(f"{url}: the server has {crange[1]} bytes, expected "
+                                     f"{self.total}")
+                self.total = crange[1]
+            return "ab"
+        if status == 200:
+            if offset:
+                self.say(f"  {url}: the server does not resume; starting again")
+            length = resp.headers.get("Content-Length")
+            if length is not None and length.isdigit():
+                if self.total is not None and int(length) != self.total:
+                    raise FetchError(f"{url}: the server sends {length} bytes, expected "
+                                     f"{self.total}")
+                self.total = int(length)
+            return "wb"
+        if status >= 400:
+            raise FetchError(f"{url}: HTTP {status} {resp.reason}")
+        raise FetchError(f"{url}: unexpected HTTP status {status}")
+
+    def _receive(self, resp: Any, mode: str) -> BaseException | None:
+        """Append (``ab``) or write (``wb``) the body of ``resp`` to the ``.part``; the network
+        error that ended it early, or ``None``."""
+        from http.client import HTTPException
+
+        from urllib3.exceptions import HTTPError
+
+        try:
+            fh: IO[bytes] = open(self.part, mode)  # noqa: SIM115 (closed below)
+        except OSError as exc:
+            raise FetchError(f"{self.part}: cannot write ({_reason(exc)})") from None
+        with fh, _bar(self.total, self._have(), self.dest.name) as bar:
+            while True:
+                try:  # read1: what has arrived (read would drop it when the connection breaks)
+                    chunk = resp.raw.read1(CHUNK)
+                except (HTTPError, HTTPException, OSError) as exc:
+                    return exc
+                if not chunk:
+                    return None
+                try:
+                    fh.write(chunk)
+                except OSError as exc:
+                    raise FetchError(f"{self.part}: cannot write ({_reason(exc)})") from None
+                bar.update(len(chunk))
+
+
+def _content_range(value: str | None) -> tuple[int, int | None] | None:
+    """``bytes START-END/TOTAL`` -> (START, TOTAL or None)."""
+    match = re.fullmatch(r"bytes (\d+)-\d*(?:/(\d+|\*))?\s*", value or "")
+    if match is None:
+        return None
+    return int(match[1]), (None if match[2] in (None, "*") else int(match[2]))

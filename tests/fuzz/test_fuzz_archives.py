@@ -27,7 +27,8 @@ from PIL import Image
 
 from evsmap import samples
 from evsmap.download import CorruptArchiveError, FetchError
-from evsmap.samples import SAMPLES, extract_sample, verify_sample
+from evsmap.sample_archives import extract_sample
+from evsmap.samples import SAMPLES, verify_sample
 from tests.fuzz.harness import check_cli, check_file, mutated_bytes, write_variant
 
 TOP = "rgbd_dataset_freiburg1_xyz"
