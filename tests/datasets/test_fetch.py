@@ -335,6 +335,27 @@ def test_404_writes_nothing(capsys, tmp_path, server, bag):
     assert leftovers(tmp_path) == []
 
 
+def test_a_cached_archive_that_fails_its_checksum_is_downloaded_anew(capsys, tmp_path, server,
+                                                                      bag):
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "test.bag").write_bytes(bytes(len(BAG)))  # right size, wrong bytes
+    code, out, err = fetch_cli(capsys, tmp_path, "lidar-odometry-bag", "--keep-archive")
+    assert code == 0 and err == ""
+    assert server.gets("/mirror/test.bag") == [None]
+    assert (tmp_path / "cache" / "test.bag").read_bytes() == BAG
+    assert leftovers(tmp_path)[0] == "cache/test.bag"  # no temporary file left by pooch
+    assert len(leftovers(tmp_path)) == 4
+
+
+def test_a_mirror_that_is_not_http_is_one_line(capsys, tmp_path, bag, monkeypatch):
+    monkeypatch.setenv(download.MIRROR_ENV, f"file://{tmp_path}")
+    code, out, err = fetch_cli(capsys, tmp_path, "lidar-odometry-bag")
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith(f"evsmap datasets: error: file://{tmp_path}/test.bag: not an HTTP(S) "
+                          "URL (")
+    assert leftovers(tmp_path) == []
+
+
 def test_connection_refused_is_one_line(capsys, tmp_path, bag, monkeypatch):
     with ThreadingHTTPServer(("127.0.0.1", 0), BaseHTTPRequestHandler) as closed:
         port = closed.server_address[1]  # bound, then closed: nothing listens there
@@ -671,6 +692,26 @@ def test_catalogue_matches_the_real_samples(name):
     bad = [rel for rel, v in values.items()
            if not samples.check_matches(sample.rule_for(rel), sample.expected[rel], v)]
     assert bad == []
+
+
+def test_the_expected_values_are_package_data(tmp_path):
+    """The catalogue's expected values come from samples_expected.json, which the package ships
+    and :func:`~evsmap.samples_expected.write_expected` writes back unchanged."""
+    import tomllib
+
+    from evsmap import samples_expected
+
+    values = samples_expected.load_expected()
+    assert {name: SAMPLES[name].expected for name in SAMPLES} == values
+    assert isinstance(values["nyuv2-samples"]["depth/000433.png"], tuple)
+    copy = tmp_path / "expected.json"
+    samples_expected.write_expected(values, copy)
+    assert copy.read_text() == samples_expected.DATA_FILE.read_text()
+    assert samples_expected.load_expected(copy) == values
+    root = Path(samples_expected.__file__).resolve().parents[1]
+    package_data = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"]["evsmap"]
+    assert samples_expected.DATA_FILE.name in package_data
 
 
 def test_the_command_line_module_stays_light():
