@@ -118,14 +118,17 @@ def _headers() -> dict[str, str]:
 def _reason(exc: BaseException) -> str:
     """The innermost cause of a network error in a few words (requests wraps urllib3's errors,
     which wrap the socket's)."""
+    from http.client import IncompleteRead as ShortBody
+
+    from urllib3.exceptions import IncompleteRead, MaxRetryError
+
     seen: set[int] = set()
     while id(exc) not in seen:
         seen.add(id(exc))
-        if type(exc).__name__ == "IncompleteRead":  # http.client's or urllib3's
+        if isinstance(exc, (IncompleteRead, ShortBody)):
             return "connection closed early"
-        reason = getattr(exc, "reason", None)
-        inner = next((a for a in exc.args if isinstance(a, BaseException)), None) or (
-            reason if isinstance(reason, BaseException) else None) or exc.__cause__
+        inner = exc.reason if isinstance(exc, MaxRetryError) else next(
+            (a for a in exc.args if isinstance(a, BaseException)), None) or exc.__cause__
         if inner is None:
             break
         exc = inner
