@@ -111,7 +111,7 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
 def check_out(out: Path) -> None:
     """The run's folder checked before anything is loaded: not a file, and a place this process
     can write in (a run continues or resumes in an existing folder, so that is not refused here:
-    whether it already holds a run is :func:`evsmap.train.loop.train`'s check).
+    whether it already holds a run is :func:`evsmap.train.setup.open_run_folder`'s check).
 
     Raises:
         EvsmapError: one line naming --out.
@@ -139,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
                f"is half-written)"
 
     set_resume_hint(hint)  # before the imports below, which take seconds
-    from evsmap.train.loop import RunOptions, train
+    from evsmap.train.loop import train
+    from evsmap.train.options import RunOptions
 
     opts = RunOptions(
         model=args.model, dataset=args.dataset, out=args.out, recipe=args.recipe,
