@@ -48,23 +48,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--recipe", metavar="NAME-or-FILE",
                    help="a shipped recipe (paper, synth-proxy) or a TOML file (default: paper; "
                         "resuming: the checkpoint's)")
-    p.add_argument("--epochs", type=positive_int, metavar="N", help="recipe field epochs")
-    p.add_argument("--batch-size", type=positive_int, metavar="N",
-                   help="recipe field batch_size (global: split over DDP processes)")
-    p.add_argument("--lr", type=positive_float, metavar="LR", help="recipe field lr")
-    p.add_argument("--crop", type=_size, metavar="HxW", help="recipe field crop")
-    p.add_argument("--workers", type=nonnegative_int, metavar="N",
-                   help="recipe field workers (data-loading processes per training process)")
-    p.add_argument("--amp", action=argparse.BooleanOptionalAction, default=None,
-                   help="recipe field amp: float16 autocast + GradScaler (CUDA only)")
-    p.add_argument("--eval-every", type=nonnegative_int, metavar="N",
-                   help="recipe field eval_every: validate every N epochs and after the last "
-                        "(0: never)")
-    p.add_argument("--seed", type=nonnegative_int, metavar="S", help="recipe field seed")
-    p.add_argument("--set", dest="fields", type=key_value, action="append", default=[],
-                   metavar="FIELD=VALUE",
-                   help="any recipe field, repeatable (e.g. --set poly_start_epoch=0, "
-                        "--set scale=0.5,2.0)")
+    _add_recipe_fields(p)
     p.add_argument("--device", metavar="cpu|cuda",
                    help="cpu, cuda or cuda:N (default: cuda when available; under torchrun "
                         "each process takes cuda:LOCAL_RANK)")
@@ -94,6 +78,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
+def _add_recipe_fields(p: argparse.ArgumentParser) -> None:
+    """The flags that each override one recipe field."""
+    p.add_argument("--epochs", type=positive_int, metavar="N", help="recipe field epochs")
+    p.add_argument("--batch-size", type=positive_int, metavar="N",
+                   help="recipe field batch_size (global: split over DDP processes)")
+    p.add_argument("--lr", type=positive_float, metavar="LR", help="recipe field lr")
+    p.add_argument("--crop", type=_size, metavar="HxW", help="recipe field crop")
+    p.add_argument("--workers", type=nonnegative_int, metavar="N",
+                   help="recipe field workers (data-loading processes per training process)")
+    p.add_argument("--amp", action=argparse.BooleanOptionalAction, default=None,
+                   help="recipe field amp: float16 autocast + GradScaler (CUDA only)")
+    p.add_argument("--eval-every", type=nonnegative_int, metavar="N",
+                   help="recipe field eval_every: validate every N epochs and after the last "
+                        "(0: never)")
+    p.add_argument("--seed", type=nonnegative_int, metavar="S", help="recipe field seed")
+    p.add_argument("--set", dest="fields", type=key_value, action="append", default=[],
+                   metavar="FIELD=VALUE",
+                   help="any recipe field, repeatable (e.g. --set poly_start_epoch=0, "
+                        "--set scale=0.5,2.0)")
+
+
 def overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The recipe fields the command line sets (flags, then --set)."""
     out: dict[str, Any] = {}
@@ -111,7 +116,7 @@ def overrides(args: argparse.Namespace) -> dict[str, Any]:
 def check_out(out: Path) -> None:
     """The run's folder checked before anything is loaded: not a file, and a place this process
     can write in (a run continues or resumes in an existing folder, so that is not refused here:
-    whether it already holds a run is :func:`evsmap.train.loop.train`'s check).
+    whether it already holds a run is :func:`evsmap.train.setup.open_run_folder`'s check).
 
     Raises:
         EvsmapError: one line naming --out.
@@ -139,7 +144,8 @@ def run(args: argparse.Namespace) -> int:
                f"is half-written)"
 
     set_resume_hint(hint)  # before the imports below, which take seconds
-    from evsmap.train.loop import RunOptions, train
+    from evsmap.train.loop import train
+    from evsmap.train.options import RunOptions
 
     opts = RunOptions(
         model=args.model, dataset=args.dataset, out=args.out, recipe=args.recipe,

@@ -1,5 +1,5 @@
 """Files of a training run: atomic writes, the resumable checkpoint, the weights files with their
-card, random-number-generator states.
+card, the log, random-number-generator states.
 
 ``OUT/checkpoint.pt`` (the resume point, rewritten after every epoch)::
 
@@ -20,6 +20,8 @@ old one (``os.replace``), so a crash leaves the previous complete file.
 
 from __future__ import annotations
 
+import csv
+import io
 import os
 import random
 from typing import Any
@@ -37,6 +39,9 @@ LAST = "last.pt"
 BEST = "best.pt"
 LOG = "log.csv"
 RUN = "run.json"
+LOG_COLUMNS = ("epoch", "lr", "loss", "val_miou", "train_seconds", "val_seconds", "seconds",
+               "images", "images_per_s")
+"""The columns of ``log.csv``, one row per epoch."""
 
 
 def atomic_save(obj: Any, path: str | os.PathLike[str]) -> None:
@@ -50,6 +55,33 @@ def save_weights(path: str | os.PathLike[str], state_dict: dict[str, torch.Tenso
                  card: dict[str, Any]) -> None:
     """A weights file: ``{"state_dict": ..., "card": ...}`` (tensors moved to the CPU)."""
     atomic_save({"state_dict": cpu_state(state_dict), "card": card}, path)
+
+
+def read_weights_file(path: str | os.PathLike[str]) -> tuple[dict[str, torch.Tensor],
+                                                             dict[str, Any]]:
+    """The state dict and card of a weights file :func:`save_weights` wrote.
+
+    Raises:
+        DataFormatError: missing, unreadable, or without a state dict and a card.
+    """
+    from evsmap.segmenters.weights import read_checkpoint
+
+    obj = read_checkpoint(path)
+    if not isinstance(obj, dict) or not isinstance(obj.get("state_dict"), dict) \
+            or not isinstance(obj.get("card"), dict):
+        raise DataFormatError(f"{path}: not a weights file with a card")
+    return obj["state_dict"], dict(obj["card"])
+
+
+def log_csv(rows: list[dict[str, Any]]) -> str:
+    """The text of ``log.csv``: a header of :data:`LOG_COLUMNS`, then one line per row (None
+    as an empty field)."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=LOG_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: ("" if row.get(k) is None else row[k]) for k in LOG_COLUMNS})
+    return buf.getvalue()
 
 
 def cpu_state(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -180,6 +212,6 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-__all__ = ["BEST", "CHECKPOINT", "FORMAT", "LAST", "LOG", "RUN", "VERSION", "atomic_save",
-           "cpu_state", "derived_seed", "load_checkpoint", "rng_state",
-           "save_weights", "seed_everything", "set_rng_state"]
+__all__ = ["BEST", "CHECKPOINT", "FORMAT", "LAST", "LOG", "LOG_COLUMNS", "RUN", "VERSION",
+           "atomic_save", "cpu_state", "derived_seed", "load_checkpoint", "log_csv",
+           "read_weights_file", "rng_state", "save_weights", "seed_everything", "set_rng_state"]

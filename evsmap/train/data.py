@@ -98,9 +98,12 @@ class TrainingFrames(Dataset):
         frame.require_images("training")
         d = self.draws(epoch, index)
         size = scaled_size(self.input_size, d["scale"])
-        depth = self.normalization.encode_depth(frame.depth, frame) if self.uses_depth \
-            else None
-        inputs = network_inputs(frame.rgb, depth, self.normalization, size)
+        rgb, depth = frame.rgb, None
+        assert rgb is not None  # an RGB-D frame (require_images)
+        if self.uses_depth:
+            assert frame.depth is not None
+            depth = self.normalization.encode_depth(frame.depth, frame)
+        inputs = network_inputs(rgb, depth, self.normalization, size)
         labels = torch.from_numpy(np.asarray(frame.labels, dtype=np.uint8).astype(np.int64))
         bad = (labels >= self.num_classes) & (labels != VOID)
         if bool(bad.any()):
@@ -225,6 +228,7 @@ def open_splits(dataset: str, *, reader: str | None = None,
     config = dict(reader_options or [])
     if "split" in config:
         raise EvsmapError("choose the splits with --train-split / --val-split, not -r split=")
+    splits: tuple[str | None, str | None]
     if "split" in params:
         splits = (train_split or "train", val_split or VALIDATION_SPLIT.get(name, "test"))
     else:

@@ -11,7 +11,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -22,10 +22,28 @@ from evsmap.data import SemanticObservation
 from evsmap.errors import EvsmapError
 from evsmap.interfaces import Segmenter
 from evsmap.train.checkpoint import BEST, save_weights
+from evsmap.train.data import Splits
+from evsmap.train.options import RunOptions
 from evsmap.train.processes import Processes
 
-if TYPE_CHECKING:
-    from evsmap.train.loop import RunOptions
+
+def percent(x: float | None) -> str:
+    """An mIoU as the run's messages print it (``n/a`` when there is none)."""
+    return "n/a" if x is None else f"{100 * x:.2f} %"
+
+
+def _top_on(device: torch.device, segmenter, frame, k: int):
+    """The ``k`` most likely classes of every pixel of ``frame`` (``torch.topk``'s values and
+    indices, on ``device``): what ``predict`` computes on the CPU - preprocess, network,
+    bilinear resize to the frame, softmax - with the tensors moved to ``device``."""
+    inputs = tuple(t.to(device) for t in segmenter.preprocess(frame))
+    with torch.inference_mode():
+        logits = segmenter.module(*inputs)
+        h, w = frame.rgb.shape[:2]
+        if tuple(logits.shape[-2:]) != (h, w):
+            logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
+        scores = logits[0].float().permute(1, 2, 0).contiguous()
+        return torch.softmax(scores, dim=-1).topk(k, dim=-1)
 
 
 def predict_classes(segmenter, frame, device: torch.device) -> np.ndarray:
@@ -35,14 +53,7 @@ def predict_classes(segmenter, frame, device: torch.device) -> np.ndarray:
     k = min(3, int(segmenter.num_classes))
     if device.type == "cpu":
         return segmenter.predict(frame, k=k).argmax
-    inputs = tuple(t.to(device) for t in segmenter.preprocess(frame))
-    with torch.inference_mode():
-        logits = segmenter.module(*inputs)
-        h, w = frame.rgb.shape[:2]
-        if tuple(logits.shape[-2:]) != (h, w):
-            logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
-        scores = logits[0].float().permute(1, 2, 0).contiguous()
-        classes = torch.softmax(scores, dim=-1).topk(k, dim=-1).indices[..., 0]
+    classes = _top_on(device, segmenter, frame, k).indices[..., 0]
     return classes.to(torch.int16).cpu().numpy()
 
 
@@ -63,15 +74,7 @@ class _Validating(Segmenter):
         k = min(k, self.num_classes)
         if self.device.type == "cpu":
             return self.inner.predict(frame, k=k)
-        inputs = tuple(t.to(self.device) for t in self.inner.preprocess(frame))
-        with torch.inference_mode():
-            logits = self.inner.module(*inputs)
-            h, w = frame.rgb.shape[:2]
-            if tuple(logits.shape[-2:]) != (h, w):
-                logits = F.interpolate(logits, size=(h, w), mode="bilinear",
-                                       align_corners=False)
-            scores = logits[0].float().permute(1, 2, 0).contiguous()
-            top = torch.softmax(scores, dim=-1).topk(k, dim=-1)
+        top = _top_on(self.device, self.inner, frame, k)
         return SemanticObservation(classes=top.indices.to(torch.int16).cpu().numpy(),
                                    probs=top.values.cpu().numpy(), num_classes=self.num_classes)
 
@@ -101,7 +104,7 @@ def validate(segmenter, sequence, procs: Processes, *, bar: bool = False) -> np.
 TEST_SPLIT = "test"
 
 
-def open_test_split(opts: RunOptions, splits) -> tuple[Any, str | None]:
+def open_test_split(opts: RunOptions, splits: Splits) -> tuple[Any, str | None]:
     """The split a run that validated on another one is finally scored on: (sequence, None);
     (None, why) when the dataset has no usable test split (Cityscapes: its test labels are all
     void); (None, None) when there is nothing to do (the run validated on ``test``, or the
@@ -126,12 +129,13 @@ def card_has_test(path: Path) -> bool:
     from evsmap.segmenters.weights import read_checkpoint
 
     try:
-        return "test_split" in dict(read_checkpoint(path).get("card") or {})
+        saved = read_checkpoint(path)
+        return isinstance(saved, dict) and "test_split" in dict(saved.get("card") or {})
     except (EvsmapError, OSError):
         return False
 
 
-def final_test(opts: RunOptions, splits, segmenter, out: Path, *, device: torch.device,
+def final_test(opts: RunOptions, splits: Splits, segmenter, out: Path, *, device: torch.device,
                bar: bool = False) -> dict[str, Any] | None:
     """Score ``best.pt``'s weights on the test split (rank 0, after the last epoch, through
     :func:`validate` as validation does, so ``evsmap eval`` gives the same mIoU), write
@@ -139,10 +143,10 @@ def final_test(opts: RunOptions, splits, segmenter, out: Path, *, device: torch.
     atomically, its tensors unchanged) and return them; None when there is no test pass (see
     :func:`open_test_split`; a note says why). The network keeps ``best.pt``'s weights."""
     from evsmap.metrics import ConfusionMatrix
-    from evsmap.segmenters.weights import read_checkpoint
+    from evsmap.train.checkpoint import read_weights_file
 
     def note(text: str) -> None:
-        print(f"note: no final test pass: {text}", file=opts.messages or sys.stdout, flush=True)
+        opts.say(f"note: no final test pass: {text}")
 
     sequence, why = open_test_split(opts, splits)
     if sequence is None:
@@ -150,8 +154,7 @@ def final_test(opts: RunOptions, splits, segmenter, out: Path, *, device: torch.
             note(why)
         return None
     t0 = time.perf_counter()
-    saved = read_checkpoint(out / BEST)
-    state, card = saved["state_dict"], dict(saved["card"])
+    state, card = read_weights_file(out / BEST)
     segmenter.module.load_state_dict(state, strict=True)
     segmenter.module.eval()
     try:
@@ -163,20 +166,16 @@ def final_test(opts: RunOptions, splits, segmenter, out: Path, *, device: torch.
         note(f"every label of the {TEST_SPLIT} split is void")
         return None
     miou = ConfusionMatrix.from_matrix(counts).result().miou
-    fields = {"test_miou": None if math.isnan(miou) else float(miou), "test_split": TEST_SPLIT,
-              "test_frames": len(sequence)}
+    test_miou = None if math.isnan(miou) else float(miou)
+    fields: dict[str, Any] = {"test_miou": test_miou, "test_split": TEST_SPLIT,
+                              "test_frames": len(sequence)}
     card.update(fields)
     save_weights(out / BEST, state, card)
-    print(f"test mIoU {_pct(fields['test_miou'])} ({_best_text(card)}, {len(sequence)} frames of "
-          f"split {TEST_SPLIT}, {time.perf_counter() - t0:.1f} s)",
-          file=opts.messages or sys.stdout, flush=True)
+    opts.say(f"test mIoU {percent(test_miou)} ({_best_text(card)}, {len(sequence)} frames of "
+             f"split {TEST_SPLIT}, {time.perf_counter() - t0:.1f} s)")
     return fields
 
 
 def _best_text(card: dict[str, Any]) -> str:
     epoch = card.get("val_epoch") or card.get("epochs")
     return f"best.pt, epoch {epoch}" if epoch else "best.pt"
-
-
-def _pct(x: float | None) -> str:
-    return "n/a" if x is None else f"{100 * x:.2f} %"

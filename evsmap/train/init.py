@@ -182,7 +182,7 @@ def load_encoder_weights(module: nn.Module, path: str | PathLike[str]) -> InitRe
             message says what the file holds).
     """
     from evsmap.segmenters.official import LAYOUTS
-    from evsmap.segmenters.weights import castable, one_line, read_weights
+    from evsmap.segmenters.weights import one_line, read_weights
 
     converted = read_weights(path)
     state = {k: v for k, v in converted.state.items() if isinstance(v, torch.Tensor)}
@@ -197,29 +197,7 @@ def load_encoder_weights(module: nn.Module, path: str | PathLike[str]) -> InitRe
     plans: list[tuple[str, list[tuple[str, torch.Tensor, bool]]]] = []
     for enc in encoders:
         rel = {k[len(enc) + 1:]: v for k, v in own.items() if k.startswith(enc + ".")}
-        best: tuple | None = None
-        for how, named in namings:
-            for prefix in sorted(_prefixes(named)):
-                exact, summed, mismatched = [], [], []
-                for key, (orig, tensor) in named.items():
-                    if not key.startswith(prefix):
-                        continue
-                    r = key[len(prefix):]
-                    if r not in rel:
-                        continue
-                    if not castable(tensor.dtype, rel[r].dtype):
-                        mismatched.append(f"{r} (file {tensor.dtype}, network "
-                                          f"{rel[r].dtype})")
-                    elif tensor.shape == rel[r].shape:
-                        exact.append((r, orig, tensor))
-                    elif _summable(tensor, rel[r]):
-                        summed.append((r, orig, tensor))
-                    else:
-                        mismatched.append(f"{r} (file {tuple(tensor.shape)}, network "
-                                          f"{tuple(rel[r].shape)})")
-                score = (len(exact) + len(summed), len(exact), prefix == enc + ".")
-                if best is None or score > best[0]:
-                    best = (score, how, prefix, exact, summed, mismatched)
+        best = _best_fit(enc, rel, namings)
         if best is None or best[0][0] == 0:
             continue
         _, how, prefix, exact, summed, mismatched = best
@@ -236,18 +214,64 @@ def load_encoder_weights(module: nn.Module, path: str | PathLike[str]) -> InitRe
         raise EvsmapError(one_line(
             f"{path}: no tensor of the file fits an encoder of {type(module).__name__} "
             f"({', '.join(encoders)}); the file ({LAYOUTS[converted.layout]}) holds {sample}"))
-    loaded_keys: set[str] = set()
-    with torch.no_grad():
-        for enc, items in plans:
-            for r, tensor, summed in items:
-                target = own[f"{enc}.{r}"]
-                value = tensor.sum(dim=1, keepdim=True) if summed else tensor
-                target.copy_(value.to(dtype=target.dtype))
-                loaded_keys.add(f"{enc}.{r}")
+    loaded_keys = _copy_into(own, plans)
     untouched = Counter(k.split(".")[0] for k in own if k not in loaded_keys)
     return InitReport(file=str(path), layout=LAYOUTS[converted.layout], file_tensors=len(state),
                       encoders=loads, unused=sorted(k for k in state if k not in used),
                       untouched=dict(untouched.most_common()), used=used)
+
+
+_Match = tuple[str, str, torch.Tensor]
+"""A tensor of an encoder (name relative to it), the file's name for it, the file's tensor."""
+
+
+def _best_fit(enc: str, rel: dict[str, torch.Tensor],
+              namings: list[tuple[str, dict[str, tuple[str, Any]]]]) -> tuple | None:
+    """The naming and key prefix of the file that fit the most of encoder ``enc``'s tensors
+    ``rel``: ``((score), how, prefix, exact, summed, mismatched)``; None when the file has
+    no prefix at all."""
+    from evsmap.segmenters.weights import castable
+
+    best: tuple | None = None
+    for how, named in namings:
+        for prefix in sorted(_prefixes(named)):
+            exact: list[_Match] = []
+            summed: list[_Match] = []
+            mismatched: list[str] = []
+            for key, (orig, tensor) in named.items():
+                if not key.startswith(prefix):
+                    continue
+                r = key[len(prefix):]
+                if r not in rel:
+                    continue
+                if not castable(tensor.dtype, rel[r].dtype):
+                    mismatched.append(f"{r} (file {tensor.dtype}, network {rel[r].dtype})")
+                elif tensor.shape == rel[r].shape:
+                    exact.append((r, orig, tensor))
+                elif _summable(tensor, rel[r]):
+                    summed.append((r, orig, tensor))
+                else:
+                    mismatched.append(f"{r} (file {tuple(tensor.shape)}, network "
+                                      f"{tuple(rel[r].shape)})")
+            score = (len(exact) + len(summed), len(exact), prefix == enc + ".")
+            if best is None or score > best[0]:
+                best = (score, how, prefix, exact, summed, mismatched)
+    return best
+
+
+def _copy_into(own: dict[str, torch.Tensor],
+               plans: list[tuple[str, list[tuple[str, torch.Tensor, bool]]]]) -> set[str]:
+    """Copy the planned tensors into the network's state ``own`` (a kernel summed over its
+    input channels where marked); returns the keys loaded."""
+    loaded_keys: set[str] = set()
+    with torch.no_grad():
+        for enc, items in plans:
+            for r, tensor, sum_channels in items:
+                target = own[f"{enc}.{r}"]
+                value = tensor.sum(dim=1, keepdim=True) if sum_channels else tensor
+                target.copy_(value.to(dtype=target.dtype))
+                loaded_keys.add(f"{enc}.{r}")
+    return loaded_keys
 
 
 __all__ = ["EncoderLoad", "InitReport", "encoder_names", "load_encoder_weights"]

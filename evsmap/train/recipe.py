@@ -231,26 +231,8 @@ def recipe_from_dict(data: Mapping[str, Any], *, where: str = "recipe") -> Recip
     out["poly_start_epoch"] = _number(where, "poly_start_epoch", d["poly_start_epoch"], low=0,
                                       integer=True)
     out["poly_restart"] = _boolean(where, "poly_restart", d["poly_restart"])
-    crop = d["crop"]
-    if isinstance(crop, str):
-        if crop != INPUT:
-            try:
-                crop = parse_size(crop)
-            except ValueError:
-                raise RecipeError(f"{where}: crop must be \"{INPUT}\" (the network's input "
-                                  f"size), [H, W] or \"HxW\", got {crop!r}") from None
-    if crop != INPUT:
-        h, w = _pair(where, "crop", crop, f"\"{INPUT}\" or [H, W]")
-        crop = (_number(where, "crop[0] (height)", h, low=1, integer=True),
-                _number(where, "crop[1] (width)", w, low=1, integer=True))
-    out["crop"] = crop
-    lo, hi = _pair(where, "scale", d["scale"], "[min, max]")
-    lo = _number(where, "scale[0] (min)", lo, low=0, low_open=True)
-    hi = _number(where, "scale[1] (max)", hi, low=0, low_open=True)
-    if lo > hi:
-        raise RecipeError(f"{where}: scale must be [min, max] with min <= max, got "
-                          f"{list(d['scale'])!r}")
-    out["scale"] = (lo, hi)
+    out["crop"] = _crop(where, d["crop"])
+    out["scale"] = _scale(where, d["scale"])
     out["flip"] = _number(where, "flip", d["flip"], low=0, high=1)
     out["alpha"] = _number(where, "alpha", d["alpha"], low=0)
     out["beta"] = _number(where, "beta", d["beta"], low=0)
@@ -265,6 +247,33 @@ def recipe_from_dict(data: Mapping[str, Any], *, where: str = "recipe") -> Recip
     out["workers"] = _number(where, "workers", d["workers"], low=0, integer=True)
     out["eval_every"] = _number(where, "eval_every", d["eval_every"], low=0, integer=True)
     return Recipe(**out)
+
+
+def _crop(where: str, crop: Any) -> str | tuple[int, int]:
+    """The recipe's ``crop``: ``"input"``, or (H, W) from ``[H, W]`` or ``"HxW"``."""
+    if isinstance(crop, str):
+        if crop != INPUT:
+            try:
+                crop = parse_size(crop)
+            except ValueError:
+                raise RecipeError(f"{where}: crop must be \"{INPUT}\" (the network's input "
+                                  f"size), [H, W] or \"HxW\", got {crop!r}") from None
+    if crop == INPUT:
+        return INPUT
+    h, w = _pair(where, "crop", crop, f"\"{INPUT}\" or [H, W]")
+    return (_number(where, "crop[0] (height)", h, low=1, integer=True),
+            _number(where, "crop[1] (width)", w, low=1, integer=True))
+
+
+def _scale(where: str, scale: Any) -> tuple[float, float]:
+    """The recipe's ``scale``: [min, max] with 0 < min <= max."""
+    lo, hi = _pair(where, "scale", scale, "[min, max]")
+    lo = _number(where, "scale[0] (min)", lo, low=0, low_open=True)
+    hi = _number(where, "scale[1] (max)", hi, low=0, low_open=True)
+    if lo > hi:
+        raise RecipeError(f"{where}: scale must be [min, max] with min <= max, got "
+                          f"{list(scale)!r}")
+    return (lo, hi)
 
 
 # -- files ---------------------------------------------------------------------------------------

@@ -14,7 +14,8 @@ from train_fixtures import SIZE
 
 from evsmap.cli.main import main
 from evsmap.segmenters.weights import read_checkpoint, tensors_sha256
-from evsmap.train.loop import RunOptions, open_test_split
+from evsmap.train.evaluate import open_test_split
+from evsmap.train.options import RunOptions
 
 ROOMS, VIEWS = 8, 2  # splits: train 8 frames, val 4, test 4
 
