@@ -30,9 +30,9 @@ STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
 missing); the run failed; no record; a record without a value for the column; a row evsmap does
 not implement."""
 
-EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "map_bytes_full", "map_bytes_colour",
-                "octomap_memory_bytes", "map_nbytes", "rss_added_bytes", "peak_rss_bytes",
-                "nodes", "leaves", "pruned_share", "precision", "recall",
+EXTRA_VALUES = ("update_hz", "segment_update_hz", "map_bytes", "map_bytes_full",
+                "map_bytes_colour", "octomap_memory_bytes", "map_nbytes", "rss_added_bytes",
+                "peak_rss_bytes", "nodes", "leaves", "pruned_share", "precision", "recall",
                 "semantic_accuracy", "semantic_accuracy_all", "map_miou", "frames", "miou")
 """Value keys of the ``extra`` records (base units; ``map_bytes``: the file the system itself
 writes, ``map_bytes_full``: evsmap's resumable state; ``map_bytes_colour``: the colour-only
@@ -57,7 +57,7 @@ EXTRA_COLUMNS = ("key", "row", "label", "sequence", "voxel_size", "status", *EXT
 # (value key, header, divisor to printed unit, decimals)
 _EXTRA_PRINT = (
     ("update_hz", "Update (Hz)", 1.0, 1),
-    ("end_to_end_hz", "End-to-end (Hz)", 1.0, 1),
+    ("segment_update_hz", "Segmentation + update (Hz)", 1.0, 1),
     ("map_bytes", "Map size (MB)", 1e6, 2),
     ("map_bytes_full", "Full state (MB)", 1e6, 2),
     ("octomap_memory_bytes", "OctoMap memoryUsage() formula (MB)", 1e6, 2),
