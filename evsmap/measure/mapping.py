@@ -14,10 +14,9 @@ from typing import Any
 
 from evsmap.data import Sequence
 from evsmap.errors import InvalidDataError
-from evsmap.interfaces import MapUpdater, Segmenter
+from evsmap.interfaces import FILE_FORMATS, MapUpdater, Segmenter
 from evsmap.measure.engine import MappingPass, StageTimes, is_oracle, rates, run_mapping
 from evsmap.measure.evaluators import (
-    FILE_FORMATS,
     MapFiles,
     MapStatistics,
     pruned_share,

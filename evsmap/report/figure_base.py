@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Literal
 
 MAP_ROWS = ("orgbmap", "tesamap", "tfeagmap", "mesamap", "evsmap", "octomap-cpp")
 """Mapping systems in display order (Table IV rows, then the C++ OctoMap reference)."""
@@ -12,7 +13,8 @@ DPI = 110
 """The figures' resolution, dots per inch."""
 
 
-def new_figure(width: float, height: float, layout: str | None = None):
+def new_figure(width: float, height: float,
+               layout: Literal["constrained", "compressed", "tight"] | None = None) -> Any:
     """A matplotlib figure on the off-screen Agg canvas."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -22,7 +24,7 @@ def new_figure(width: float, height: float, layout: str | None = None):
     return fig
 
 
-def save_figure(fig, path: Path) -> None:
+def save_figure(fig: Any, path: Path) -> None:
     """``fig`` written to ``path`` as PNG, atomically."""
     from evsmap.fileio import atomic_path
 
@@ -31,7 +33,7 @@ def save_figure(fig, path: Path) -> None:
         fig.savefig(tmp, format="png", dpi=DPI)
 
 
-def empty_panel(ax, text: str) -> None:
+def empty_panel(ax: Any, text: str) -> None:
     """``text`` in the middle of an axes without axes."""
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, fontsize=9)
     ax.set_axis_off()

@@ -109,41 +109,12 @@ def mapping_plot(records: Iterable[CellRecord], path: Path,
     x = np.arange(len(groups))
     by_key = {(group_name(e), e["row"]): e for e in entries}
     for ax, (key, title, div, fmt) in zip(axes, panels, strict=True):
-        drawn = []
-        for i, (row, label) in enumerate(systems):
-            xs = x - 0.42 + width * (i + 0.5)
-            heights, missing = [], []
-            for xi, g in zip(xs, groups, strict=True):
-                e = by_key.get((g, row))
-                v = None if e is None else e.get(key)
-                heights.append(np.nan if v is None else v / div)
-                if e is not None and v is None:
-                    missing.append(xi)
-            bars = ax.bar(xs, heights, width, label=label, color=f"C{i}")
-            ax.bar_label(bars, [("" if np.isnan(h) else fmt.format(h)) for h in heights],
-                         fontsize=6.5, rotation=90, padding=2)
-            drawn += [h for h in heights if not np.isnan(h)]
-            for xi in missing:
-                ax.annotate("n/a", (xi, 0.0), xycoords=ax.get_xaxis_transform(), xytext=(0, 3),
-                            textcoords="offset points",
-                            ha="center", va="bottom", rotation=90, fontsize=6.5, color="0.45")
+        cells = [[None if (g, row) not in by_key else (by_key[g, row].get(key),)
+                  for g in groups] for row, _ in systems]
+        _draw_panel(ax, cells, [label for _, label in systems], div, fmt, x, width)
         ax.set_xticks(x, groups, fontsize=8)
         ax.set_xlim(-0.5, len(groups) - 0.5)
         ax.set_title(title, fontsize=9, loc="left")
-        ax.tick_params(axis="y", labelsize=7)
-        ax.grid(True, axis="y", alpha=0.3)
-        if drawn:
-            positive = [h for h in drawn if h > 0]
-            if positive and max(positive) / min(positive) > 50:
-                from matplotlib.ticker import FuncFormatter
-
-                ax.set_yscale("log")
-                ax.set_ylim(min(positive) / 3, max(positive) * 12)
-                ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-            else:
-                ax.set_ylim(0, max(drawn) * 1.3 or 1.0)
-        else:
-            ax.text(0.5, 0.5, "not measured", ha="center", va="center", transform=ax.transAxes)
     from matplotlib.patches import Patch
 
     handles = [Patch(color=f"C{i}", label=label) for i, (_, label) in enumerate(systems)]
@@ -160,6 +131,44 @@ def mapping_plot(records: Iterable[CellRecord], path: Path,
     fig.tight_layout(rect=(0, bottom, 1, 1 - (0.12 + 0.22 * rows) / fig.get_figheight()))
     save_figure(fig, path)
     return True
+
+
+def _draw_panel(ax: Any, cells: list[list[tuple[Any] | None]], labels: list[str], div: float,
+                fmt: str, x: np.ndarray, width: float) -> None:
+    """One panel of :func:`mapping_plot`: per system (``labels``) a bar per group, ``cells``
+    holding each system's ``(value,)`` per group (``None``: no entry; a ``None`` value: "n/a"),
+    then the y axis scaled to the bars (log where they span over 50x)."""
+    drawn = []
+    for i, (row_cells, label) in enumerate(zip(cells, labels, strict=True)):
+        xs = x - 0.42 + width * (i + 0.5)
+        heights, missing = [], []
+        for xi, cell in zip(xs, row_cells, strict=True):
+            v = None if cell is None else cell[0]
+            heights.append(np.nan if v is None else v / div)
+            if cell is not None and v is None:
+                missing.append(xi)
+        bars = ax.bar(xs, heights, width, label=label, color=f"C{i}")
+        ax.bar_label(bars, [("" if np.isnan(h) else fmt.format(h)) for h in heights],
+                     fontsize=6.5, rotation=90, padding=2)
+        drawn += [h for h in heights if not np.isnan(h)]
+        for xi in missing:
+            ax.annotate("n/a", (xi, 0.0), xycoords=ax.get_xaxis_transform(), xytext=(0, 3),
+                        textcoords="offset points",
+                        ha="center", va="bottom", rotation=90, fontsize=6.5, color="0.45")
+    ax.tick_params(axis="y", labelsize=7)
+    ax.grid(True, axis="y", alpha=0.3)
+    if drawn:
+        positive = [h for h in drawn if h > 0]
+        if positive and max(positive) / min(positive) > 50:
+            from matplotlib.ticker import FuncFormatter
+
+            ax.set_yscale("log")
+            ax.set_ylim(min(positive) / 3, max(positive) * 12)
+            ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        else:
+            ax.set_ylim(0, max(drawn) * 1.3 or 1.0)
+    else:
+        ax.text(0.5, 0.5, "not measured", ha="center", va="center", transform=ax.transAxes)
 
 
 # ------------------------------------------------------------------------------- growth

@@ -187,6 +187,20 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
     fig = new_figure(13, max(5.6, 0.36 * len(ratios) + 1.6))
     left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.0, 1.1]})
 
+    _cost_panel(left, points, series, colors)
+    left.set_title("Speed against cost, this machine", fontsize=10)
+
+    _ratio_panel(right, ratios, colors)
+    right.set_title("Speed relative to the paper's baseline (carries across machines)",
+                    fontsize=10)
+    fig.tight_layout()
+    save_figure(fig, path)
+    return True
+
+
+def _cost_panel(left: Any, points: list[dict[str, Any]], series: list[str],
+                colors: dict[str, str]) -> None:
+    """The left panel of :func:`networks_plot`: FPS against FLOPs, lines of constant G MAC/s."""
     shown = [p for p in points if p["flops"] is not None]
     if shown:
         for s in series:
@@ -221,8 +235,11 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
                      [p["label"] for p in shown])
     else:
         empty_panel(left, "no network with measured FLOPs")
-    left.set_title("Speed against cost, this machine", fontsize=10)
 
+
+def _ratio_panel(right: Any, ratios: list[dict[str, Any]], colors: dict[str, str]) -> None:
+    """The right panel of :func:`networks_plot`: each network's speed over the baseline's,
+    measured here beside the paper's."""
     if ratios:
         y = np.arange(len(ratios))[::-1].astype(float)
         h = 0.38
@@ -253,11 +270,6 @@ def networks_plot(frames: Mapping[str, pd.DataFrame], path: Path,
                      fontsize=7, loc="lower right")
     else:
         empty_panel(right, f"{SPEED_BASELINE} not timed in this run: no speed ratio")
-    right.set_title("Speed relative to the paper's baseline (carries across machines)",
-                    fontsize=10)
-    fig.tight_layout()
-    save_figure(fig, path)
-    return True
 
 
 def _iso_rates(flops: list[float], fps: list[float]) -> list[float]:

@@ -14,7 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from evsmap.data import SemanticObservation
+from evsmap.data import Sequence as FrameSequence
 from evsmap.errors import EvsmapError
+from evsmap.interfaces import MapUpdater
 from evsmap.measure.engine import MappingPass, run_mapping
 from evsmap.measure.mapping import MappingRecord
 from evsmap.runner.cell_base import base_fields, column_quantities, now
@@ -128,7 +131,7 @@ def synthetic_options(ctx: RunContext, name: str) -> dict[str, Any]:
     return dict(ctx.synthetic if name == "synthetic" else ctx.synthetic_long or {})
 
 
-def open_mapping_sequence(ctx: RunContext, name: str):
+def open_mapping_sequence(ctx: RunContext, name: str) -> FrameSequence:
     from evsmap.registry import READERS
     from evsmap.runner.context import MAPPING_SEQUENCES
 
@@ -138,15 +141,18 @@ def open_mapping_sequence(ctx: RunContext, name: str):
         # the segmentation cache and the timings all read the same frames cheaply
         from evsmap.synth.cached import rendered_folder
 
-        return READERS.create("tum", path=str(rendered_folder(synthetic_options(ctx, name))))
+        rendered: FrameSequence = READERS.create(
+            "tum", path=str(rendered_folder(synthetic_options(ctx, name))))
+        return rendered
     path = ctx.dataset_path(name)
     if path is None:
         raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")
     info = MAPPING_SEQUENCES[name]
-    return READERS.create(info["reader"], path=str(path), **info["options"])
+    reader: FrameSequence = READERS.create(info["reader"], path=str(path), **info["options"])
+    return reader
 
 
-def sequence_identity(sequence) -> str:
+def sequence_identity(sequence: FrameSequence) -> str:
     """What a sequence's frames are, for the shared segmentation cache: its folder (resolved)
     and that folder's modification time and size, so frames replaced in place, or another
     rendering of the synthetic scene (its folder names the renderer's source digest), get new
@@ -216,7 +222,7 @@ class Labels:
     network's own timing when it was timed apart, the notes saying so, and the source named
     in the segmentation view."""
 
-    observations: list[Any] | None = None
+    observations: list[SemanticObservation] | None = None
     segment_ms: list[float] = field(default_factory=list)
     timing: dict[str, Any] | None = None
     notes: list[str] = field(default_factory=list)
@@ -228,7 +234,7 @@ class _Caches:
     segmenter, weights' tensors and the sequence's frames); timings this run's own, never
     another run's."""
 
-    def __init__(self, ctx: RunContext, sequence: Any) -> None:
+    def __init__(self, ctx: RunContext, sequence: FrameSequence) -> None:
         from evsmap.cache import cache_dir
         from evsmap.runner.segcache import SegmentationCache
 
@@ -237,7 +243,7 @@ class _Caches:
         self.own = SegmentationCache(Path(ctx.out) / "cache" / "segmentation")
         self.frames_id = sequence_identity(sequence)
 
-    def timings(self, segmenter: Any, sequence: Any, indices: list[int],
+    def timings(self, segmenter: Any, sequence: FrameSequence, indices: list[int],
                 key: dict[str, Any]) -> dict[str, Any]:
         """``segmenter`` timed on the frames in this run (``predict_ms`` and its precision)."""
         timing, _ = self.own.timings(segmenter, sequence, indices, key={
@@ -246,7 +252,7 @@ class _Caches:
         return dict(timing)
 
 
-def _own_labels(run: MappingRun, caches: _Caches, sequence: Any, indices: list[int],
+def _own_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indices: list[int],
                 labelled: bool) -> Labels | CellRecord:
     """Labels from a segmenter that is not a network: its own predictions, its own time (none
     for one that reads ground truth)."""
@@ -274,7 +280,7 @@ def _own_labels(run: MappingRun, caches: _Caches, sequence: Any, indices: list[i
     return Labels(observations, segment_ms, timing, [note])
 
 
-def _network_labels(run: MappingRun, caches: _Caches, sequence: Any, indices: list[int],
+def _network_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indices: list[int],
                     choice: Any) -> Labels:
     """Labels from the run's network with its trained weights (onnxruntime); its time from
     this run, even where another run computed the observations."""
@@ -295,7 +301,7 @@ def _network_labels(run: MappingRun, caches: _Caches, sequence: Any, indices: li
                    choice.note()], source=spec)
 
 
-def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: Any,
+def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: FrameSequence,
                    indices: list[int]) -> Labels:
     """Labels from the oracle (ground truth with seeded noise); the segmentation time of the
     untrained network on the same frames."""
@@ -319,7 +325,7 @@ def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: 
     return Labels(observations, segment_ms, timing, [note])
 
 
-def run_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: Any,
+def run_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: FrameSequence,
                indices: list[int]) -> Labels | CellRecord:
     """The labels a run maps with (:class:`Labels`), or its n/a record: none for a
     geometry-only system; a segmenter's own; a network's with trained weights; the oracle's on
@@ -374,8 +380,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
                       details=details)
 
 
-def _map(run: MappingRun, ctx: RunContext, sequence: Any, indices: list[int],
-         observations: list[Any] | None) -> MappingPass:
+def _map(run: MappingRun, ctx: RunContext, sequence: FrameSequence, indices: list[int],
+         observations: list[SemanticObservation] | None) -> MappingPass:
     """The timed mapping pass; the map's own memory is measured from before the updater is made
     to its files (the observations were computed beforehand)."""
     from evsmap.measure.evaluators import MapFiles, MapStatistics
@@ -426,7 +432,7 @@ def _add_contention(machine: dict[str, Any], details: dict[str, Any], notes: lis
         notes.append(f"timing flagged - {flag}")
 
 
-def _add_quality(run: MappingRun, ctx: RunContext, updater: Any, values: dict[str, float],
+def _add_quality(run: MappingRun, ctx: RunContext, updater: MapUpdater, values: dict[str, float],
                  details: dict[str, Any]) -> None:
     """The map's 3D quality against the synthetic scene's ground truth (outside the memory
     scope): in ``details["quality"]``, its finite fractions in ``values``."""
@@ -444,7 +450,8 @@ def _add_quality(run: MappingRun, ctx: RunContext, updater: Any, values: dict[st
             values[name] = float(q[name])
 
 
-def _save_artifacts(run: MappingRun, ctx: RunContext, updater: Any, sequence: Any,
+def _save_artifacts(run: MappingRun, ctx: RunContext, updater: MapUpdater,
+                    sequence: FrameSequence,
                     indices: list[int], labels: Labels) -> None:
     """The map's points (for the views of Table IV's maps) and one segmented frame."""
     if run.voxel_size == ctx.voxel_size:  # the views show Table IV's maps
@@ -459,7 +466,7 @@ def _options(config: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in sorted(config.items())) or "defaults"
 
 
-def _save_map_artifact(updater, run: MappingRun, ctx: RunContext) -> None:
+def _save_map_artifact(updater: MapUpdater, run: MappingRun, ctx: RunContext) -> None:
     from evsmap.updaters.export import occupied_points
 
     centres, rgb, labels = occupied_points(updater)
@@ -473,7 +480,8 @@ def _save_map_artifact(updater, run: MappingRun, ctx: RunContext) -> None:
         resolution=np.float64(run.voxel_size))
 
 
-def _save_segmentation_artifact(sequence, index: int, observation, run: MappingRun,
+def _save_segmentation_artifact(sequence: FrameSequence, index: int,
+                                observation: SemanticObservation, run: MappingRun,
                                 ctx: RunContext, source: str) -> None:
     folder = Path(ctx.out) / "artifacts"
     path = folder / f"seg-{source}-{run.sequence}.npz"
@@ -483,8 +491,9 @@ def _save_segmentation_artifact(sequence, index: int, observation, run: MappingR
     frame = sequence.frame(index)
     title = (f"{source} on {sequence.name} frame {index}"
              + (f" ({_options(ctx.oracle)})" if source == "oracle" else ""))
-    np.savez_compressed(path, rgb=frame.rgb, gt=frame.labels, pred=observation.argmax,
-                        title=np.str_(title))
+    arrays: dict[str, Any] = {"rgb": frame.rgb, "gt": frame.labels, "pred": observation.argmax,
+                              "title": np.str_(title)}
+    np.savez_compressed(path, **arrays)
 
 
 def runtime_sequence(sequences: list[str], runs: dict[str, CellRecord],
