@@ -99,7 +99,7 @@ def _draw_map(ax, data: Mapping[str, np.ndarray], row: str, title: str):
     if rgb is not None and (row == "orgbmap" or not labelled) and rgb.any():
         colors = rgb[idx].astype(np.float64) / 255.0
         how = "RGB"
-    elif labelled:
+    elif labels is not None and labelled:
         colors = _class_colors(labels[idx])
         how = "class"
     else:  # occupancy only: colour by height

@@ -116,6 +116,7 @@ def place_labels(ax, xs: list[float], ys: list[float], texts: list[str],
                 ann.remove()
             if cost == 0:
                 break
+        assert best is not None  # the first offset is always kept
         placed.append(best[1])
         out.append(best[0])
     return out
