@@ -43,8 +43,8 @@ def test_integrate_frame(benchmark, tum_observed, name, resolution, tmp_path):
     benchmark.pedantic(integrate, rounds=len(tum_observed), iterations=1, warmup_rounds=0)
     stats = updater.stats()
     benchmark.extra_info.update(
-        frames=len(tum_observed), hz_median=1.0 / benchmark.stats.stats.median,
-        engine_hz_median=rates(times.get("update"))[0],
+        frames=len(tum_observed), update_hz=1.0 / benchmark.stats.stats.median,
+        engine_update_hz=rates(times.get("update"))[0],
         map_bytes=updater.write(tmp_path / "map.ot"),
         octomap_memory_bytes=stats.octomap_memory_bytes,
         nodes=stats.nodes, leaves=stats.leaves)

@@ -40,4 +40,4 @@ def test_insert_frame(benchmark, tum_frames, impl, resolution):
                        warmup_rounds=0)
     leaves = target.num_leaves if impl == "evsmap" else target.getNumLeafNodes()
     benchmark.extra_info.update(frames=len(tum_frames), leaves=int(leaves),
-                                hz_median=1.0 / benchmark.stats.stats.median)
+                                update_hz=1.0 / benchmark.stats.stats.median)

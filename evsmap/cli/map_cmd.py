@@ -312,10 +312,10 @@ def format_record(r: dict[str, Any]) -> str:
     return "\n".join([
         f"updater      {r['updater']}  (segmenter {seg}, {r['frames']} frames of "
         f"{r['sequence']}, {r['resolution']:.4g} m)",
-        f"update       {r['hz_median']:.2f} Hz median (map update only)",
-        f"end to end   {r['hz_end_to_end']:.2f} Hz (frames / wall time, reading included, "
+        f"update       {r['update_hz']:.2f} Hz median (map update only)",
+        f"wall         {r['wall_hz']:.2f} Hz (frames / wall time, reading included, "
         f"{'pipelined' if r['pipeline'].get('enabled') else 'one stage after the other'})",
-        f"seg + update {r['hz_segment_update']:.2f} Hz median (" + (
+        f"seg + update {r['segment_update_hz']:.2f} Hz median (" + (
             "segmentation + update per frame, Table IV's runtime)" if r["segment_ms"]
             else "update only: no network ran)"),
         "per frame    " + ", ".join(f"{k} {v:.1f} ms" for k, v in

@@ -36,6 +36,7 @@ import numpy as np
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import EvsmapError, InvalidDataError
 from evsmap.interfaces import FILE_FORMATS, MapUpdater
+from evsmap.metrics.mapping import MapQuality
 
 
 class SegmentationEvaluator(abc.ABC):
@@ -278,7 +279,7 @@ class MapQualityEvaluator(MapEvaluator):
         self.truth = truth
         self.name = name
 
-    def evaluate(self, updater: MapUpdater):
+    def evaluate(self, updater: MapUpdater) -> MapQuality | None:
         if not updater.has_leaf_map:
             return None
         from evsmap.metrics import evaluate_map

@@ -1,5 +1,9 @@
-"""Mapping measurement (Table IV): integrate a sequence with one updater and record the update
-rate, the end-to-end rate with segmentation, and the map's size."""
+"""Mapping measurement (Table IV): integrate a sequence with one updater and record its rates
+(the update alone, segmentation and update, the whole loop's) and the map's size.
+
+:class:`MappingRecord` is the one record of a mapping run: ``evsmap map --json`` prints it and
+the runner's ``extra/mapping/...`` records store its :meth:`MappingRecord.values`
+(docs/measurement.md, "Quantities of a mapping run")."""
 
 from __future__ import annotations
 
@@ -10,10 +14,9 @@ from typing import Any
 
 from evsmap.data import Sequence
 from evsmap.errors import InvalidDataError
-from evsmap.interfaces import MapUpdater, Segmenter
-from evsmap.measure.engine import StageTimes, is_oracle, rates, run_mapping
+from evsmap.interfaces import FILE_FORMATS, MapUpdater, Segmenter
+from evsmap.measure.engine import MappingPass, StageTimes, is_oracle, rates, run_mapping
 from evsmap.measure.evaluators import (
-    FILE_FORMATS,
     MapFiles,
     MapStatistics,
     pruned_share,
@@ -38,12 +41,13 @@ class MappingRecord:
         stages_ms: per-frame times of every stage that ran, ms: ``read`` (the reader),
             ``preprocess`` / ``network`` / ``postprocess`` (a network segmenter's
             ``last_timings``), ``oracle``, ``update``.
-        hz_median: ``1000 / median(update_ms)``.
-        hz_end_to_end: frames / wall time of the whole loop, reading, segmentation and
-            update included, however they overlapped (``wall_s``; the segmenter's warm-up and
-            the map's writing excluded): what a robot streaming the sequence gets.
-        hz_segment_update: ``1000 / median(update_ms + segment_ms)`` per frame (Table IV's
-            "Runtime (Hz)": segmentation and update, one after the other, reading excluded).
+        update_hz: ``1000 / median(update_ms)``: the map update alone.
+        segment_update_hz: ``1000 / (median(update_ms) + median(segment_ms))`` (Table IV's
+            "Runtime (Hz)": segmentation and update, one after the other, reading excluded;
+            the update alone without a network's segmentation).
+        wall_hz: frames / wall time of the whole loop, reading, segmentation and update
+            included, however they overlapped (``wall_s``; the segmenter's warm-up and the
+            map's writing excluded): what a robot streaming the sequence gets.
         wall_s: the loop's wall time, seconds.
         pipeline: how the loop ran: ``enabled`` (reading, segmentation and update of
             consecutive frames overlapped, :mod:`evsmap.measure.pipelined`) and the threads of
@@ -77,8 +81,9 @@ class MappingRecord:
     resolution: float
     update_ms: list[float]
     segment_ms: list[float]
-    hz_median: float
-    hz_end_to_end: float
+    update_hz: float
+    segment_update_hz: float
+    wall_hz: float
     map_bytes: int
     map_file: str | None
     octomap_memory_bytes: int | None
@@ -94,10 +99,64 @@ class MappingRecord:
     peak_rss_bytes: int | None = None
     start_rss_bytes: int | None = None
     peak_scope: str | None = None
-    hz_segment_update: float = float("nan")
     wall_s: float = float("nan")
     pipeline: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_run(cls, run: MappingPass, *, updater: str, segmenter: str | None,
+                 file_format: str = "full", segment_ms: list[float] | None = None,
+                 extra: dict[str, Any] | None = None) -> MappingRecord:
+        """The record of ``run`` (:func:`~evsmap.measure.engine.run_mapping` with the
+        ``stats`` and ``files`` evaluators); ``segment_ms``: the segmentation times when the
+        observations were computed beforehand (default: the run's own)."""
+        segment = list(run.segment_ms if segment_ms is None else segment_ms)
+        update_hz, segment_update_hz = rates(run.update_ms, segment)
+        stats, files, memory = run.results["stats"], run.results["files"], run.memory
+        the_map = run.updater
+        return cls(
+            updater=updater, segmenter=segmenter, sequence=run.sequence, frames=run.frames,
+            resolution=float(the_map.resolution), update_ms=list(run.update_ms),
+            segment_ms=segment, update_hz=update_hz, segment_update_hz=segment_update_hz,
+            wall_hz=run.hz_wall, wall_s=run.wall_s,
+            pipeline={"enabled": run.pipelined, **run.threads},
+            map_bytes=int(files.written_bytes), map_file=files.file,
+            octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,
+            leaves=stats.leaves, file_format=file_format,
+            map_bytes_full=files.sizes["full"], map_bytes_published=files.sizes["published"],
+            map_bytes_colour=files.sizes.get("colour"),
+            front_end={"name": the_map.front_end, **the_map.front_end_counts()},
+            stages_ms=_record_stages(run.times.stages), map_nbytes=stats.map_nbytes,
+            peak_rss_bytes=None if memory is None else memory.peak_rss_bytes,
+            start_rss_bytes=None if memory is None else memory.start_rss_bytes,
+            peak_scope=None if memory is None else
+            "run" if memory.scope == "block" else "process", extra=dict(extra or {}))
+
+    @property
+    def rss_added_bytes(self) -> int | None:
+        """The peak resident memory above the run's start (the map's own working memory)."""
+        if self.peak_rss_bytes is None or self.start_rss_bytes is None:
+            return None
+        return max(0, self.peak_rss_bytes - self.start_rss_bytes)
+
+    def values(self) -> dict[str, float]:
+        """The record's numbers as the runner stores them (a cell record's ``values``, base
+        units): frames, ``update_hz``, ``segment_update_hz``, ``map_bytes`` (the published
+        file: Table IV's "Map Size"), the other sizes, counts and memory readings that were
+        measured."""
+        published, full = self.map_bytes_published, self.map_bytes_full
+        values = {"frames": float(self.frames), "update_hz": self.update_hz,
+                  "segment_update_hz": self.segment_update_hz,
+                  "map_bytes": float(self.map_bytes if published is None else published),
+                  "map_bytes_full": float(self.map_bytes if full is None else full),
+                  "nodes": float(self.nodes), "leaves": float(self.leaves)}
+        optional = {"peak_rss_bytes": self.peak_rss_bytes,
+                    "rss_added_bytes": self.rss_added_bytes,
+                    "map_bytes_colour": self.map_bytes_colour,
+                    "octomap_memory_bytes": self.octomap_memory_bytes,
+                    "map_nbytes": self.map_nbytes}
+        values.update({k: float(v) for k, v in optional.items() if v is not None})
+        return values
 
     def stage_medians(self) -> dict[str, float]:
         """Median ms per frame of each stage in :attr:`stages_ms`."""
@@ -144,23 +203,8 @@ def map_sequence(sequence: Sequence, updater: MapUpdater, *, updater_name: str,
         segmenter_name = None
     if skip_bad:
         extra["skipped"] = run.skipped.as_dict()
-    stats, files, memory = run.results["stats"], run.results["files"], run.memory
-    hz, hz_segment_update = rates(run.update_ms, run.segment_ms)
-    return MappingRecord(
-        updater=updater_name, segmenter=segmenter_name, sequence=sequence.name,
-        frames=run.frames, resolution=float(updater.resolution),
-        update_ms=list(run.update_ms), segment_ms=list(run.segment_ms),
-        hz_median=hz, hz_end_to_end=run.hz_wall, hz_segment_update=hz_segment_update,
-        wall_s=run.wall_s, pipeline={"enabled": run.pipelined, **run.threads},
-        map_bytes=int(files.written_bytes), map_file=files.file,
-        octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,
-        leaves=stats.leaves, file_format=file_format,
-        map_bytes_full=files.sizes["full"], map_bytes_published=files.sizes["published"],
-        map_bytes_colour=files.sizes.get("colour"),
-        front_end={"name": updater.front_end, **updater.front_end_counts()},
-        stages_ms=_record_stages(run.times.stages), map_nbytes=stats.map_nbytes,
-        peak_rss_bytes=memory.peak_rss_bytes, start_rss_bytes=memory.start_rss_bytes,
-        peak_scope="run" if memory.scope == "block" else "process", extra=extra)
+    return MappingRecord.from_run(run, updater=updater_name, segmenter=segmenter_name,
+                                  file_format=file_format, extra=extra)
 
 
 def _record_stages(stages: dict[str, list[float]]) -> dict[str, list[float]]:

@@ -256,25 +256,24 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     from evsmap.report.precision import precision_markdown
 
     out += precision_markdown(list(records or []), (run.get("context") or {}).get("timing"))
+    out += _run_lines(run, tables, table_ids, frames, sizes)
+    out += _environment_lines(run.get("environment") or {})
+    out += _available_lines(run)
+    out += _tables_lines(tables, table_ids, frames, extras, has_extra_csv)
+    out += _figures_lines(drawn)
+    out += _FILLING
+    return "\n".join(out).rstrip() + "\n"
+
+
+def _run_lines(run: Mapping[str, Any], tables: Mapping[str, PaperTable], table_ids: list[str],
+               frames: Mapping[str, pd.DataFrame], sizes: Mapping[str, Any] | None) -> list[str]:
+    """The run's facts: when it ran, whether quick, its timing, its folder, its inputs."""
     finished = run.get("finished") or "not finished (interrupted, or still running)"
-    out += [f"- Started: {run.get('started') or 'unknown'}", f"- Finished: {finished}"]
+    out = [f"- Started: {run.get('started') or 'unknown'}", f"- Finished: {finished}"]
     if run.get("quick"):
         out.append("- Quick run (`--quick`): smaller inputs and fewer frames than the paper's "
                    "settings")
-    flagged = [(tid, r) for tid in table_ids for r in frames[tid].to_dict("records")
-               if isinstance(r.get("timing_flag"), str) and r["timing_flag"]]
-    timed = sum(int(((frames[tid]["status"] == "ok")
-                     & frames[tid]["unit"].isin(["FPS", "Hz"])).sum()) for tid in table_ids)
-    if flagged:
-        cells = ", ".join(f"{tables[tid].number}: {r['label']} / {r['header']}"
-                          for tid, r in flagged[:6]) + (" ..." if len(flagged) > 6 else "")
-        out.append(f"- **Timing: {len(flagged)} timed cell(s) flagged** (marked `~`: the "
-                   f"machine was busy, or an older run's median was not steady) - Table {cells}. "
-                   f"Rerun them on an idle machine, or with `--strict-timing`.")
-    elif timed:
-        out.append(f"- Timing: all {timed} timed cells (speeds, mapping rates) were taken with no "
-                   f"contention seen by the calibration (the speeds' precision: \"Timing "
-                   f"precision\" above)")
+    out += _timing_lines(tables, table_ids, frames)
     if sizes:
         out.append(f"- Run folder: {sizes['run'] / 1e6:.1f} MB (records, tables, plots, small "
                    f"artifacts); ONNX exports, segmentations and rendered sequences live in the "
@@ -286,33 +285,66 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
                else "- Weights folder: none (networks run with untrained weights where a cell "
                     "allows it; accuracy cells need trained weights)")
     out.append("")
+    return out
 
-    env = run.get("environment") or {}
-    if env:
-        out += ["## Environment", "", "| | |", "|---|---|"]
-        for key, name in (("cpu", "CPU"), ("instruction_set", "instruction set"),
-                          ("cpu_flags", "vector flags"), ("cpus", "CPU cores"),
-                          ("threads", "threads"), ("python", "Python"), ("host", "host"),
-                          ("git_commit", "git commit")):
-            value = env.get(key)
-            if isinstance(value, list):
-                value = ", ".join(map(str, value))
-            if value not in (None, ""):
-                out.append(f"| {name} | {_md(value)} |")
-        versions = env.get("versions") or {}
-        if isinstance(versions, Mapping):
-            for lib, version in versions.items():
-                out.append(f"| {_md(lib)} | {_md(version if version else 'not installed')} |")
-        lock = env.get("lock")
-        if isinstance(lock, Mapping):
-            out.append(f"| lock | {_lock_text(lock)} |")
-        for key, value in env.items():
-            if key not in ("cpu", "instruction_set", "cpu_flags", "cpus", "threads", "python",
-                           "host", "git_commit", "versions", "lock"):
-                out.append(f"| {_md(key)} | {_md(value)} |")
-        out.append("")
 
-    out += ["## Available", ""]
+def _timing_lines(tables: Mapping[str, PaperTable], table_ids: list[str],
+                  frames: Mapping[str, pd.DataFrame]) -> list[str]:
+    """The timed cells flagged as taken on a busy machine, or that none was."""
+    flagged = [(tid, r) for tid in table_ids for r in frames[tid].to_dict("records")
+               if isinstance(r.get("timing_flag"), str) and r["timing_flag"]]
+    timed = sum(int(((frames[tid]["status"] == "ok")
+                     & frames[tid]["unit"].isin(["FPS", "Hz"])).sum()) for tid in table_ids)
+    if flagged:
+        cells = ", ".join(f"{tables[tid].number}: {r['label']} / {r['header']}"
+                          for tid, r in flagged[:6]) + (" ..." if len(flagged) > 6 else "")
+        return [f"- **Timing: {len(flagged)} timed cell(s) flagged** (marked `~`: the "
+                f"machine was busy, or an older run's median was not steady) - Table {cells}. "
+                f"Rerun them on an idle machine, or with `--strict-timing`."]
+    if timed:
+        return [f"- Timing: all {timed} timed cells (speeds, mapping rates) were taken with no "
+                f"contention seen by the calibration (the speeds' precision: \"Timing "
+                f"precision\" above)"]
+    return []
+
+
+_ENVIRONMENT_KEYS = (("cpu", "CPU"), ("instruction_set", "instruction set"),
+                     ("cpu_flags", "vector flags"), ("cpus", "CPU cores"),
+                     ("threads", "threads"), ("python", "Python"), ("host", "host"),
+                     ("git_commit", "git commit"))
+"""The environment's facts shown first in the index (key, name), then the libraries' versions,
+the lock, and any other key as it is."""
+
+
+def _environment_lines(env: Mapping[str, Any]) -> list[str]:
+    """The "Environment" section (nothing without an environment)."""
+    if not env:
+        return []
+    out = ["## Environment", "", "| | |", "|---|---|"]
+    for key, name in _ENVIRONMENT_KEYS:
+        value = env.get(key)
+        if isinstance(value, list):
+            value = ", ".join(map(str, value))
+        if value not in (None, ""):
+            out.append(f"| {name} | {_md(value)} |")
+    versions = env.get("versions") or {}
+    if isinstance(versions, Mapping):
+        for lib, version in versions.items():
+            out.append(f"| {_md(lib)} | {_md(version if version else 'not installed')} |")
+    lock = env.get("lock")
+    if isinstance(lock, Mapping):
+        out.append(f"| lock | {_lock_text(lock)} |")
+    shown = {key for key, _ in _ENVIRONMENT_KEYS} | {"versions", "lock"}
+    for key, value in env.items():
+        if key not in shown:
+            out.append(f"| {_md(key)} | {_md(value)} |")
+    out.append("")
+    return out
+
+
+def _available_lines(run: Mapping[str, Any]) -> list[str]:
+    """The "Available" section: what the run found, and its mapping sequences."""
+    out = ["## Available", ""]
     available = run.get("available") or []
     out += ([f"- `{a}`" for a in available] if available
             else ["Nothing beyond evsmap itself (no dataset, no trained weights, no special "
@@ -329,10 +361,16 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
             out.append(f"| {_md(name)} | {_md(s.get('frames', '-'))} | {size} | "
                        f"{_md(s.get('scene') or '-')} | {_md(s.get('labels') or '-')} |")
         out.append("")
+    return out
 
-    out += ["## Tables", "",
-            "| table | " + " | ".join(STATUSES) + " | files |",
-            "|---|" + "---:|" * len(STATUSES) + "---|"]
+
+def _tables_lines(tables: Mapping[str, PaperTable], table_ids: list[str],
+                  frames: Mapping[str, pd.DataFrame], extras: list[CellRecord],
+                  has_extra_csv: bool) -> list[str]:
+    """The "Tables" section: each table's cells by status, and the measurements beyond."""
+    out = ["## Tables", "",
+           "| table | " + " | ".join(STATUSES) + " | files |",
+           "|---|" + "---:|" * len(STATUSES) + "---|"]
     for tid in table_ids:
         counts = frames[tid]["status"].value_counts()
         table = tables[tid]
@@ -348,8 +386,13 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
         out += [f"Measurements beyond the paper: {n['ok']} ok, {n['na']} n/a, {n['error']} "
                 "error, in [table4.md](table4.md) (\"Measured beyond the paper\")"
                 + (" and [extra.csv](extra.csv)." if has_extra_csv else "."), ""]
+    return out
 
-    out += ["## Figures", ""]
+
+def _figures_lines(drawn: Mapping[str, bool]) -> list[str]:
+    """The "Figures" section: a link to each figure drawn (why not, for the others), then the
+    figures themselves."""
+    out = ["## Figures", ""]
     for name, what in PLOTS.items():
         if drawn.get(name):
             out.append(f"- [{name}]({name}): {what}")
@@ -359,8 +402,10 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     for name in PLOTS:
         if drawn.get(name):
             out += [f"![{PLOTS[name]}]({name})", ""]
+    return out
 
-    out += ["## Filling the n/a cells", "",
+
+_FILLING = ["## Filling the n/a cells", "",
             "An `n/a` cell names what it needs. Datasets: prepare them with "
             "`evsmap datasets prepare` under the data root (or give `--data-root DIR`). "
             "Trained weights: give `--weights-dir DIR` with one file per network and dataset "
@@ -369,4 +414,4 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
             "AGX Xavier with TensorRT; they stay n/a on any other machine. Then run "
             "`evsmap reproduce` again, and `evsmap report DIR` to rebuild these files from the "
             "stored records.", ""]
-    return "\n".join(out).rstrip() + "\n"
+"""The index's last section: how to fill the n/a cells."""

@@ -30,17 +30,12 @@ STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
 missing); the run failed; no record; a record without a value for the column; a row evsmap does
 not implement."""
 
-EXTRA_VALUES = ("update_hz", "end_to_end_hz", "map_bytes", "map_bytes_full", "map_bytes_colour",
-                "octomap_memory_bytes", "map_nbytes", "rss_added_bytes", "peak_rss_bytes",
-                "nodes", "leaves", "pruned_share", "precision", "recall",
+EXTRA_VALUES = ("update_hz", "segment_update_hz", "map_bytes", "map_bytes_full",
+                "map_bytes_colour", "octomap_memory_bytes", "map_nbytes", "rss_added_bytes",
+                "peak_rss_bytes", "nodes", "leaves", "pruned_share", "precision", "recall",
                 "semantic_accuracy", "semantic_accuracy_all", "map_miou", "frames", "miou")
-"""Value keys of the ``extra`` records (base units; ``map_bytes``: the file the system itself
-writes, ``map_bytes_full``: evsmap's resumable state; ``map_bytes_colour``: the colour-only
-ColorOcTree; ``octomap_memory_bytes``: OctoMap's
-``memoryUsage()`` formula over the tree's nodes, a model; ``map_nbytes``: the bytes of the
-arrays evsmap holds the map in, measured; ``peak_rss_bytes``: the peak resident memory of the
-process while it mapped, measured, and ``rss_added_bytes`` that peak less the RSS before the
-updater was built (the map's own working memory); ``miou``: the synthrooms proxy networks')."""
+"""Value keys of the ``extra`` records (docs/measurement.md, "Quantities of a mapping run";
+``miou``: the synthrooms proxy networks')."""
 
 PROXY_SECTION = "Synthetic proxy (evsmap's synthrooms, not the paper's datasets)"
 """Title of the ``reproduce --train`` sections (``extra/proxy...`` records)."""
@@ -57,7 +52,7 @@ EXTRA_COLUMNS = ("key", "row", "label", "sequence", "voxel_size", "status", *EXT
 # (value key, header, divisor to printed unit, decimals)
 _EXTRA_PRINT = (
     ("update_hz", "Update (Hz)", 1.0, 1),
-    ("end_to_end_hz", "End-to-end (Hz)", 1.0, 1),
+    ("segment_update_hz", "Segmentation + update (Hz)", 1.0, 1),
     ("map_bytes", "Map size (MB)", 1e6, 2),
     ("map_bytes_full", "Full state (MB)", 1e6, 2),
     ("octomap_memory_bytes", "OctoMap memoryUsage() formula (MB)", 1e6, 2),
@@ -442,7 +437,7 @@ def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
     if not extras:
         return out + proxy_mapping_markdown(proxy)
     out += ["Every mapping system on the sequences this run had, with the map update rate alone "
-            "and end-to-end (segmentation + update), the size of the map file each system "
+            "and with segmentation (segmentation + update), the size of the map file each system "
             "itself writes (Table IV's \"Map Size\"; classic-semantic: semantic_slam's "
             "ColorOcTree) and of evsmap's full resumable state, the memory the map would take "
             "by OctoMap's memoryUsage() formula in the original C++ node types (OctoMap 16 B "
@@ -564,6 +559,9 @@ def proxy_accuracy_markdown(records: Iterable[CellRecord]) -> list[str]:
     return out + [""]
 
 
+_PROXY_SCORES = ("semantic_accuracy", "map_miou", "precision", "recall")
+
+
 def proxy_mapping_markdown(records: Iterable[CellRecord]) -> list[str]:
     """Table IV's part of the "Synthetic proxy" section: TFEAGMap's and EVSMap's maps of one
     synthrooms test room with a trained network's labels, scored against the room's ground
@@ -575,9 +573,9 @@ def proxy_mapping_markdown(records: Iterable[CellRecord]) -> list[str]:
            "--train` (real network errors, not the oracle's), each map's occupied voxels scored "
            "against the room's ground truth.", ""]
     notes = Footnotes()
-    out += ["| System | Sequence | Frames | Semantic accuracy (%) | Map mIoU (%) | Occupancy "
-            "precision (%) | Occupancy recall (%) | Update (Hz) |",
-            "|---|---|---:|---:|---:|---:|---:|---:|"]
+    headers = {k: h for k, h, _, _ in _EXTRA_PRINT}  # the extra tables' words for each value
+    out += ["| System | Sequence | Frames | " + " | ".join(headers[k] for k in (
+        *_PROXY_SCORES, "update_hz")) + " |", "|---|---|---:|---:|---:|---:|---:|---:|"]
     for rec in recs:
         label = _md_escape(rec.label or rec.row)
         note = record_note(rec, sequence=False)
@@ -589,7 +587,7 @@ def proxy_mapping_markdown(records: Iterable[CellRecord]) -> list[str]:
         hz = _number(v.get("update_hz"))
         cells = [status or (str(int(frames)) if frames is not None else "-")] + [
             status or _pct_text(v.get(k))
-            for k in ("semantic_accuracy", "map_miou", "precision", "recall")] + [
+            for k in _PROXY_SCORES] + [
             status or ("-" if hz is None else format_number(hz, 1))]
         out.append("| " + " | ".join([label, _md_escape(str(rec.inputs.get("sequence", ""))),
                                       *cells]) + " |")

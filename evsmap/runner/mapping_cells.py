@@ -8,13 +8,18 @@ import hashlib
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from evsmap.data import SemanticObservation
+from evsmap.data import Sequence as FrameSequence
 from evsmap.errors import EvsmapError
+from evsmap.interfaces import MapUpdater
+from evsmap.measure.engine import MappingPass, run_mapping
+from evsmap.measure.mapping import MappingRecord
 from evsmap.runner.cell_base import base_fields, column_quantities, now
 from evsmap.runner.context import RunContext
 from evsmap.runner.network_cells import build_segmenter
@@ -34,6 +39,15 @@ memory model over the system's C++ node (:mod:`evsmap.report.map_size` compares 
 TABLE4_READING = "C++ memory (model)"
 """The reading Table IV's Map Size cells take: of the three, the one whose ratios come closest to
 the paper's own Seq.1 rows on the TUM frames (docs/mapping.md, "Which Map Size")."""
+
+MAPPING_PREFIX = "extra/mapping/"
+"""What every mapping run's key starts with (:func:`mapping_key`)."""
+
+
+def mapping_key(row: str, sequence: str, voxel_size: float) -> str:
+    """The key of a mapping run's record: ``extra/mapping/<row>/<sequence>@<voxel>m``."""
+    return f"{MAPPING_PREFIX}{row}/{sequence}@{voxel_size:g}m"
+
 
 REFERENCE_ROW = "octomap-cpp"
 """The C++ OctoMap (occupancy only) mapped beside Table IV's systems as a reference."""
@@ -55,7 +69,7 @@ class MappingRun:
 
     @property
     def key(self) -> str:
-        return f"extra/mapping/{self.row}/{self.sequence}@{self.voxel_size:g}m"
+        return mapping_key(self.row, self.sequence, self.voxel_size)
 
     def base_fields(self) -> dict[str, Any]:
         """The fields every record of this run carries (key, row, inputs, ...)."""
@@ -117,7 +131,7 @@ def synthetic_options(ctx: RunContext, name: str) -> dict[str, Any]:
     return dict(ctx.synthetic if name == "synthetic" else ctx.synthetic_long or {})
 
 
-def open_mapping_sequence(ctx: RunContext, name: str):
+def open_mapping_sequence(ctx: RunContext, name: str) -> FrameSequence:
     from evsmap.registry import READERS
     from evsmap.runner.context import MAPPING_SEQUENCES
 
@@ -127,15 +141,18 @@ def open_mapping_sequence(ctx: RunContext, name: str):
         # the segmentation cache and the timings all read the same frames cheaply
         from evsmap.synth.cached import rendered_folder
 
-        return READERS.create("tum", path=str(rendered_folder(synthetic_options(ctx, name))))
+        rendered: FrameSequence = READERS.create(
+            "tum", path=str(rendered_folder(synthetic_options(ctx, name))))
+        return rendered
     path = ctx.dataset_path(name)
     if path is None:
         raise EvsmapError(f"sequence {name!r} not found under {ctx.roots()}")
     info = MAPPING_SEQUENCES[name]
-    return READERS.create(info["reader"], path=str(path), **info["options"])
+    reader: FrameSequence = READERS.create(info["reader"], path=str(path), **info["options"])
+    return reader
 
 
-def sequence_identity(sequence) -> str:
+def sequence_identity(sequence: FrameSequence) -> str:
     """What a sequence's frames are, for the shared segmentation cache: its folder (resolved)
     and that folder's modification time and size, so frames replaced in place, or another
     rendering of the synthetic scene (its folder names the renderer's source digest), get new
@@ -188,148 +205,222 @@ def observations_key(segmenter: str, weights: str | os.PathLike[str],
             "weights_id": weights_identity(weights), "sequence": sequence}
 
 
+def unlabelled_record(run: MappingRun) -> CellRecord:
+    """The n/a record of a semantic run that cannot be mapped here: its network has no trained
+    weights and its sequence no ground-truth labels for the oracle to stand in."""
+    assert run.segmenter is not None
+    need = f"weights:{run.segmenter.spec}@{MAPPING_WEIGHTS}"
+    return CellRecord(**run.base_fields(), status="na", needs=[need],
+                      reason=needs_text([need]) + f" ({run.sequence} has no ground-truth "
+                      f"labels for the oracle)", started=now())
+
+
+@dataclass
+class Labels:
+    """Where a mapping run's labels come from: the observations (``None``: the updater's own
+    segmenter is not needed), each frame's segmentation time (empty: none counted), the
+    network's own timing when it was timed apart, the notes saying so, and the source named
+    in the segmentation view."""
+
+    observations: list[SemanticObservation] | None = None
+    segment_ms: list[float] = field(default_factory=list)
+    timing: dict[str, Any] | None = None
+    notes: list[str] = field(default_factory=list)
+    source: str = "oracle"
+
+
+class _Caches:
+    """The segmentation caches of a mapping run: observations shared across runs (keyed by
+    segmenter, weights' tensors and the sequence's frames); timings this run's own, never
+    another run's."""
+
+    def __init__(self, ctx: RunContext, sequence: FrameSequence) -> None:
+        from evsmap.cache import cache_dir
+        from evsmap.runner.segcache import SegmentationCache
+
+        self.ctx = ctx
+        self.shared = SegmentationCache(cache_dir("segmentation"))
+        self.own = SegmentationCache(Path(ctx.out) / "cache" / "segmentation")
+        self.frames_id = sequence_identity(sequence)
+
+    def timings(self, segmenter: Any, sequence: FrameSequence, indices: list[int],
+                key: dict[str, Any]) -> dict[str, Any]:
+        """``segmenter`` timed on the frames in this run (``predict_ms`` and its precision)."""
+        timing, _ = self.own.timings(segmenter, sequence, indices, key={
+            **key, "threads": self.ctx.threads, "sequence": sequence.name},
+            policy=self.ctx.timing_policy())
+        return dict(timing)
+
+
+def _own_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indices: list[int],
+                labelled: bool) -> Labels | CellRecord:
+    """Labels from a segmenter that is not a network: its own predictions, its own time (none
+    for one that reads ground truth)."""
+    from evsmap.measure.engine import is_oracle
+
+    assert run.segmenter is not None
+    spec = run.segmenter.spec
+    own = build_segmenter(run.segmenter)
+    if is_oracle(own) and not labelled:
+        return CellRecord(**run.base_fields(), status="na", needs=[f"labels:{run.sequence}"],
+                          reason=f"n/a - {spec} reads ground-truth labels and {run.sequence} "
+                                 f"has none", started=now())
+    observations, segment_ms, reused = caches.shared.observations(
+        own, sequence, indices, key={"segmenter": spec, "sequence": sequence.name,
+                                     "frames": caches.frames_id})
+    timing = None
+    if reused:
+        timing = caches.timings(own, sequence, indices, {"segmenter": spec})
+        segment_ms = timing["predict_ms"]
+    if is_oracle(own):  # ground truth read, not a segmentation: no segmentation time
+        segment_ms, timing = [], None
+    note = (f"labels from {spec} (not a network: no weights"
+            + ("; reads ground truth, so segmentation + update = update only)"
+               if is_oracle(own) else ")"))
+    return Labels(observations, segment_ms, timing, [note])
+
+
+def _network_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indices: list[int],
+                    choice: Any) -> Labels:
+    """Labels from the run's network with its trained weights (onnxruntime); its time from
+    this run, even where another run computed the observations."""
+    assert run.segmenter is not None
+    spec, weights = run.segmenter.spec, choice.path
+    net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
+    observations, segment_ms, reused = caches.shared.observations(
+        net, sequence, indices,
+        key={**observations_key(spec, weights, sequence.name), "frames": caches.frames_id})
+    timing = None
+    if reused:  # computed in another run: time the network in this one
+        timing = caches.timings(net, sequence, indices, {
+            "segmenter": spec, "weights_id": weights_identity(weights),
+            "backend": "onnxruntime"})
+        segment_ms = timing["predict_ms"]
+    return Labels(observations, segment_ms, timing,
+                  [f"labels from {spec} with weights {choice.file} (onnxruntime)",
+                   choice.note()], source=spec)
+
+
+def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: FrameSequence,
+                   indices: list[int]) -> Labels:
+    """Labels from the oracle (ground truth with seeded noise); the segmentation time of the
+    untrained network on the same frames."""
+    from evsmap.registry import SEGMENTERS
+
+    assert run.segmenter is not None
+    spec = run.segmenter.spec
+    oracle = SEGMENTERS.create("oracle", **ctx.oracle)
+    observations, _, _ = caches.shared.observations(
+        oracle, sequence, indices, key={"segmenter": "oracle", **ctx.oracle,
+                                        "sequence": sequence.name, "frames": caches.frames_id})
+    net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
+    timing = caches.timings(net, sequence, indices,
+                            {"segmenter": spec, "backend": ctx.speed_backend})
+    segment_ms = timing["predict_ms"]
+    note = (f"labels from the oracle segmenter ({_options(ctx.oracle)}: ground truth with "
+            f"seeded noise), no trained weights; segmentation time of the untrained {spec} "
+            f"({ctx.speed_backend}) on the same frames in order, {len(segment_ms)} of them "
+            f"(until its median was within +-{100 * timing['rel_ci']:.1f} %, "
+            f"{timing['stopped']})")
+    return Labels(observations, segment_ms, timing, [note])
+
+
+def run_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: FrameSequence,
+               indices: list[int]) -> Labels | CellRecord:
+    """The labels a run maps with (:class:`Labels`), or its n/a record: none for a
+    geometry-only system; a segmenter's own; a network's with trained weights; the oracle's on
+    a labelled sequence (the network timed apart); else n/a (:func:`unlabelled_record`)."""
+    if run.segmenter is None:
+        return Labels()
+    labelled = bool(indices) and sequence.frame(0).labels is not None
+    if run.own_labels:
+        return _own_labels(run, caches, sequence, indices, labelled)
+    choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS)
+    if choice is not None:
+        return _network_labels(run, caches, sequence, indices, choice)
+    if labelled:
+        return _oracle_labels(run, ctx, caches, sequence, indices)
+    return unlabelled_record(run)
+
+
 def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     """Map ``run.sequence`` with ``run``'s system; time each update, add the segmentation time
     per frame, measure the map file and (on the synthetic sequence) its 3D quality."""
-    from evsmap.registry import UPDATERS
-    from evsmap.runner.segcache import SegmentationCache
+    from evsmap.measure.contention import CalibrationLog, Probe, contention, machine_log_path
 
-    base = run.base_fields()
-    semantic = run.segmenter is not None
-    choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) \
-        if semantic and not run.own_labels else None
-    weights = choice.path if choice is not None else None
     if run.sequence not in SYNTHETIC_SEQUENCES and ctx.dataset_path(run.sequence) is None:
-        return CellRecord(**base, status="na", needs=[f"dataset:{run.sequence}"],
-                          reason=needs_text([f"dataset:{run.sequence}"]), started=now())
+        need = f"dataset:{run.sequence}"
+        return CellRecord(**run.base_fields(), status="na", needs=[need],
+                          reason=needs_text([need]), started=now())
     sequence = open_mapping_sequence(ctx, run.sequence)
     n = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
     indices = list(range(n))
-    notes: list[str] = []
-    from evsmap.cache import cache_dir
-
-    # observations: the cache shared across runs (keyed by segmenter, weights' tensors and the
-    # sequence's frames); timings: this run's own, never another run's
-    shared = SegmentationCache(cache_dir("segmentation"))
-    cache = SegmentationCache(Path(ctx.out) / "cache" / "segmentation")
-    frames_id = sequence_identity(sequence)
-    observations: list | None = None
-    segment_ms: list[float] = []
-    segment_timing: dict[str, Any] | None = None  # the untrained network timed on its own
-    from evsmap.measure.contention import CalibrationLog, Probe, contention, machine_log_path
-
+    caches = _Caches(ctx, sequence)
     before = Probe.take()  # the machine around the timed part (segmentation and update)
-    if semantic:
-        labelled = n > 0 and sequence.frame(0).labels is not None
-        if run.own_labels:  # not a network: its own labels, its own time
-            own = build_segmenter(run.segmenter)
-            from evsmap.measure.engine import is_oracle
+    labels = run_labels(run, ctx, caches, sequence, indices)
+    if isinstance(labels, CellRecord):
+        return labels
+    mapped = _map(run, ctx, sequence, indices, labels.observations)
+    machine = contention(before, Probe.take(),
+                         CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
+                                        machine_path=machine_log_path()))
+    record = MappingRecord.from_run(
+        mapped, updater=run.updater.spec, segmenter=None if run.segmenter is None
+        else run.segmenter.spec, segment_ms=labels.segment_ms)
+    values, details = _values_and_details(record, mapped, labels)
+    notes = labels.notes + [
+        f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians over "
+        f"frames (update only; segmentation + update = the median segmentation time + the "
+        f"median update time)"]
+    _add_contention(machine, details, notes)
+    if run.sequence in SYNTHETIC_SEQUENCES and mapped.updater.has_leaf_map:
+        _add_quality(run, ctx, mapped.updater, values, details)
+        _save_artifacts(run, ctx, mapped.updater, sequence, indices, labels)
+    return CellRecord(**run.base_fields(), status="ok", values=values, notes=notes,
+                      details=details)
 
-            if is_oracle(own) and not labelled:
-                need = f"labels:{run.sequence}"
-                return CellRecord(**base, status="na", needs=[need],
-                                  reason=f"n/a - {run.segmenter.spec} reads ground-truth labels "
-                                         f"and {run.sequence} has none", started=now())
-            observations, segment_ms, reused = shared.observations(
-                own, sequence, indices, key={"segmenter": run.segmenter.spec,
-                                             "sequence": sequence.name, "frames": frames_id})
-            if reused:
-                segment_timing, _ = cache.timings(own, sequence, indices, key={
-                    "segmenter": run.segmenter.spec, "threads": ctx.threads,
-                    "sequence": sequence.name}, policy=ctx.timing_policy())
-                segment_ms = segment_timing["predict_ms"]
-            if is_oracle(own):  # ground truth read, not a segmentation: no segmentation time
-                segment_ms, segment_timing = [], None
-            notes.append(f"labels from {run.segmenter.spec} (not a network: no weights"
-                         + ("; reads ground truth, so end to end = update only)"
-                            if is_oracle(own) else ")"))
-        elif choice is not None:
-            net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
-            observations, segment_ms, reused = shared.observations(
-                net, sequence, indices,
-                key={**observations_key(run.segmenter.spec, weights, sequence.name),
-                     "frames": frames_id})
-            if reused:  # computed in another run: time the network in this one
-                segment_timing, _ = cache.timings(net, sequence, indices, key={
-                    "segmenter": run.segmenter.spec, "weights_id": weights_identity(weights),
-                    "backend": "onnxruntime", "threads": ctx.threads,
-                    "sequence": sequence.name}, policy=ctx.timing_policy())
-                segment_ms = segment_timing["predict_ms"]
-            notes.append(f"labels from {run.segmenter.spec} with weights {choice.file} "
-                         f"(onnxruntime)")
-            notes.append(choice.note())
-        elif labelled:
-            from evsmap.registry import SEGMENTERS
 
-            oracle = SEGMENTERS.create("oracle", **ctx.oracle)
-            observations, _, _ = shared.observations(
-                oracle, sequence, indices, key={"segmenter": "oracle", **ctx.oracle,
-                                                "sequence": sequence.name, "frames": frames_id})
-            net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
-            segment_timing, _ = cache.timings(net, sequence, indices, key={
-                "segmenter": run.segmenter.spec, "backend": ctx.speed_backend,
-                "threads": ctx.threads, "sequence": sequence.name}, policy=ctx.timing_policy())
-            segment_ms = segment_timing["predict_ms"]
-            notes.append(f"labels from the oracle segmenter ({_options(ctx.oracle)}: ground "
-                         f"truth with seeded noise), no trained weights; segmentation time of "
-                         f"the untrained {run.segmenter.spec} ({ctx.speed_backend}) on the "
-                         f"same frames in order, {len(segment_ms)} of them (until its "
-                         f"median was within +-{100 * segment_timing['rel_ci']:.1f} %, "
-                         f"{segment_timing['stopped']})")
-        else:
-            need = f"weights:{run.segmenter.spec}@{MAPPING_WEIGHTS}"
-            return CellRecord(**base, status="na", needs=[need],
-                              reason=needs_text([need]) + f" ({run.sequence} has no "
-                              f"ground-truth labels for the oracle)", started=now())
-    from evsmap.measure.engine import rates, run_mapping
-    from evsmap.measure.evaluators import MapFiles, MapStatistics, pruned_share
+def _map(run: MappingRun, ctx: RunContext, sequence: FrameSequence, indices: list[int],
+         observations: list[SemanticObservation] | None) -> MappingPass:
+    """The timed mapping pass; the map's own memory is measured from before the updater is made
+    to its files (the observations were computed beforehand)."""
+    from evsmap.measure.evaluators import MapFiles, MapStatistics
     from evsmap.measure.growth import MapGrowth, growth_every, growth_points
+    from evsmap.registry import UPDATERS
 
-    # the map's own memory: from before the updater is made to its files (the observations
-    # were computed beforehand)
-    mapped = run_mapping(
+    n = len(indices)
+    return run_mapping(
         sequence, lambda: UPDATERS.create(run.updater.name, resolution=run.voxel_size,
                                           **run.updater.config),
         observations=observations, indices=indices,
         evaluators=[MapStatistics(), MapFiles()],
         growth=MapGrowth(every=growth_every(n, growth_points(n, quick=ctx.quick))))
-    updater, memory = mapped.updater, mapped.memory
-    stats, sizes = mapped.results["stats"], mapped.results["files"].sizes
-    update_ms = list(mapped.update_ms)
-    machine = contention(before, Probe.take(),
-                         CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
-                                        machine_path=machine_log_path()))
-    map_bytes = sizes["published"]  # Table IV's "Map Size": the file each system itself writes
-    update_hz, end_to_end_hz = rates(update_ms, segment_ms)
-    values: dict[str, float] = {
-        "frames": float(n), "update_hz": update_hz,
-        "end_to_end_hz": end_to_end_hz, "map_bytes": float(map_bytes),
-        "map_bytes_full": float(sizes["full"]), "nodes": float(stats.nodes),
-        "leaves": float(stats.leaves),
-        "peak_rss_bytes": float(memory.peak_rss_bytes),
-        "rss_added_bytes": float(memory.added_bytes)}
-    if "colour" in sizes:
-        values["map_bytes_colour"] = float(sizes["colour"])
-    if stats.octomap_memory_bytes is not None:
-        values["octomap_memory_bytes"] = float(stats.octomap_memory_bytes)
-    if stats.map_nbytes is not None:
-        values["map_nbytes"] = float(stats.map_nbytes)
-    share = pruned_share(updater)
+
+
+def _values_and_details(record: MappingRecord, mapped: MappingPass,
+                        labels: Labels) -> tuple[dict[str, float], dict[str, Any]]:
+    """The cell record's ``values`` (:meth:`MappingRecord.values`, with the share of pruned
+    leaves) and ``details`` (per-frame times, counts, front end, growth, precision)."""
+    from evsmap.measure.evaluators import pruned_share
+
+    values = record.values()
+    share = pruned_share(mapped.updater)  # builds arrays of its own: outside the memory scope
     if share is not None:
         values["pruned_share"] = float(share)
     details: dict[str, Any] = {
-        "update_ms": update_ms, "segment_ms": segment_ms, "nodes": stats.nodes,
-        "leaves": stats.leaves, "sequence_name": sequence.name, **values,
-        "front_end": {"name": updater.front_end, **updater.front_end_counts()},
-        "growth": mapped.results["growth"]}
-    notes.append(f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians "
-                 f"over frames (update only; end to end = the median segmentation time + the "
-                 f"median update time)")
-    if segment_timing is not None:
-        details["segment_timing"] = {k: segment_timing[k] for k in
+        "update_ms": record.update_ms, "segment_ms": record.segment_ms,
+        "nodes": record.nodes, "leaves": record.leaves, "sequence_name": record.sequence,
+        **values, "front_end": record.front_end, "growth": mapped.results["growth"]}
+    if labels.timing is not None:
+        details["segment_timing"] = {k: labels.timing[k] for k in
                                      ("rel_ci", "stopped", "warmup", "policy")
-                                     if k in segment_timing}
-    details["rel_ci"] = end_to_end_precision(update_ms, segment_ms)
+                                     if k in labels.timing}
+    details["rel_ci"] = segment_update_precision(record.update_ms, record.segment_ms)
+    return values, details
+
+
+def _add_contention(machine: dict[str, Any], details: dict[str, Any], notes: list[str]) -> None:
+    """The machine's load around the timed part, and a flag where it was contended."""
     details["contention"] = machine
     details["calibration_gmacs"] = math.sqrt(machine["before"]["calibration_gmacs"]
                                              * machine["after"]["calibration_gmacs"])
@@ -339,33 +430,43 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         flag = describe(machine) + " around this mapping run"
         details["timing_flag"] = flag
         notes.append(f"timing flagged - {flag}")
-    if run.sequence in SYNTHETIC_SEQUENCES and updater.has_leaf_map:
-        from evsmap.measure.evaluators import MapQualityEvaluator
-        from evsmap.synth.sequence import SyntheticSequence
 
-        truth = SyntheticSequence(**synthetic_options(ctx, run.sequence)).ground_truth(
-            run.voxel_size)
-        quality = MapQualityEvaluator(truth).evaluate(updater)  # outside the memory scope
-        q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
-        details["quality"] = q
-        for name in ("precision", "recall", "semantic_accuracy", "semantic_accuracy_all",
-                     "map_miou"):
-            if q.get(name) is not None and np.isfinite(q[name]):
-                values[name] = float(q[name])
-        if run.voxel_size == ctx.voxel_size:  # the views show Table IV's maps
-            _save_map_artifact(updater, run, ctx)
-        if observations is not None:
-            _save_segmentation_artifact(sequence, indices[len(indices) // 2],
-                                        observations[len(indices) // 2], run, ctx,
-                                        "oracle" if weights is None else run.segmenter.spec)
-    return CellRecord(**base, status="ok", values=values, notes=notes, details=details)
+
+def _add_quality(run: MappingRun, ctx: RunContext, updater: MapUpdater, values: dict[str, float],
+                 details: dict[str, Any]) -> None:
+    """The map's 3D quality against the synthetic scene's ground truth (outside the memory
+    scope): in ``details["quality"]``, its finite fractions in ``values``."""
+    from evsmap.measure.evaluators import MapQualityEvaluator
+    from evsmap.synth.sequence import SyntheticSequence
+
+    truth = SyntheticSequence(**synthetic_options(ctx, run.sequence)).ground_truth(
+        run.voxel_size)
+    quality = MapQualityEvaluator(truth).evaluate(updater)
+    q = quality.as_dict() if quality is not None else {}
+    details["quality"] = q
+    for name in ("precision", "recall", "semantic_accuracy", "semantic_accuracy_all",
+                 "map_miou"):
+        if q.get(name) is not None and np.isfinite(q[name]):
+            values[name] = float(q[name])
+
+
+def _save_artifacts(run: MappingRun, ctx: RunContext, updater: MapUpdater,
+                    sequence: FrameSequence,
+                    indices: list[int], labels: Labels) -> None:
+    """The map's points (for the views of Table IV's maps) and one segmented frame."""
+    if run.voxel_size == ctx.voxel_size:  # the views show Table IV's maps
+        _save_map_artifact(updater, run, ctx)
+    if labels.observations is not None:
+        middle = len(indices) // 2
+        _save_segmentation_artifact(sequence, indices[middle], labels.observations[middle],
+                                    run, ctx, labels.source)
 
 
 def _options(config: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in sorted(config.items())) or "defaults"
 
 
-def _save_map_artifact(updater, run: MappingRun, ctx: RunContext) -> None:
+def _save_map_artifact(updater: MapUpdater, run: MappingRun, ctx: RunContext) -> None:
     from evsmap.updaters.export import occupied_points
 
     centres, rgb, labels = occupied_points(updater)
@@ -379,7 +480,8 @@ def _save_map_artifact(updater, run: MappingRun, ctx: RunContext) -> None:
         resolution=np.float64(run.voxel_size))
 
 
-def _save_segmentation_artifact(sequence, index: int, observation, run: MappingRun,
+def _save_segmentation_artifact(sequence: FrameSequence, index: int,
+                                observation: SemanticObservation, run: MappingRun,
                                 ctx: RunContext, source: str) -> None:
     folder = Path(ctx.out) / "artifacts"
     path = folder / f"seg-{source}-{run.sequence}.npz"
@@ -389,8 +491,9 @@ def _save_segmentation_artifact(sequence, index: int, observation, run: MappingR
     frame = sequence.frame(index)
     title = (f"{source} on {sequence.name} frame {index}"
              + (f" ({_options(ctx.oracle)})" if source == "oracle" else ""))
-    np.savez_compressed(path, rgb=frame.rgb, gt=frame.labels, pred=observation.argmax,
-                        title=np.str_(title))
+    arrays: dict[str, Any] = {"rgb": frame.rgb, "gt": frame.labels, "pred": observation.argmax,
+                              "title": np.str_(title)}
+    np.savez_compressed(path, **arrays)
 
 
 def runtime_sequence(sequences: list[str], runs: dict[str, CellRecord],
@@ -402,14 +505,14 @@ def runtime_sequence(sequences: list[str], runs: dict[str, CellRecord],
     rows = [r.id for r in load_tables()["table4"].rows
             if r.implemented and r.updater is not None]
     for seq in sequences:
-        found = [runs.get(f"extra/mapping/{row}/{seq}@{voxel:g}m") for row in rows]
+        found = [runs.get(mapping_key(row, seq, voxel)) for row in rows]
         if all(r is not None and r.status == "ok" for r in found):
             return seq, False
     return "synthetic", True
 
 
-def end_to_end_precision(update_ms: list[float], segment_ms: list[float]) -> float | None:
-    """The precision of the end-to-end rate (1000 / (median update + median segmentation)):
+def segment_update_precision(update_ms: list[float], segment_ms: list[float]) -> float | None:
+    """The precision of ``segment_update_hz`` (1000 / (median update + median segmentation)):
     each median's 95 % bootstrap interval, their half-widths added, over the sum."""
     from evsmap.measure.timing_policy import median_ci, relative_half_width, sum_precision
 
@@ -429,7 +532,7 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
     voxel = spec.voxel_size or ctx.voxel_size
 
     def run_of(seq: str) -> CellRecord | None:
-        return runs.get(f"extra/mapping/{spec.row}/{seq}@{voxel:g}m")
+        return runs.get(mapping_key(spec.row, seq, voxel))
 
     quantities = column_quantities(spec)
     values, notes, details = {}, [], {}
@@ -451,7 +554,7 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
             source = run_of(seq)
             if source is None or source.status != "ok":
                 return _from_failed(spec, source)
-            values[col] = source.values["end_to_end_hz"]
+            values[col] = source.values["segment_update_hz"]
             base["inputs"]["sequence"] = seq
             notes.append(f"end-to-end rate measured on {seq} for every row"
                          + (" (no sequence of the paper's could be mapped by every system "

@@ -18,6 +18,7 @@ from typing import Any
 
 from evsmap.errors import DataFormatError
 from evsmap.fileio import atomic_write
+from evsmap.runner.record_keys import renamed_keys
 
 STATUSES = ("ok", "na", "error")
 
@@ -130,6 +131,8 @@ class CellRecord:
                 what = "a list of strings" if name in _STRING_LISTS else _KIND_NAMES[kind]
                 raise DataFormatError(f"{source}: not a cell record ({name!r} must be {what}, "
                                       f"not {type(value).__name__})")
+        data = {k: renamed_keys(v) if k in ("values", "details") else v  # old runs' rate keys
+                for k, v in data.items()}
         return cls.from_dict(data, source=source)
 
 

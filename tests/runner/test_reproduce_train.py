@@ -29,7 +29,7 @@ def fake_cells(monkeypatch):
     def execute_mapping(run, ctx):
         return CellRecord(key=run.key, table="extra", row=run.row, label=run.label,
                           kind="mapping", metrics=[], status="ok",
-                          values={"end_to_end_hz": 1.0, "update_hz": 1.0, "map_bytes": 1.0},
+                          values={"segment_update_hz": 1.0, "update_hz": 1.0, "map_bytes": 1.0},
                           inputs={"sequence": run.sequence, "voxel_size": run.voxel_size})
 
     monkeypatch.setattr(matrix, "execute_spec", execute_spec)

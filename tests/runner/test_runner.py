@@ -151,11 +151,11 @@ def _run_record(row, seq, status="ok", **values):
 def test_table4_cells_come_from_the_mapping_runs(ctx):
     specs = {s.key: s for s in expand(load_tables()["table4"])}
     runs = {r.key: r for r in [
-        _run_record("evsmap", "synthetic", end_to_end_hz=7.5, map_bytes=1e6),
+        _run_record("evsmap", "synthetic", segment_update_hz=7.5, map_bytes=1e6),
         _run_record("evsmap", "tum", status="na"),
-        _run_record("orgbmap", "tum", end_to_end_hz=30.0, map_bytes=2e5,
+        _run_record("orgbmap", "tum", segment_update_hz=30.0, map_bytes=2e5,
                     octomap_memory_bytes=5e5),
-        _run_record("orgbmap", "synthetic", end_to_end_hz=25.0, map_bytes=3e5),
+        _run_record("orgbmap", "synthetic", segment_update_hz=25.0, map_bytes=3e5),
     ]}
     rate = table4_record(specs["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.02m"
                                "[runtime_hz]"], runs, ctx)
@@ -176,7 +176,7 @@ def test_table4_cells_come_from_the_mapping_runs(ctx):
     from evsmap.runner.execute import runtime_sequence
 
     rows = [r.id for r in load_tables()["table4"].rows if r.implemented and r.updater]
-    all_tum = {f"extra/mapping/{row}/tum@0.02m": _run_record(row, "tum", end_to_end_hz=1.0)
+    all_tum = {f"extra/mapping/{row}/tum@0.02m": _run_record(row, "tum", segment_update_hz=1.0)
                for row in rows}
     assert runtime_sequence(["tum", "rtabmap"], all_tum, 0.02) == ("tum", False)
     assert runtime_sequence(["tum", "rtabmap"], runs, 0.02) == ("synthetic", True)
@@ -287,9 +287,9 @@ def test_a_contended_mapping_run_flags_the_runtime_cell(ctx):
     specs = {s.key: s for s in expand(load_tables()["table4"])}
     flag = "contended: the calibration matmul ran 3.00x slower"
     runs = {r.key: r for r in [
-        replace(_run_record("evsmap", "synthetic", end_to_end_hz=7.5, map_bytes=1e6),
+        replace(_run_record("evsmap", "synthetic", segment_update_hz=7.5, map_bytes=1e6),
                 details={"timing_flag": flag}),
-        _run_record("orgbmap", "synthetic", end_to_end_hz=25.0, map_bytes=3e5),
+        _run_record("orgbmap", "synthetic", segment_update_hz=25.0, map_bytes=3e5),
     ]}
     rate = table4_record(specs["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.02m"
                                "[runtime_hz]"], runs, ctx)
@@ -306,14 +306,14 @@ def test_record_files_are_readable_by_others(tmp_path):
     from evsmap.runner.records import RecordStore
 
     store = RecordStore(tmp_path / "records")
-    path = store.write(_run_record("evsmap", "synthetic", end_to_end_hz=1.0))
+    path = store.write(_run_record("evsmap", "synthetic", segment_update_hz=1.0))
     mask = os.umask(0)
     os.umask(mask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~mask
 
 
 def _contended(slowdown):
-    rec = _run_record("evsmap", "synthetic", end_to_end_hz=7.5 / slowdown, map_bytes=1e6)
+    rec = _run_record("evsmap", "synthetic", segment_update_hz=7.5 / slowdown, map_bytes=1e6)
     rec.details = {"contention": {"slowdown": slowdown, "contended": slowdown > 1.4}}
     return rec
 
