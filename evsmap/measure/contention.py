@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from evsmap.environment import describe as describe_machine
 from evsmap.fileio import atomic_write_text, read_json_object
 
 CALIBRATION_SIZE = 384
@@ -127,9 +128,7 @@ class Probe:
 def machine_key() -> str:
     """The calibration's machine: CPU model and torch threads (a different thread count is a
     different reference)."""
-    from evsmap.environment import cpu_model
-
-    return f"{cpu_model()} / {torch.get_num_threads()} threads"
+    return f"{describe_machine()['cpu']} / {torch.get_num_threads()} threads"
 
 
 def machine_log_path() -> Path:

@@ -13,8 +13,9 @@ made. How the cells are placed:
 * Timing nodes are the nodes like the head node (same CPU model and CPU count; without CPUs on
   the head, the largest such group), so every timed cell of a run is measured on the same kind
   of machine. The other nodes run only cells that are not timed.
-* Each record says where it ran: ``environment["executor"]`` = ``{"name": "ray", "node_id",
-  "node" (host name), "cpus" (reserved), "whole_node"}``.
+* Each record says where it ran: ``environment["host"]`` is the node's host name and
+  ``environment["executor"]`` = ``{"name": "ray", "node_id", "cpus" (reserved),
+  "whole_node"}`` (records written before named the host ``executor["node"]`` too).
 
 The records themselves are written by the driver (:func:`evsmap.runner.matrix.run_matrix`) as
 the tasks finish.
@@ -66,14 +67,16 @@ def check_reachable(address: str, timeout_s: float = 5.0) -> None:
 
 # ------------------------------------------------------------- run on the nodes (importable)
 def _placed(result: dict[str, Any], cpus: int, whole_node: bool) -> dict[str, Any]:
-    """``result`` (a record's dict) with where it ran in ``environment["executor"]``."""
+    """``result`` (a record's dict) with where it ran: ``environment["host"]`` and
+    ``environment["executor"]``."""
     import ray
 
     env = result.get("environment")
     if not isinstance(env, dict):
         env = result["environment"] = {}
+    env["host"] = socket.gethostname()
     env["executor"] = {"name": "ray", "node_id": ray.get_runtime_context().get_node_id(),
-                       "node": socket.gethostname(), "cpus": cpus, "whole_node": whole_node}
+                       "cpus": cpus, "whole_node": whole_node}
     return result
 
 
@@ -94,26 +97,27 @@ def _timed_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> di
 
 
 def _probe(paths: list[str]) -> dict[str, Any]:
-    """What the driver checks on each node: its host, CPU model and instruction set, evsmap
-    version and which of the run's ``paths`` it cannot see."""
+    """What the driver checks on each node: its host, CPU model and instruction set and git
+    commit (of :func:`~evsmap.environment.collect_environment`), evsmap version and which of
+    the run's ``paths`` it cannot see."""
     from pathlib import Path
 
-    from evsmap.environment import cpu_model, instruction_set
+    from evsmap.environment import collect_environment
     from evsmap.version import evsmap_version
 
-    return {"host": socket.gethostname(), "cpu_model": cpu_model(),
-            "instruction_set": instruction_set(), "evsmap": evsmap_version(),
-            "missing": [p for p in paths if not Path(p).exists()]}
+    env = collect_environment()
+    return {**{k: env[k] for k in ("host", "cpu", "instruction_set", "git_commit")},
+            "evsmap": evsmap_version(), "missing": [p for p in paths if not Path(p).exists()]}
 
 
 # ------------------------------------------------------------------------------ the driver
 def timing_nodes(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The nodes that time: those with the head node's CPU model, instruction set and CPU
     count; when the head is not among ``nodes`` (it has no CPUs), the largest group of alike
-    nodes (ties: the most CPUs, then the first listed). Each node: ``cpu_model``, ``cpus``,
+    nodes (ties: the most CPUs, then the first listed). Each node: ``cpu``, ``cpus``,
     ``head`` and (optional) ``instruction_set``."""
     def kind(node: dict[str, Any]) -> tuple[str, str, int]:
-        return node["cpu_model"], node.get("instruction_set", ""), node["cpus"]
+        return node["cpu"], node.get("instruction_set", ""), node["cpus"]
 
     groups: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
     for node in nodes:
@@ -253,8 +257,8 @@ class RayExecutor(CellExecutor):
                     f"--executor ray: node {probe['host']} runs evsmap {probe['evsmap']}, this "
                     f"machine {mine}: install the same evsmap on every node")
         self._nodes = [
-            {"node_id": n["NodeID"], "host": p["host"], "cpu_model": p["cpu_model"],
-             "instruction_set": p["instruction_set"],
+            {"node_id": n["NodeID"], "host": p["host"], "cpu": p["cpu"],
+             "instruction_set": p["instruction_set"], "git_commit": p["git_commit"],
              "cpus": int(n["Resources"]["CPU"]), "head": HEAD_RESOURCE in n["Resources"]}
             for n, p in zip(nodes, probes, strict=True)]
         self._max_cpus = max(n["cpus"] for n in self._nodes)
@@ -304,7 +308,7 @@ class RayExecutor(CellExecutor):
         where = self.address or ("a local cluster" if self._own_session
                                  else "the Ray this process had joined")
         first = timing[0] if timing else None
-        kind = (f"{first['cpu_model']}, {first['instruction_set']}, {first['cpus']} CPUs"
+        kind = (f"{first['cpu']}, {first['instruction_set']}, {first['cpus']} CPUs"
                 if first else "none")
         return (f"ray ({where}): {len(self._nodes)} node(s), {cpus} CPUs; timed cells on "
                 f"{len(timing)} node(s) ({kind}), each alone on its node")
