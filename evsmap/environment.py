@@ -32,6 +32,7 @@ CPUID. The two features NumPy does not report (``avx_vnni``, ``amx_int8``) come 
 
 from __future__ import annotations
 
+import importlib
 import os
 import platform
 import socket
@@ -82,14 +83,13 @@ def _proc_flags() -> set[str]:
 
 
 def _numpy_features() -> dict[str, bool] | None:
-    try:
-        from numpy._core._multiarray_umath import __cpu_features__
-    except ImportError:  # pragma: no cover - NumPy 1.x
+    for name in ("numpy._core._multiarray_umath", "numpy.core._multiarray_umath"):  # 2.x, 1.x
         try:
-            from numpy.core._multiarray_umath import __cpu_features__
-        except ImportError:
-            return None
-    return dict(__cpu_features__)
+            features: dict[str, bool] = importlib.import_module(name).__cpu_features__
+        except ImportError:  # pragma: no cover - NumPy 1.x
+            continue
+        return dict(features)
+    return None  # pragma: no cover
 
 
 @cache

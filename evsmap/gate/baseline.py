@@ -88,7 +88,8 @@ def read_baseline(path: str | os.PathLike[str]) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise DataFormatError(f"{path}: not a baseline (a JSON object with \"kinds\")")
     if "kinds" not in data and "workloads" in data:  # format 1: one machine
-        machine = data.get("machine") if isinstance(data.get("machine"), dict) else {}
+        machine = data.get("machine")
+        machine = machine if isinstance(machine, dict) else {}
         kind = str(machine.get("kind") or "unknown")
         data = {"format": BASELINE_FORMAT,
                 "kinds": {kind: {k: data[k] for k in ("updated", "machine", "settings",

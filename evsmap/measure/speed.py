@@ -146,7 +146,7 @@ def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int =
     return float(size) ** 3 / float(np.median(times)) / 1e9
 
 
-def _matmul_session(size: int, threads: int):
+def _matmul_session(size: int, threads: int) -> Any:
     import onnx
     import onnxruntime as ort
     from onnx import TensorProto, helper

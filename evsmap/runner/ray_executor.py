@@ -27,7 +27,7 @@ import os
 import socket
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from evsmap.errors import EvsmapError
 from evsmap.runner.executors import CellExecutor, TimingSlot, fresh_process
@@ -80,7 +80,8 @@ def _placed(result: dict[str, Any], cpus: int, whole_node: bool) -> dict[str, An
     return result
 
 
-def _pooled_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> dict[str, Any]:
+def _pooled_call(fn: Callable[..., dict[str, Any]], args: tuple[Any, ...],
+                 cpus: int) -> dict[str, Any]:
     """A cell that is not timed, in a Ray worker, with as many torch threads as it reserved."""
     import torch
 
@@ -88,7 +89,8 @@ def _pooled_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> d
     return _placed(fn(*args), cpus, whole_node=False)
 
 
-def _timed_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> dict[str, Any]:
+def _timed_call(fn: Callable[..., dict[str, Any]], args: tuple[Any, ...],
+                cpus: int) -> dict[str, Any]:
     """A timed cell: the Ray task holds the whole node while the cell runs in a fresh
     interpreter (a Ray worker may have run other cells before; the spawned one has not)."""
     with fresh_process() as ex:
@@ -103,11 +105,11 @@ def _probe(paths: list[str]) -> dict[str, Any]:
     from pathlib import Path
 
     from evsmap.environment import collect_environment
-    from evsmap.version import evsmap_version
 
     env = collect_environment()
     return {**{k: env[k] for k in ("host", "cpu", "instruction_set", "git_commit")},
-            "evsmap": evsmap_version(), "missing": [p for p in paths if not Path(p).exists()]}
+            "evsmap": env["versions"].get("evsmap", "unknown"),
+            "missing": [p for p in paths if not Path(p).exists()]}
 
 
 # ------------------------------------------------------------------------------ the driver
@@ -133,17 +135,19 @@ class _RayTasks(Executor):
     futures complete as the tasks finish. Leaving it on an error cancels what is still
     running."""
 
-    def __init__(self, ray: Any, launch: Callable[[Callable, tuple], Any]) -> None:
+    def __init__(self, ray: Any,
+                 launch: Callable[[Callable[..., Any], tuple[Any, ...]], Any]) -> None:
         self._ray = ray
         self._launch = launch
         self._refs: list[Any] = []
 
-    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Future:
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
         if kwargs:
             raise TypeError("Ray cells take positional arguments only")
         ref = self._launch(fn, args)
         self._refs.append(ref)
-        return ref.future()
+        future: Future[Any] = ref.future()
+        return future
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         refs, self._refs = self._refs, []
@@ -156,7 +160,7 @@ class _RayTasks(Executor):
         elif wait and refs:
             self._ray.wait(refs, num_returns=len(refs))
 
-    def __exit__(self, exc_type: object, *rest: object) -> bool:
+    def __exit__(self, exc_type: object, *rest: object) -> Literal[False]:
         self.shutdown(wait=exc_type is None, cancel_futures=exc_type is not None)
         return False
 

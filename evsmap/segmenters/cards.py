@@ -231,7 +231,8 @@ def card_miou(card: Mapping[str, Any] | None, split: str) -> float | None:
     (``<split>_miou``; also read: ``miou_<split>`` and a ``metrics`` table of either)."""
     if not isinstance(card, Mapping):
         return None
-    metrics = card.get("metrics") if isinstance(card.get("metrics"), Mapping) else {}
+    metrics = card.get("metrics")
+    metrics = metrics if isinstance(metrics, Mapping) else {}
     for where, key in ((card, f"{split}_miou"), (card, f"miou_{split}"),
                        (metrics, f"{split}_miou"), (metrics, f"miou_{split}"),
                        (metrics, split)):
