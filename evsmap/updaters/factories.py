@@ -14,6 +14,7 @@ called, so naming and checking the updaters loads no kernels.
 
 from __future__ import annotations
 
+import functools
 import inspect
 from collections.abc import Callable
 from dataclasses import asdict
@@ -61,10 +62,9 @@ def octree_factory(build: Callable[..., T], /, **options: Any) -> Callable[..., 
 
     setattr(factory, "__signature__", signature)  # noqa: B010 - no such attribute for mypy
     factory.__annotations__ = {p.name: p.annotation for p in params}
+    named = build.func if isinstance(build, functools.partial) else build
     for attr in ("__module__", "__name__", "__qualname__", "__doc__"):
-        value = getattr(build, attr, None)  # a functools.partial has no name
-        if value is not None:
-            setattr(factory, attr, value)
+        setattr(factory, attr, getattr(named, attr))
     return factory
 
 
