@@ -21,6 +21,7 @@ from evsmap.interfaces import MapStats, MapUpdater, PointQuery
 from evsmap.mapping.fusion.colour import mean_per_voxel
 from evsmap.mapping.keys import key_to_coord, unpack
 from evsmap.mapping.raycast import frame_points
+from evsmap.mapping.sensor_model import OCTOMAP
 from evsmap.updaters.base import FramePoints, compact
 
 
@@ -34,9 +35,10 @@ class OctoMapAdapter(MapUpdater):
     """
 
     def __init__(self, *, color: bool = False, resolution: float = 0.05,
-                 max_range: float = 5.0, discretize: bool = True, prob_hit: float = 0.7,
-                 prob_miss: float = 0.4, clamp_min: float = 0.1192, clamp_max: float = 0.971,
-                 occupancy_threshold: float = 0.5) -> None:
+                 max_range: float = 5.0, discretize: bool = True,
+                 prob_hit: float = OCTOMAP.prob_hit, prob_miss: float = OCTOMAP.prob_miss,
+                 clamp_min: float = OCTOMAP.clamp_min, clamp_max: float = OCTOMAP.clamp_max,
+                 occupancy_threshold: float = OCTOMAP.occupancy_threshold) -> None:
         import octomap
 
         self.color = color

@@ -38,6 +38,7 @@ node pool's, so this updater does them itself.
 
 from __future__ import annotations
 
+from dataclasses import asdict, replace
 from os import PathLike
 
 import numpy as np
@@ -60,13 +61,14 @@ from evsmap.mapping.generator import (
 from evsmap.mapping.keys import pack, unpack
 from evsmap.mapping.occupancy import OccupancyMap
 from evsmap.mapping.raycast import octomap_keys, scan_keys
+from evsmap.mapping.sensor_model import OCTOMAP
 from evsmap.mapping.tree import Tree
 from evsmap.updaters.base import OctreeUpdater, check_observation
 
 WHITE = k.WHITE
 
-ROS_DEFAULTS = {"resolution": 0.05, "max_range": 5.0, "prob_hit": 0.7, "prob_miss": 0.4,
-                "clamp_min": 0.12, "clamp_max": 0.97, "occupancy_threshold": 0.5}
+ROS_DEFAULTS = {"resolution": 0.05, "max_range": 5.0,
+                **asdict(replace(OCTOMAP, clamp_min=0.12, clamp_max=0.97))}
 """semantic_slam's ``params/octomap_generator.yaml`` but for the resolution (its 0.02 m; evsmap's
 updaters default to 0.05 m and Table IV sets its own), each rounded to ``float`` as the node
 reads them."""
@@ -305,11 +307,3 @@ class SemanticSlamMap(OctreeUpdater):
             self._state[:] = (0, n, 0)
         self._stale()
         return self
-
-
-def make(rule: str, *, resolution: float, max_range: float, raycast_range: float,
-         prob_hit: float, prob_miss: float, clamp_min: float, clamp_max: float
-         ) -> SemanticSlamMap:
-    return SemanticSlamMap(fusion_rule=rule, raycast_range=raycast_range, resolution=resolution,
-                           max_range=max_range, discretize=True, prob_hit=prob_hit,
-                           prob_miss=prob_miss, clamp_min=clamp_min, clamp_max=clamp_max)

@@ -3,74 +3,68 @@
 the C++ OctoMap's ``octomap-cpp`` and ``octomap-color`` (:mod:`baselines.octomap_adapters`).
 
 The factories live apart from the updaters so that naming them imports neither numba nor the
-OctoMap binding; each factory imports its updater when called.
+OctoMap binding; each factory imports its updater when called, and states only the options it
+adds to the octree base's (:func:`evsmap.updaters.factories.octree_factory`).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import functools
+from typing import TYPE_CHECKING, Any
 
 from evsmap.registry import UPDATERS
+from evsmap.updaters.factories import given, octree_factory
 
 if TYPE_CHECKING:
     from baselines.octomap_adapters import OctoMapAdapter
+    from evsmap.updaters.base import OctreeUpdater
 
 
-def _classic(rule: str):
-    def factory(*, resolution: float = 0.05, max_range: float = 5.0, discretize: bool = True,
-                front_end: str = "generator", raycast_range: float = 2.0,
-                prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float | None = None,
-                clamp_max: float | None = None):
-        from evsmap.mapping.generator import check_front_end
-
-        check_front_end("classic-semantic", front_end)
-        if front_end == "generator":
-            from baselines.semantic_slam import make
-
-            if not discretize:
-                from evsmap.errors import InvalidDataError
-
-                raise InvalidDataError("classic-semantic: semantic_slam always inserts with "
-                                       "discretize on; use -o front_end=direct for "
-                                       "discretize=false")
-
-            # semantic_slam's octomap_generator.yaml clamps at 0.12 / 0.97
-            return make(rule, resolution=resolution, max_range=max_range,
-                        raycast_range=raycast_range, prob_hit=prob_hit, prob_miss=prob_miss,
-                        clamp_min=0.12 if clamp_min is None else clamp_min,
-                        clamp_max=0.97 if clamp_max is None else clamp_max)
-        from baselines.classic_semantic import ClassicSemanticMap
-
-        return ClassicSemanticMap(fusion_rule=rule, resolution=resolution, max_range=max_range,
-                                  discretize=discretize, prob_hit=prob_hit, prob_miss=prob_miss,
-                                  clamp_min=0.1192 if clamp_min is None else clamp_min,
-                                  clamp_max=0.971 if clamp_max is None else clamp_max)
-
-    return factory
+CLASSIC: dict[str, Any] = {"front_end": "generator", "raycast_range": 2.0, "clamp_min": None,
+                           "clamp_max": None}
+"""What ``classic-semantic`` adds to the octree base's options (the clamping: the front end's
+own, semantic_slam's ``octomap_generator.yaml`` 0.12 / 0.97 with the generator)."""
 
 
-UPDATERS.add("classic-semantic", _classic("bayes"),
+def classic(rule: str, *, front_end: str, **options: Any) -> OctreeUpdater:
+    """semantic_slam's map with fusion ``rule`` (``bayes``, ``max``): its own pipeline
+    (:class:`~baselines.semantic_slam.SemanticSlamMap`) or, ``front_end="direct"``, evsmap's cleaner
+    variant (:class:`~baselines.classic_semantic.ClassicSemanticMap`)."""
+    from evsmap.mapping.generator import check_front_end
+
+    check_front_end("classic-semantic", front_end)
+    if front_end == "generator":
+        from baselines.semantic_slam import SemanticSlamMap
+
+        if not options["discretize"]:
+            from evsmap.errors import InvalidDataError
+
+            raise InvalidDataError("classic-semantic: semantic_slam always inserts with "
+                                   "discretize on; use -o front_end=direct for "
+                                   "discretize=false")
+        return SemanticSlamMap(fusion_rule=rule, **given(options))
+    from baselines.classic_semantic import ClassicSemanticMap
+
+    return ClassicSemanticMap(fusion_rule=rule, **given(options, "raycast_range"))
+
+
+UPDATERS.add("classic-semantic", octree_factory(functools.partial(classic, "bayes"), **CLASSIC),
              description="[14] semantic_slam: top-3 Bayesian semantic fusion + RGB (TESAMap, "
                          "TFEAGMap); -o front_end=direct for evsmap's cleaner variant")
-UPDATERS.add("classic-semantic-max", _classic("max"),
+UPDATERS.add("classic-semantic-max", octree_factory(functools.partial(classic, "max"),
+                                                    **CLASSIC),
              description="[14] semantic_slam: max semantic fusion + RGB; -o "
                          "front_end=direct for evsmap's cleaner variant")
 
 
-def _octomap(color: bool):
-    def factory(*, resolution: float = 0.05, max_range: float = 5.0, discretize: bool = True,
-                prob_hit: float = 0.7, prob_miss: float = 0.4, clamp_min: float = 0.1192,
-                clamp_max: float = 0.971) -> OctoMapAdapter:
-        from baselines.octomap_adapters import OctoMapAdapter
+def octomap(color: bool, **options: Any) -> OctoMapAdapter:
+    """The C++ OctoMap's ``OcTree`` or (``color``) ``ColorOcTree``."""
+    from baselines.octomap_adapters import OctoMapAdapter
 
-        return OctoMapAdapter(color=color, resolution=resolution, max_range=max_range,
-                              discretize=discretize, prob_hit=prob_hit, prob_miss=prob_miss,
-                              clamp_min=clamp_min, clamp_max=clamp_max)
-
-    return factory
+    return OctoMapAdapter(color=color, **options)
 
 
-UPDATERS.add("octomap-cpp", _octomap(False),
+UPDATERS.add("octomap-cpp", octree_factory(functools.partial(octomap, False)),
              description="OctoMap C++ OcTree via octomap-python (occupancy only, reference)")
-UPDATERS.add("octomap-color", _octomap(True),
+UPDATERS.add("octomap-color", octree_factory(functools.partial(octomap, True)),
              description="OctoMap C++ ColorOcTree via octomap-python (averaged RGB, reference)")

@@ -1,8 +1,27 @@
 """Facts about the machine a measurement ran on: the one place they are read.
 
-:func:`describe` is what every record, weights card, gate baseline and quantised model carries
-about the machine; :func:`instruction_set` names the vector instruction set the numerical
-libraries pick their kernels by (and so their speed and, for int8, their rounding).
+:func:`collect_environment` is the one record of them (as detectron2's ``collect_env``): every
+run record, weights card, gate baseline and Ray node takes its facts from it, one key per fact:
+
+==================  =====================================================================
+``python``          Python's version
+``machine``         the architecture (``platform.machine()``)
+``cpu``             the CPU's model name (:func:`cpu_model`)
+``cpus``            logical CPUs (``os.cpu_count()``)
+``instruction_set`` the widest vector instruction set (:func:`instruction_set`)
+``cpu_flags``       the vector features the kernels may use (:func:`cpu_flags`)
+``threads``         the threads the measurement ran with
+``host``            the host name
+``versions``        library versions (:func:`library_versions`)
+``git_commit``      evsmap's commit (:func:`evsmap.gitinfo.head_commit`, ``+dirty`` when
+                    tracked files changed)
+==================  =====================================================================
+
+:func:`describe` is its first six keys (what a ``--json`` result names the machine by).
+Files written before this record had other keys for some facts; :func:`read_environment` reads
+them with :data:`LEGACY_KEYS` (the CPU model as ``cpu_model``, the host as ``node``, library
+versions at the top level). :func:`instruction_set` names the vector instruction set the
+numerical libraries pick their kernels by (and so their speed and, for int8, their rounding).
 
 The CPU's features are read through CPUID, as the process sees them, by NumPy's run-time
 dispatcher (the same detection NumPy chooses its own kernels with), not from ``/proc/cpuinfo``:
@@ -13,10 +32,17 @@ CPUID. The two features NumPy does not report (``avx_vnni``, ``amx_int8``) come 
 
 from __future__ import annotations
 
+import importlib
 import os
 import platform
+import socket
+from collections.abc import Mapping
 from functools import cache
+from importlib import metadata
 from pathlib import Path
+from typing import Any
+
+from evsmap.gitinfo import head_commit
 
 VECTOR_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512_vnni",
                 "avx_vnni", "avx512_bf16", "amx_int8", "asimd", "asimddp", "sve")
@@ -57,14 +83,13 @@ def _proc_flags() -> set[str]:
 
 
 def _numpy_features() -> dict[str, bool] | None:
-    try:
-        from numpy._core._multiarray_umath import __cpu_features__
-    except ImportError:  # pragma: no cover - NumPy 1.x
+    for name in ("numpy._core._multiarray_umath", "numpy.core._multiarray_umath"):  # 2.x, 1.x
         try:
-            from numpy.core._multiarray_umath import __cpu_features__
-        except ImportError:
-            return None
-    return dict(__cpu_features__)
+            features: dict[str, bool] = importlib.import_module(name).__cpu_features__
+        except ImportError:  # pragma: no cover - NumPy 1.x
+            continue
+        return dict(features)
+    return None  # pragma: no cover
 
 
 @cache
@@ -108,7 +133,65 @@ def int8_exact(isa: str | None = None) -> bool:
 
 
 def describe() -> dict[str, str | int | list[str]]:
-    """Python, architecture, CPU model, core count, instruction set and vector flags."""
+    """Python, architecture, CPU model, core count, instruction set and vector flags: the
+    machine's part of :func:`collect_environment`."""
     return {"python": platform.python_version(), "machine": platform.machine(),
             "cpu": cpu_model(), "cpus": os.cpu_count() or 0,
             "instruction_set": instruction_set(), "cpu_flags": list(cpu_flags())}
+
+
+LIBRARIES = ("torch", "onnxruntime", "numpy", "fvcore")
+"""The libraries whose kernels a timing depends on: always listed (``not installed`` if
+absent)."""
+OTHER_DISTRIBUTIONS = ("numba", "octomap-python", "open3d", "evsmap")
+"""Distributions listed when installed."""
+
+
+def library_versions() -> dict[str, str]:
+    """The versions of :data:`LIBRARIES` (``not installed`` if absent), then of the
+    :data:`OTHER_DISTRIBUTIONS` that are installed."""
+    versions = {}
+    for name in (*LIBRARIES, *OTHER_DISTRIBUTIONS):
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            if name in LIBRARIES:
+                versions[name] = "not installed"
+    return versions
+
+
+def collect_environment(threads: int | None = None) -> dict[str, Any]:
+    """The one record of the machine and software a measurement ran on (the keys are listed
+    in the module's docstring).
+
+    Args:
+        threads: the threads the measurement runs with (default: every CPU).
+    """
+    return {**describe(), "threads": threads or os.cpu_count() or 1,
+            "host": socket.gethostname(), "versions": library_versions(),
+            "git_commit": head_commit()}
+
+
+LEGACY_KEYS = {"cpu_model": "cpu", "node": "host"}
+"""Keys files written before :func:`collect_environment` used for one of its facts -> its key
+(and library versions were top-level keys, :data:`LIBRARIES` and ``python``-less
+:func:`library_versions` names; they go into ``versions``)."""
+
+
+def read_environment(stored: Mapping[str, Any]) -> dict[str, Any]:
+    """A stored record of machine facts with :func:`collect_environment`'s keys: the
+    :data:`LEGACY_KEYS` renamed (the new key wins where both are present) and top-level library
+    versions moved into ``versions``. Other keys are kept as they are."""
+    out: dict[str, Any] = {}
+    for key, value in stored.items():
+        new = LEGACY_KEYS.get(key, key)
+        if new != key and new in stored:
+            continue
+        out[new] = value
+    versions = dict(out.get("versions") or {})
+    for name in (*LIBRARIES, *OTHER_DISTRIBUTIONS):
+        if name in out:
+            versions.setdefault(name, out.pop(name))
+    if versions:
+        out["versions"] = versions
+    return out

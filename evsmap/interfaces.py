@@ -87,18 +87,23 @@ class Segmenter(abc.ABC):
 
 @dataclass(frozen=True)
 class MapStats:
-    """Size of a map.
+    """Size of a map: what :meth:`MapUpdater.stats` returns, and (with ``map_nbytes``) what
+    :class:`evsmap.measure.evaluators.MapStatistics` records.
 
     Attributes:
         nodes, leaves: octree nodes and leaves (a plug-in without an octree: its cells).
         octomap_memory_bytes: OctoMap's ``memoryUsage()`` for a tree of these nodes in the
             compared system's C++ node type - a formula over the counts, not a measurement
             (measured memory: :mod:`evsmap.measure.memory`); ``None`` where it does not apply.
+        map_nbytes: measured - the bytes of the arrays evsmap holds the map in
+            (:meth:`MapUpdater.memory_nbytes`); ``None`` where not measured or for a map held
+            by a C++ library.
     """
 
     nodes: int
     leaves: int
     octomap_memory_bytes: int | None = None
+    map_nbytes: int | None = None
 
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 1

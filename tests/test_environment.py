@@ -78,3 +78,57 @@ def test_the_machine_kind_changes_with_the_instruction_set():
     info = machine_info(1)
     assert machine_kind(info) == info["kind"]
     assert machine_kind({**info, "instruction_set": "another"}) != info["kind"]
+
+
+def test_one_record_one_key_per_fact():
+    from evsmap.environment import collect_environment, library_versions
+    from evsmap.gitinfo import head_commit
+    from evsmap.runner.cell_base import environment as cell_environment
+    from evsmap.runner.ray_executor import _probe
+    from evsmap.segmenters.cards import make_card
+
+    env = collect_environment(3)
+    assert list(env) == ["python", "machine", "cpu", "cpus", "instruction_set", "cpu_flags",
+                         "threads", "host", "versions", "git_commit"]
+    assert env["threads"] == 3 and env["versions"] == library_versions()
+    assert "python" not in env["versions"] and env["git_commit"] == head_commit()
+    # a record, a weights card and a Ray node name the same commit and CPU
+    record = cell_environment(3)
+    card = make_card(model="m", options={}, num_classes=1, class_names=["a"], state_dict={})
+    probe = _probe([])
+    assert record["git_commit"] == card["git_commit"] == probe["git_commit"] == head_commit()
+    assert record["cpu"] == card["machine"]["cpu"] == probe["cpu"] == env["cpu"]
+
+
+def test_stored_records_are_read_with_the_current_keys():
+    from evsmap.environment import read_environment
+
+    old_gate = {"cpu": "X", "python": "3.11.7", "torch": "2.0", "numpy": "2.4", "kind": "k"}
+    assert read_environment(old_gate) == {"cpu": "X", "python": "3.11.7", "kind": "k",
+                                          "versions": {"torch": "2.0", "numpy": "2.4"}}
+    assert read_environment({"cpu_model": "X", "node": "h"}) == {"cpu": "X", "host": "h"}
+    assert read_environment({"cpu": "new", "cpu_model": "old"}) == {"cpu": "new"}
+    assert read_environment({"cpu": "X", "versions": {"numba": "1"}}) == {
+        "cpu": "X", "versions": {"numba": "1"}}
+
+
+def test_the_machine_kind_of_a_stored_baseline_is_kept():
+    """benchmarks/baseline.json is keyed by the digest of its flat, older machine facts: read
+    back (and from this machine's current record) it gives the same id."""
+    import json
+    from pathlib import Path
+
+    from evsmap.gate.baseline import machine_info, machine_kind, read_baseline
+    from evsmap.paths import REPO_ROOT
+
+    path = Path(REPO_ROOT) / "benchmarks" / "baseline.json"
+    raw = json.loads(path.read_text())["kinds"]
+    for kind, entry in read_baseline(path)["kinds"].items():
+        assert machine_kind(raw[kind]["machine"]) == kind
+        assert machine_kind(entry["machine"]) == kind
+        assert "torch" not in entry["machine"] and entry["machine"]["versions"]["torch"]
+    info = machine_info(1)
+    assert "host" not in info and "git_commit" not in info
+    flat = {**{k: v for k, v in info.items() if k != "versions"},
+            **{k: info["versions"][k] for k in ("torch", "onnxruntime", "numpy")}}
+    assert machine_kind(flat) == info["kind"]

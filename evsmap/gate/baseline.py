@@ -21,31 +21,41 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from evsmap.environment import collect_environment, read_environment
 from evsmap.errors import DataFormatError
 
 BASELINE_FORMAT = 2
 DEFAULT_BASELINE = Path("benchmarks") / "baseline.json"
-KIND_KEYS = ("cpu", "cpus", "machine", "instruction_set", "cpu_flags", "python", "torch",
-             "onnxruntime", "numpy")
-"""The machine facts a baseline's figures depend on: their digest is the machine kind."""
+KIND_KEYS = ("cpu", "cpus", "machine", "instruction_set", "cpu_flags", "python")
+KIND_LIBRARIES = ("torch", "onnxruntime", "numpy")
+"""The machine facts a baseline's figures depend on (of
+:func:`evsmap.environment.collect_environment`, the libraries' from its ``versions``): their
+digest is the machine kind."""
 
 
 def machine_info(threads: int) -> dict[str, Any]:
-    """Facts about this machine and its libraries, and ``kind``: what must match for a
-    baseline's figures to hold here (see :data:`KIND_KEYS`)."""
-    from evsmap.environment import describe
-    from evsmap.measure.speed import library_versions
-
-    info: dict[str, Any] = {**describe(), **library_versions(), "threads": threads}
+    """Facts about this machine and its libraries (:func:`~evsmap.environment.
+    collect_environment` less the host and the commit, which the entry names as ``commit``), and
+    ``kind``: what must match for a baseline's figures to hold here (see :data:`KIND_KEYS`)."""
+    info = collect_environment(threads)
+    for key in ("host", "git_commit"):
+        info.pop(key)
     info["kind"] = machine_kind(info)
     return info
 
 
 def machine_kind(info: dict[str, Any]) -> str:
-    """A short fingerprint of what a baseline's figures depend on (:data:`KIND_KEYS`)."""
+    """A short fingerprint of what a baseline's figures depend on (:data:`KIND_KEYS` and
+    :data:`KIND_LIBRARIES`); ``info`` in either the current or a stored file's older keys
+    (:func:`~evsmap.environment.read_environment`). The digest is of the facts as the first
+    baselines flattened them (the libraries beside the machine), so a kind keeps its id."""
     import hashlib
 
-    text = json.dumps({k: info.get(k) for k in KIND_KEYS}, sort_keys=True)
+    facts = read_environment(info)
+    versions = facts.get("versions") or {}
+    flat = {**{k: facts.get(k) for k in KIND_KEYS},
+            **{k: versions.get(k) for k in KIND_LIBRARIES}}
+    text = json.dumps(flat, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
@@ -78,7 +88,8 @@ def read_baseline(path: str | os.PathLike[str]) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise DataFormatError(f"{path}: not a baseline (a JSON object with \"kinds\")")
     if "kinds" not in data and "workloads" in data:  # format 1: one machine
-        machine = data.get("machine") if isinstance(data.get("machine"), dict) else {}
+        machine = data.get("machine")
+        machine = machine if isinstance(machine, dict) else {}
         kind = str(machine.get("kind") or "unknown")
         data = {"format": BASELINE_FORMAT,
                 "kinds": {kind: {k: data[k] for k in ("updated", "machine", "settings",
@@ -88,6 +99,8 @@ def read_baseline(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise DataFormatError(f"{path}: no top-level \"kinds\" object")
     for kind, entry in kinds.items():
         _check_kind(path, kind, entry)
+        if "machine" in entry:
+            entry["machine"] = read_environment(entry["machine"])
     return data
 
 

@@ -11,7 +11,7 @@ Rules (``docs/gates.md``):
   ``--update``;
 * a workload of the baseline that did not run (missing data, an error) fails; a workload the
   baseline does not have is ``new``: it passes, with the same hint;
-* on a machine of another kind than the baseline's (:func:`evsmap.gate.run.machine_kind`: CPU
+* on a machine of another kind than the baseline's (:func:`evsmap.gate.baseline.machine_kind`: CPU
   model and vector extensions, cores, library versions) only the counts that do not depend on
   floating point are held: time ratios, peaks and the :data:`MACHINE_DEPENDENT` counts are
   shown as ``not compared`` - a baseline holds on machines of its own kind; record one there

@@ -55,6 +55,7 @@ from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.fileio import atomic_write
 from evsmap.mapping.keys import TREE_DEPTH
 from evsmap.mapping.node_type import COLOR_FORMAT, NODE_TYPES
+from evsmap.mapping.sensor_model import OCTOMAP
 from evsmap.mapping.tree import Tree, _codes_of_morton
 
 __all__ = [
@@ -79,9 +80,9 @@ _COMMENT = b"\n# (feel free to add / change comments, but leave the first line a
 _BUILTIN = {"OcTree": None, "ColorOcTree": COLOR_FORMAT}
 
 # OctoMap's AbstractOccupancyOcTree defaults (probabilities).
-DEFAULT_OCCUPANCY_THRES = 0.5
-DEFAULT_CLAMP_MIN = 0.1192
-DEFAULT_CLAMP_MAX = 0.971
+DEFAULT_OCCUPANCY_THRES = OCTOMAP.occupancy_threshold
+DEFAULT_CLAMP_MIN = OCTOMAP.clamp_min
+DEFAULT_CLAMP_MAX = OCTOMAP.clamp_max
 
 
 class OctreeFile(NamedTuple):

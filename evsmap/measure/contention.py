@@ -18,10 +18,12 @@ import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
+from evsmap.environment import describe as describe_machine
 from evsmap.fileio import atomic_write_text, read_json_object
 
 CALIBRATION_SIZE = 384
@@ -120,16 +122,14 @@ class Probe:
         return cls(load1=float(load1), load5=float(load5), cores=os.cpu_count() or 1,
                    calibration_gmacs=calibration_gmacs(), cpu=clock)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
 def machine_key() -> str:
     """The calibration's machine: CPU model and torch threads (a different thread count is a
     different reference)."""
-    from evsmap.environment import cpu_model
-
-    return f"{cpu_model()} / {torch.get_num_threads()} threads"
+    return f"{describe_machine()['cpu']} / {torch.get_num_threads()} threads"
 
 
 def machine_log_path() -> Path:
@@ -176,7 +176,7 @@ class CalibrationLog:
 
 
 
-def _write(path: Path, data: dict) -> None:
+def _write(path: Path, data: dict[str, Any]) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(path, json.dumps(data))
@@ -184,7 +184,8 @@ def _write(path: Path, data: dict) -> None:
         pass  # a read-only cache: the reference stays in memory
 
 
-def contention(before: Probe, after: Probe, log: CalibrationLog | None = None) -> dict:
+def contention(before: Probe, after: Probe,
+               log: CalibrationLog | None = None) -> dict[str, Any]:
     """What the two probes around a timed cell say: the slowdown of its slower calibration
     against the run's best, the share of the cores other processes used in between
     (``other_share``), the load, and ``contended`` when the slowdown passes
@@ -200,14 +201,14 @@ def contention(before: Probe, after: Probe, log: CalibrationLog | None = None) -
             "other_share": share, "severity": severity, "contended": bool(severity > 1.0)}
 
 
-def severity(machine: dict) -> float:
+def severity(machine: dict[str, Any]) -> float:
     """:func:`contention`'s ``severity`` (records written before it: slowdown / limit)."""
     if machine.get("severity") is not None:
         return float(machine["severity"])
     return float(machine["slowdown"]) / SLOWDOWN_LIMIT
 
 
-def describe(machine: dict) -> str:
+def describe(machine: dict[str, Any]) -> str:
     """One phrase for a contended cell: what the probes saw."""
     parts = [f"the calibration matmul ran {machine['slowdown']:.2f}x slower than the run's best"]
     if machine.get("other_share") is not None:

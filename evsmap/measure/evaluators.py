@@ -35,7 +35,7 @@ import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import EvsmapError, InvalidDataError
-from evsmap.interfaces import FILE_FORMATS, MapUpdater
+from evsmap.interfaces import FILE_FORMATS, MapStats, MapUpdater
 from evsmap.metrics.mapping import MapQuality
 
 
@@ -210,28 +210,6 @@ class MapFiles(MapEvaluator):
             sizes[self.file_format] = write_map(updater, self.out, self.file_format)
             file = str(self.out)
         return MapFileSizes(sizes=sizes, file=file, file_format=self.file_format)
-
-
-@dataclass(frozen=True)
-class MapStats:
-    """Counts of a finished map.
-
-    Attributes:
-        nodes, leaves: the octree's counts.
-        octomap_memory_bytes: OctoMap's ``memoryUsage()`` formula over the tree's nodes in the
-            compared system's C++ node type (a model, not a measurement); ``None`` where the
-            updater has none.
-        map_nbytes: measured - the bytes of the arrays evsmap holds the map in; ``None`` for a
-            map held by a C++ library.
-
-    (The share of leaves pruned, :func:`pruned_share`, builds the tree's arrays: it is left out
-    here so that it never counts in a mapping's peak memory.)
-    """
-
-    nodes: int
-    leaves: int
-    octomap_memory_bytes: int | None
-    map_nbytes: int | None
 
 
 def pruned_share(updater: MapUpdater) -> float | None:

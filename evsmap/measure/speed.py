@@ -3,26 +3,25 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
-import platform
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
-from importlib import metadata
 from typing import Any
 
 import numpy as np
 import torch
 
-from evsmap.environment import cpu_model, instruction_set
+from evsmap.environment import LIBRARIES, collect_environment
 from evsmap.errors import UnknownNameError
+from evsmap.measure.contention import Probe, contention, describe
 from evsmap.measure.timing_policy import TimedPasses, TimingPolicy, time_until_precise
 from evsmap.models.module_utils import as_inputs, eval_mode, image_size
 
 BACKENDS = ("onnxruntime", "torch")
 ROOFLINE_SIZE = 4096
-_VERSIONED = ("torch", "onnxruntime", "numpy", "fvcore")
 
 
 @dataclass(frozen=True)
@@ -43,7 +42,7 @@ class SpeedRecord:
         roofline_gmacs: fp32 matmul throughput measured in the same call, G MAC/s.
         achieved_gmacs: ``macs`` per median forward pass, G MAC/s.
         roofline_fraction: ``achieved_gmacs / roofline_gmacs``.
-        versions: python and library versions.
+        versions: python's and :data:`evsmap.environment.LIBRARIES`' versions.
         cpu: CPU model name.
         instruction_set: the vector instruction set the kernels ran with
             (:func:`evsmap.environment.instruction_set`).
@@ -110,21 +109,8 @@ class SpeedRecord:
             reasons.append(f"unstable: IQR/median {self.rel_iqr:.2f} after {self.rounds} "
                            f"rounds of {self.runs}")
         if self.contention.get("contended"):
-            from evsmap.measure.contention import describe
-
             reasons.append(describe(self.contention))
         return "; ".join(reasons) or None
-
-
-def library_versions() -> dict[str, str]:
-    """Versions of python, torch, onnxruntime, numpy and fvcore ("not installed" if absent)."""
-    versions = {"python": platform.python_version()}
-    for name in _VERSIONED:
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = "not installed"
-    return versions
 
 
 def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int = 1,
@@ -160,7 +146,7 @@ def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int =
     return float(size) ** 3 / float(np.median(times)) / 1e9
 
 
-def _matmul_session(size: int, threads: int):
+def _matmul_session(size: int, threads: int) -> Any:
     import onnx
     import onnxruntime as ort
     from onnx import TensorProto, helper
@@ -239,83 +225,123 @@ def measure_speed(
         UnknownNameError: ``backend`` is not one of :data:`BACKENDS`.
         OnnxExportError: the onnxruntime backend could not export the module.
     """
-    if backend not in BACKENDS:
-        raise UnknownNameError(f"unknown backend {backend!r} (known: {', '.join(BACKENDS)})")
-    if runs < 1 or warmup < 0 or (threads is not None and threads < 1):
-        raise ValueError(f"need runs >= 1, warmup >= 0, threads >= 1 (got runs={runs}, "
-                         f"warmup={warmup}, threads={threads})")
+    _check_settings(backend, runs, warmup, threads, max_rounds)
     inputs = as_inputs(inputs)
-    height, width = image_size(inputs)
-    if input_names is None:
-        input_names = [f"input{i}" for i in range(len(inputs))]
+    size = image_size(inputs)
     if macs is None:
         from evsmap.measure.complexity import measure_complexity
 
         macs = measure_complexity(module, inputs).flops
-
-    from evsmap.measure.contention import Probe, contention
-
-    if max_rounds < 1:
-        raise ValueError(f"max_rounds must be >= 1, got {max_rounds}")
     previous_threads = torch.get_num_threads()
     try:
         if threads is not None:
             torch.set_num_threads(threads)
         used_threads = torch.get_num_threads()
-        probes = [Probe.take()]  # one before every round and one after the last
-        session_s = None
+        first = Probe.take()  # the machine before the first timed pass
+        t_session = time.perf_counter()
         if backend == "torch":
-            def call() -> object:
-                return module(*inputs)
+            call: Callable[[], object] = functools.partial(module, *inputs)
+            session_s = None
         else:
-            t_session = time.perf_counter()
             call = _onnxruntime_forward(module, inputs, input_names, used_threads,
                                         key or type(module).__name__, cache_dir, onnx_path,
                                         free_dimensions)
             session_s = time.perf_counter() - t_session
-        passes = None
-        if policy is not None:
-            with _timing_context(module, backend):
-                passes = time_until_precise(call, policy)
-            probes.append(Probe.take())
-            times, rounds, kept_rel, kept_round = passes.times_s, 1, _rel_iqr(passes.times_s), 0
-        else:
-            kept, kept_rel, kept_round, rounds = None, float("inf"), 0, 0
-            for r in range(max_rounds):
-                with _timing_context(module, backend):
-                    times = _time_calls(call, runs, warmup if r == 0 else 0)
-                probes.append(Probe.take())
-                rounds += 1
-                rel = _rel_iqr(times)
-                if rel < kept_rel or (stable_rel_iqr is not None and rel <= stable_rel_iqr):
-                    kept, kept_rel, kept_round = times, rel, r
-                if stable_rel_iqr is not None and rel <= stable_rel_iqr:
-                    break
-            times = kept
-        before, after = probes[kept_round], probes[kept_round + 1]
+        context = functools.partial(_timing_context, module, backend)
+        timed = (_time_precisely(call, policy, first, context) if policy is not None
+                 else _time_in_rounds(call, runs, warmup, max_rounds, stable_rel_iqr, first,
+                                      context))
         if roofline is None:
             roofline = roofline_gmacs(roofline_size)
     finally:
         torch.set_num_threads(previous_threads)
+    return _speed_record(timed, backend=backend, size=size, threads=used_threads,
+                         macs=int(macs), roofline=roofline, stable_rel_iqr=stable_rel_iqr,
+                         calibration_log=calibration_log, session_s=session_s)
 
-    times_ms = [t * 1000.0 for t in times]
+
+def _check_settings(backend: str, runs: int, warmup: int, threads: int | None,
+                    max_rounds: int) -> None:
+    if backend not in BACKENDS:
+        raise UnknownNameError(f"unknown backend {backend!r} (known: {', '.join(BACKENDS)})")
+    if runs < 1 or warmup < 0 or (threads is not None and threads < 1):
+        raise ValueError(f"need runs >= 1, warmup >= 0, threads >= 1 (got runs={runs}, "
+                         f"warmup={warmup}, threads={threads})")
+    if max_rounds < 1:
+        raise ValueError(f"max_rounds must be >= 1, got {max_rounds}")
+
+
+@dataclass
+class _Timed:
+    """What timing the forward passes gave: the kept ``times`` (s), the ``rounds`` timed, the
+    kept round's ``rel_iqr``, the machine ``probes`` around it and, under a timing policy, the
+    ``passes``."""
+
+    times: list[float]
+    rounds: int
+    rel_iqr: float
+    probes: tuple[Any, Any]
+    warmup: int
+    passes: TimedPasses | None = None
+
+
+def _time_precisely(call: Callable[[], object], policy: TimingPolicy, first: Probe,
+                    context: Callable[[], contextlib.AbstractContextManager[None]]) -> _Timed:
+    """Time pass by pass (in ``context``) until ``policy`` is met; ``first`` is the machine
+    probe taken before, one more is taken after."""
+    with context():
+        passes = time_until_precise(call, policy)
+    return _Timed(passes.times_s, 1, _rel_iqr(passes.times_s), (first, Probe.take()),
+                  passes.warmup_runs, passes)
+
+
+def _time_in_rounds(call: Callable[[], object], runs: int, warmup: int, max_rounds: int,
+                    stable_rel_iqr: float | None, first: Probe,
+                    context: Callable[[], contextlib.AbstractContextManager[None]]) -> _Timed:
+    """Rounds of ``runs`` passes (each in ``context``; ``warmup`` untimed ones before the
+    first) until one's IQR / median is at most ``stable_rel_iqr``, at most ``max_rounds``; the
+    stable round, else the steadiest, with the machine probes just before and after it
+    (``first`` the one taken before the first round)."""
+    probes = [first]  # one before every round and one after the last
+    kept: list[float] = []
+    kept_rel, kept_round = float("inf"), 0
+    for r in range(max_rounds):
+        with context():
+            times = _time_calls(call, runs, warmup if r == 0 else 0)
+        probes.append(Probe.take())
+        rel = _rel_iqr(times)
+        stable = stable_rel_iqr is not None and rel <= stable_rel_iqr
+        if rel < kept_rel or stable:
+            kept, kept_rel, kept_round = times, rel, r
+        if stable:
+            break
+    return _Timed(kept, len(probes) - 1, kept_rel, (probes[kept_round], probes[kept_round + 1]),
+                  warmup)
+
+
+def _speed_record(timed: _Timed, *, backend: str, size: tuple[int, int], threads: int,
+                  macs: int, roofline: float, stable_rel_iqr: float | None,
+                  calibration_log: Any, session_s: float | None) -> SpeedRecord:
+    """The record of ``timed``: latency and speed percentiles, the roofline fraction, the
+    machine (:func:`~evsmap.environment.collect_environment`) and its contention."""
+    times_ms = [t * 1000.0 for t in timed.times]
     q25, median, q75 = (float(v) for v in np.percentile(times_ms, [25, 50, 75]))
     achieved = macs / (median / 1000.0) / 1e9
+    before, after = timed.probes
+    env = collect_environment(threads)
     return SpeedRecord(
-        backend=backend, height=height, width=width,
-        runs=len(times_ms), warmup=passes.warmup_runs if passes else warmup,
-        threads=used_threads,
-        ms_median=median, ms_iqr=q75 - q25,
+        backend=backend, height=size[0], width=size[1], runs=len(times_ms),
+        warmup=timed.warmup, threads=threads, ms_median=median, ms_iqr=q75 - q25,
         fps_median=1000.0 / median, fps_iqr=1000.0 / q25 - 1000.0 / q75,
-        times_ms=times_ms, macs=int(macs),
-        roofline_gmacs=roofline, achieved_gmacs=achieved,
+        times_ms=times_ms, macs=macs, roofline_gmacs=roofline, achieved_gmacs=achieved,
         roofline_fraction=achieved / roofline,
-        versions=library_versions(), cpu=cpu_model(), instruction_set=instruction_set(),
-        rounds=rounds, rel_iqr=(q75 - q25) / median,
-        stable=None if stable_rel_iqr is None else bool(kept_rel <= stable_rel_iqr),
+        versions={"python": env["python"], **{k: env["versions"][k] for k in LIBRARIES}},
+        cpu=env["cpu"], instruction_set=env["instruction_set"],
+        rounds=timed.rounds, rel_iqr=(q75 - q25) / median,
+        stable=None if stable_rel_iqr is None else bool(timed.rel_iqr <= stable_rel_iqr),
         contention=contention(before, after, calibration_log),
         calibration_gmacs=math.sqrt(before.calibration_gmacs * after.calibration_gmacs),
-        **(_precision_fields(passes) if passes else {}), session_s=session_s,
+        **(_precision_fields(timed.passes) if timed.passes else {}), session_s=session_s,
     )
 
 
@@ -363,7 +389,8 @@ def _time_calls(forward: Callable[[], object], runs: int, warmup: int) -> list[f
 
 
 def _onnxruntime_forward(
-    module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], input_names: Sequence[str],
+    module: torch.nn.Module, inputs: tuple[torch.Tensor, ...],
+    input_names: Sequence[str] | None,
     threads: int, key: str, cache_dir: str | os.PathLike[str] | None,
     onnx_path: str | os.PathLike[str] | None = None,
     free_dimensions: dict[str, int] | None = None,
@@ -371,6 +398,8 @@ def _onnxruntime_forward(
     from evsmap.models.onnx_export import cached_onnx
     from evsmap.models.speed_export import session_for
 
+    if input_names is None:
+        input_names = [f"input{i}" for i in range(len(inputs))]
     path = onnx_path or cached_onnx(module, inputs, input_names, key=key, cache_dir=cache_dir)
     session = session_for(path, threads=threads, free_dimensions=free_dimensions)
     arrays = dict(zip(input_names, (t.detach().cpu().numpy() for t in inputs), strict=True))

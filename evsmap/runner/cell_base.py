@@ -4,40 +4,19 @@ and the pauses before a contended timing is taken again."""
 
 from __future__ import annotations
 
-import os
-import socket
 from datetime import UTC, datetime
 from typing import Any
 
-from evsmap.gitinfo import head_commit as git_commit
+from evsmap.environment import collect_environment
+from evsmap.lock import lock_status
 from evsmap.runner.context import RunContext
 from evsmap.runner.records import CellRecord, needs_text
 from evsmap.tables.schema import CellSpec, load_tables
 
 
 def environment(threads: int | None = None) -> dict[str, Any]:
-    """CPU model, core and thread counts, library versions, git commit and host."""
-    from evsmap.environment import describe
-    from evsmap.measure.speed import library_versions
-
-    env: dict[str, Any] = dict(describe())
-    env["threads"] = threads or os.cpu_count() or 1
-    env["host"] = socket.gethostname()
-    try:
-        env["versions"] = dict(library_versions())
-    except Exception:  # pragma: no cover - a missing optional library
-        env["versions"] = {}
-    from importlib.metadata import PackageNotFoundError, version
-
-    env["versions"].pop("python", None)  # already in env["python"]
-    for dist in ("numba", "octomap-python", "open3d", "evsmap"):
-        try:
-            env["versions"][dist] = version(dist)
-        except PackageNotFoundError:
-            pass
-    env["git_commit"] = git_commit()
-    from evsmap.lock import lock_status
-
+    """:func:`evsmap.environment.collect_environment` and the lock's status."""
+    env = collect_environment(threads)
     env["lock"] = lock_status()
     return env
 

@@ -41,10 +41,11 @@ time is mostly a process's start-up: 8 s for a 2 s cell) do not triple the time 
 def machine_id(threads: int, *, quick: bool = False) -> str:
     """The history's machine: CPU model, instruction set and threads (a ``--quick`` run's cells
     are kept apart: same keys, smaller work)."""
-    from evsmap.environment import cpu_model, instruction_set
+    from evsmap.environment import describe
 
-    return f"{cpu_model()} / {instruction_set()} / {threads} threads" + (" / quick" if quick
-                                                                          else "")
+    machine = describe()
+    return (f"{machine['cpu']} / {machine['instruction_set']} / {threads} threads"
+            + (" / quick" if quick else ""))
 
 
 @dataclass

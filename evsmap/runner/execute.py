@@ -20,7 +20,6 @@ from evsmap.runner.cell_base import (
     STRICT_PAUSE_S,
     base_fields,
     environment,
-    git_commit,
     na_record,
     now,
     spec_inputs,
@@ -99,7 +98,7 @@ def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
 __all__ = [
     "MAPPING_WEIGHTS", "REFERENCE_ROW", "RETRY_PAUSE_S", "RUNNERS", "STRICT_PAUSE_S",
     "VARIANT_ROWS", "MappingRun", "build_segmenter", "dataset_miou", "environment",
-    "execute_mapping", "execute_spec", "git_commit", "mapping_record", "mapping_runs",
+    "execute_mapping", "execute_spec", "mapping_record", "mapping_runs",
     "na_record", "now", "observations_key", "open_mapping_sequence", "run_accuracy",
     "run_complexity", "run_speed", "runtime_sequence", "sequence_identity", "spec_inputs",
     "table4_record", "weights_identity",

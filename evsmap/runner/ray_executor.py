@@ -13,8 +13,9 @@ made. How the cells are placed:
 * Timing nodes are the nodes like the head node (same CPU model and CPU count; without CPUs on
   the head, the largest such group), so every timed cell of a run is measured on the same kind
   of machine. The other nodes run only cells that are not timed.
-* Each record says where it ran: ``environment["executor"]`` = ``{"name": "ray", "node_id",
-  "node" (host name), "cpus" (reserved), "whole_node"}``.
+* Each record says where it ran: ``environment["host"]`` is the node's host name and
+  ``environment["executor"]`` = ``{"name": "ray", "node_id", "cpus" (reserved),
+  "whole_node"}`` (records written before named the host ``executor["node"]`` too).
 
 The records themselves are written by the driver (:func:`evsmap.runner.matrix.run_matrix`) as
 the tasks finish.
@@ -26,7 +27,7 @@ import os
 import socket
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from evsmap.errors import EvsmapError
 from evsmap.runner.executors import CellExecutor, TimingSlot, fresh_process
@@ -66,18 +67,21 @@ def check_reachable(address: str, timeout_s: float = 5.0) -> None:
 
 # ------------------------------------------------------------- run on the nodes (importable)
 def _placed(result: dict[str, Any], cpus: int, whole_node: bool) -> dict[str, Any]:
-    """``result`` (a record's dict) with where it ran in ``environment["executor"]``."""
+    """``result`` (a record's dict) with where it ran: ``environment["host"]`` and
+    ``environment["executor"]``."""
     import ray
 
     env = result.get("environment")
     if not isinstance(env, dict):
         env = result["environment"] = {}
+    env["host"] = socket.gethostname()
     env["executor"] = {"name": "ray", "node_id": ray.get_runtime_context().get_node_id(),
-                       "node": socket.gethostname(), "cpus": cpus, "whole_node": whole_node}
+                       "cpus": cpus, "whole_node": whole_node}
     return result
 
 
-def _pooled_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> dict[str, Any]:
+def _pooled_call(fn: Callable[..., dict[str, Any]], args: tuple[Any, ...],
+                 cpus: int) -> dict[str, Any]:
     """A cell that is not timed, in a Ray worker, with as many torch threads as it reserved."""
     import torch
 
@@ -85,7 +89,8 @@ def _pooled_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> d
     return _placed(fn(*args), cpus, whole_node=False)
 
 
-def _timed_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> dict[str, Any]:
+def _timed_call(fn: Callable[..., dict[str, Any]], args: tuple[Any, ...],
+                cpus: int) -> dict[str, Any]:
     """A timed cell: the Ray task holds the whole node while the cell runs in a fresh
     interpreter (a Ray worker may have run other cells before; the spawned one has not)."""
     with fresh_process() as ex:
@@ -94,15 +99,16 @@ def _timed_call(fn: Callable[..., dict[str, Any]], args: tuple, cpus: int) -> di
 
 
 def _probe(paths: list[str]) -> dict[str, Any]:
-    """What the driver checks on each node: its host, CPU model and instruction set, evsmap
-    version and which of the run's ``paths`` it cannot see."""
+    """What the driver checks on each node: its host, CPU model and instruction set and git
+    commit (of :func:`~evsmap.environment.collect_environment`), evsmap version and which of
+    the run's ``paths`` it cannot see."""
     from pathlib import Path
 
-    from evsmap.environment import cpu_model, instruction_set
-    from evsmap.version import evsmap_version
+    from evsmap.environment import collect_environment
 
-    return {"host": socket.gethostname(), "cpu_model": cpu_model(),
-            "instruction_set": instruction_set(), "evsmap": evsmap_version(),
+    env = collect_environment()
+    return {**{k: env[k] for k in ("host", "cpu", "instruction_set", "git_commit")},
+            "evsmap": env["versions"].get("evsmap", "unknown"),
             "missing": [p for p in paths if not Path(p).exists()]}
 
 
@@ -110,10 +116,10 @@ def _probe(paths: list[str]) -> dict[str, Any]:
 def timing_nodes(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The nodes that time: those with the head node's CPU model, instruction set and CPU
     count; when the head is not among ``nodes`` (it has no CPUs), the largest group of alike
-    nodes (ties: the most CPUs, then the first listed). Each node: ``cpu_model``, ``cpus``,
+    nodes (ties: the most CPUs, then the first listed). Each node: ``cpu``, ``cpus``,
     ``head`` and (optional) ``instruction_set``."""
     def kind(node: dict[str, Any]) -> tuple[str, str, int]:
-        return node["cpu_model"], node.get("instruction_set", ""), node["cpus"]
+        return node["cpu"], node.get("instruction_set", ""), node["cpus"]
 
     groups: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
     for node in nodes:
@@ -129,17 +135,19 @@ class _RayTasks(Executor):
     futures complete as the tasks finish. Leaving it on an error cancels what is still
     running."""
 
-    def __init__(self, ray: Any, launch: Callable[[Callable, tuple], Any]) -> None:
+    def __init__(self, ray: Any,
+                 launch: Callable[[Callable[..., Any], tuple[Any, ...]], Any]) -> None:
         self._ray = ray
         self._launch = launch
         self._refs: list[Any] = []
 
-    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> Future:
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
         if kwargs:
             raise TypeError("Ray cells take positional arguments only")
         ref = self._launch(fn, args)
         self._refs.append(ref)
-        return ref.future()
+        future: Future[Any] = ref.future()
+        return future
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         refs, self._refs = self._refs, []
@@ -152,7 +160,7 @@ class _RayTasks(Executor):
         elif wait and refs:
             self._ray.wait(refs, num_returns=len(refs))
 
-    def __exit__(self, exc_type: object, *rest: object) -> bool:
+    def __exit__(self, exc_type: object, *rest: object) -> Literal[False]:
         self.shutdown(wait=exc_type is None, cancel_futures=exc_type is not None)
         return False
 
@@ -253,8 +261,8 @@ class RayExecutor(CellExecutor):
                     f"--executor ray: node {probe['host']} runs evsmap {probe['evsmap']}, this "
                     f"machine {mine}: install the same evsmap on every node")
         self._nodes = [
-            {"node_id": n["NodeID"], "host": p["host"], "cpu_model": p["cpu_model"],
-             "instruction_set": p["instruction_set"],
+            {"node_id": n["NodeID"], "host": p["host"], "cpu": p["cpu"],
+             "instruction_set": p["instruction_set"], "git_commit": p["git_commit"],
              "cpus": int(n["Resources"]["CPU"]), "head": HEAD_RESOURCE in n["Resources"]}
             for n, p in zip(nodes, probes, strict=True)]
         self._max_cpus = max(n["cpus"] for n in self._nodes)
@@ -304,7 +312,7 @@ class RayExecutor(CellExecutor):
         where = self.address or ("a local cluster" if self._own_session
                                  else "the Ray this process had joined")
         first = timing[0] if timing else None
-        kind = (f"{first['cpu_model']}, {first['instruction_set']}, {first['cpus']} CPUs"
+        kind = (f"{first['cpu']}, {first['instruction_set']}, {first['cpus']} CPUs"
                 if first else "none")
         return (f"ray ({where}): {len(self._nodes)} node(s), {cpus} CPUs; timed cells on "
                 f"{len(timing)} node(s) ({kind}), each alone on its node")

@@ -13,12 +13,13 @@ of plain values (str, int, float, bool, None, lists, dicts of those), readable w
 ``class_names``     one name per class
 ``evsmap_version``  version of evsmap that wrote the file
 ``git_commit``      commit of the evsmap source tree that wrote it (``+dirty`` when it had
-                    uncommitted changes; None outside a git checkout)
+                    uncommitted changes; None outside a git checkout), as every record names
+                    it (:func:`evsmap.environment.collect_environment`)
 ``tensors``         number of tensors
 ``tensors_sha256``  :func:`tensor_sha256` of the state dict
 ``machine``         where it was written: ``cpu`` and ``instruction_set``
-                    (:mod:`evsmap.environment`; the kernels a trained network's arithmetic
-                    ran on). Cards written before it lack the key.
+                    (:func:`evsmap.environment.collect_environment`'s keys; the kernels a
+                    trained network's arithmetic ran on). Cards written before it lack the key.
 
 plus what the writer knows: ``evsmap weights convert`` adds the source file and layout,
 ``evsmap train`` the dataset, splits, recipe, epochs and measured mIoU (see
@@ -40,9 +41,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from evsmap.environment import cpu_model, instruction_set
+from evsmap.environment import collect_environment
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.gitinfo import head_commit as git_commit
 from evsmap.version import evsmap_version
 
 CARD_VERSION = 1
@@ -65,6 +65,7 @@ def make_card(*, model: str, options: Mapping[str, Any], num_classes: int,
               class_names: list[str] | tuple[str, ...], state_dict: Mapping[str, Any],
               **fields: Any) -> dict[str, Any]:
     """A card for ``state_dict``: the common keys above, then ``fields`` (the writer's own)."""
+    env = collect_environment()
     card: dict[str, Any] = {
         "card_version": CARD_VERSION,
         "model": model,
@@ -72,10 +73,10 @@ def make_card(*, model: str, options: Mapping[str, Any], num_classes: int,
         "num_classes": int(num_classes),
         "class_names": [str(n) for n in class_names],
         "evsmap_version": evsmap_version(),
-        "git_commit": git_commit(),
+        "git_commit": env["git_commit"],
         "tensors": len(state_dict),
         "tensors_sha256": tensor_sha256(state_dict),
-        "machine": {"cpu": cpu_model(), "instruction_set": instruction_set()},
+        "machine": {key: env[key] for key in ("cpu", "instruction_set")},
     }
     card.update(fields)
     return card
@@ -230,7 +231,8 @@ def card_miou(card: Mapping[str, Any] | None, split: str) -> float | None:
     (``<split>_miou``; also read: ``miou_<split>`` and a ``metrics`` table of either)."""
     if not isinstance(card, Mapping):
         return None
-    metrics = card.get("metrics") if isinstance(card.get("metrics"), Mapping) else {}
+    metrics = card.get("metrics")
+    metrics = metrics if isinstance(metrics, Mapping) else {}
     for where, key in ((card, f"{split}_miou"), (card, f"miou_{split}"),
                        (metrics, f"{split}_miou"), (metrics, f"miou_{split}"),
                        (metrics, split)):
@@ -268,5 +270,5 @@ def card_spec(card: Mapping[str, Any] | None) -> str:
 
 __all__ = ["CARD_VERSION", "TRAIN_CHECKPOINT", "WEIGHTS_SUFFIXES", "WeightsFile", "card_dataset",
            "card_get", "card_miou", "card_spec", "evsmap_version", "find_weights_files",
-           "format_options", "git_commit", "inspect_weights", "load_lazily", "make_card",
+           "format_options", "inspect_weights", "load_lazily", "make_card",
            "open_weights", "tensor_sha256"]

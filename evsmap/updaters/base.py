@@ -34,6 +34,7 @@ from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 from evsmap.mapping.node_type import OCTREE, NodeType
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams
 from evsmap.mapping.raycast import scan_keys
+from evsmap.mapping.sensor_model import OCTOMAP
 from evsmap.mapping.threads import kernel_threads
 from evsmap.mapping.tree import Tree
 
@@ -185,9 +186,10 @@ class OctreeUpdater(MapUpdater):
 
     def __init__(self, *, node_type: NodeType | None = None, name: str | None = None,
                  resolution: float = 0.05, max_range: float = 5.0,
-                 discretize: bool = True, prob_hit: float = 0.7, prob_miss: float = 0.4,
-                 clamp_min: float = 0.1192, clamp_max: float = 0.971,
-                 occupancy_threshold: float = 0.5) -> None:
+                 discretize: bool = True, prob_hit: float = OCTOMAP.prob_hit,
+                 prob_miss: float = OCTOMAP.prob_miss, clamp_min: float = OCTOMAP.clamp_min,
+                 clamp_max: float = OCTOMAP.clamp_max,
+                 occupancy_threshold: float = OCTOMAP.occupancy_threshold) -> None:
         if node_type is not None:
             if not isinstance(node_type, NodeType):
                 raise InvalidDataError(f"node_type must be a NodeType, got "

@@ -66,6 +66,7 @@ from evsmap.mapping.generator import (
 from evsmap.mapping.keys import pack
 from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.raycast import octomap_keys, scan_keys
+from evsmap.mapping.sensor_model import OCTOMAP
 from evsmap.mapping.ssmi_kernel import LOGINIT, frame_update, occupancies, tree_constants
 from evsmap.mapping.tree import Tree, octomap_colour_average, octomap_colour_prune
 from evsmap.mapping.voxel_grid import voxel_grid
@@ -223,7 +224,7 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
                  resolution: float = 0.05, max_range: float = ROS_DEFAULTS["max_range"],
                  clamp_min: float = ROS_DEFAULTS["clamp_min"],
                  clamp_max: float = ROS_DEFAULTS["clamp_max"],
-                 occupancy_threshold: float = 0.5) -> None:
+                 occupancy_threshold: float = OCTOMAP.occupancy_threshold) -> None:
         if pairing not in fusion.PAIRINGS:
             raise InvalidDataError(f"multiclass-bayes: pairing must be one of "
                                    f"{', '.join(fusion.PAIRINGS)}; got {pairing!r}")

@@ -50,7 +50,7 @@ def test_timed_cells_run_one_at_a_time_per_slot(n_slots):
 
 
 def _node(host, cpu, cpus, head=False):
-    return {"host": host, "cpu_model": cpu, "cpus": cpus, "head": head}
+    return {"host": host, "cpu": cpu, "cpus": cpus, "head": head}
 
 
 def test_timing_nodes_are_alike():

@@ -99,8 +99,9 @@ def test_ray_runs_the_matrix_as_the_local_pool_does(cluster, tmp_path):
     # where each cell ran: pooled cells reserve their threads, the timed one the whole node
     node = ray.get_runtime_context().get_node_id()
     threads = min(ray_ctx.threads, 2)  # the run's threads, at most the node's CPUs
-    assert v2.environment["executor"] == {"name": "ray", "node_id": node, "node": slot.name,
-                                          "cpus": threads, "whole_node": False}
+    assert v2.environment["executor"] == {"name": "ray", "node_id": node, "cpus": threads,
+                                          "whole_node": False}
+    assert v2.environment["host"] == slot.name
     assert v2.environment["threads"] == threads
     assert mapped.environment["executor"]["whole_node"] is True
     assert mapped.environment["executor"]["cpus"] == mapped.environment["threads"] == 2
@@ -126,7 +127,7 @@ def test_the_node_probe_names_what_a_node_cannot_see(tmp_path):
 
     probe = _probe([str(tmp_path), str(tmp_path / "elsewhere")])
     assert probe["missing"] == [str(tmp_path / "elsewhere")]
-    assert probe["evsmap"] == evsmap_version() and probe["cpu_model"]
+    assert probe["evsmap"] == evsmap_version() and probe["cpu"]
     assert probe["instruction_set"]
 
 
