@@ -240,7 +240,7 @@ class NodeTypeRegistry:
         try:
             return self._types[tree_id]
         except KeyError:
-            raise UnknownNameError(f"unknown tree type {tree_id!r} (known: "
+            raise UnknownNameError(f"unknown tree id {tree_id!r} (known: "
                                    f"{', '.join(self.names())}; a plug-in's node type is known "
                                    f"once its module is imported)") from None
 

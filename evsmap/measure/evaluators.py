@@ -23,19 +23,19 @@ Built in:
 from __future__ import annotations
 
 import abc
-import inspect
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import EvsmapError, InvalidDataError
-from evsmap.interfaces import FILE_FORMATS, MapUpdater
+from evsmap.interfaces import FILE_FORMATS, MapUpdater, check_file_format
+
+if TYPE_CHECKING:
+    from evsmap.metrics.mapping import MapQuality
 
 
 class SegmentationEvaluator(abc.ABC):
@@ -150,17 +150,10 @@ class KeepObservations(SegmentationEvaluator):
 
 # ------------------------------------------------------------------------------------ mapping
 def write_map(updater: MapUpdater, path: str | PathLike[str], file_format: str = "full") -> int:
-    """``updater.write(path, file_format)``; a plug-in whose ``write`` takes no file format
-    writes one file, which is both its full and its published one. Returns the bytes written."""
-    if file_format not in FILE_FORMATS:
-        raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, got "
-                               f"{file_format!r}")
-    if file_format not in updater.file_formats():
-        raise InvalidDataError(f"{type(updater).__name__} writes no {file_format} file (it "
-                               f"writes {', '.join(updater.file_formats())})")
-    if file_format != "full" and "file_format" in inspect.signature(updater.write).parameters:
-        return int(updater.write(path, file_format=file_format))
-    return int(updater.write(path))
+    """``updater.write(path, file_format)``, a format it does not write refused first. Returns
+    the bytes written."""
+    check_file_format(updater, file_format)
+    return int(updater.write(path, file_format))
 
 
 @dataclass(frozen=True)
@@ -234,16 +227,9 @@ class MapStats:
 
 
 def pruned_share(updater: MapUpdater) -> float | None:
-    """The share of the finest leaves merged into pruned nodes (octree updaters), else None."""
-    tree_of = getattr(updater, "tree", None)
-    leaves = getattr(getattr(updater, "map", None), "num_leaves", None)
-    if not callable(tree_of) or not leaves:
-        return None
-    from evsmap.mapping.keys import TREE_DEPTH
-
-    tree = tree_of()
-    finest = int(np.count_nonzero(tree.is_leaf & (tree.depth == TREE_DEPTH)))
-    return 1.0 - finest / int(leaves)
+    """The share of the finest leaves merged into pruned nodes
+    (:meth:`MapUpdater.pruned_share`), else None."""
+    return updater.pruned_share()
 
 
 class MapStatistics(MapEvaluator):
@@ -278,7 +264,7 @@ class MapQualityEvaluator(MapEvaluator):
         self.truth = truth
         self.name = name
 
-    def evaluate(self, updater: MapUpdater):
+    def evaluate(self, updater: MapUpdater) -> MapQuality | None:
         if not updater.has_leaf_map:
             return None
         from evsmap.metrics import evaluate_map
