@@ -346,7 +346,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         truth = SyntheticSequence(**synthetic_options(ctx, run.sequence)).ground_truth(
             run.voxel_size)
         quality = MapQualityEvaluator(truth).evaluate(updater)  # outside the memory scope
-        q = quality.as_dict() if hasattr(quality, "as_dict") else dict(quality.__dict__)
+        q = quality.as_dict() if quality is not None else {}
         details["quality"] = q
         for name in ("precision", "recall", "semantic_accuracy", "semantic_accuracy_all",
                      "map_miou"):

@@ -206,7 +206,7 @@ def test_custom_semantic_payload_round_trip(tmp_path):
     assert rt3.identical(t2)
 
 
-def test_unknown_tree_type_names_file_and_id(tmp_path):
+def test_unknown_tree_id_names_file_and_id(tmp_path):
     path = tmp_path / "sem.ot"
     write_ot(path, semantic_tree(), RES, tree_id="SemanticOcTree")
     with pytest.raises(DataFormatError, match=r"sem\.ot.*SemanticOcTree"):
