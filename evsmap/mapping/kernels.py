@@ -59,8 +59,10 @@ def check_kernels(kernels: str) -> Kernels:
     Raises:
         InvalidDataError: any other value.
     """
-    if kernels == "compiled" or kernels == "reference":
-        return kernels
+    if kernels == "compiled":
+        return "compiled"
+    if kernels == "reference":
+        return "reference"
     raise InvalidDataError(f"kernels must be one of {', '.join(KERNELS)}, got {kernels!r}")
 
 

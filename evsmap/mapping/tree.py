@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from evsmap.errors import InvalidDataError
 from evsmap.mapping.keys import TREE_DEPTH, morton, unpack
@@ -85,9 +86,9 @@ def _shift(depth: np.ndarray | int) -> np.ndarray | int:
 
 
 def _rows_equal(col: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    eq = np.asarray(col == ref)
+    eq: np.ndarray = np.asarray(col == ref)
     if eq.ndim > 1:
-        eq = eq.reshape(eq.shape[0], -1).all(axis=1)
+        eq = np.asarray(eq.reshape(eq.shape[0], -1).all(axis=1))
     return eq
 
 
@@ -157,7 +158,7 @@ class Tree:
 
     @property
     def is_leaf(self) -> np.ndarray:
-        return self.child_mask == 0
+        return np.asarray(self.child_mask == 0)
 
     @property
     def num_leaves(self) -> int:
@@ -226,7 +227,8 @@ class Tree:
                 and np.array_equal(self.value.view(np.uint32), other.value.view(np.uint32)))
         if not same or (self.payload is None) != (other.payload is None):
             return False
-        return self.payload is None or np.array_equal(self.payload, other.payload)
+        return (self.payload is None or other.payload is None
+                or np.array_equal(self.payload, other.payload))
 
     def leaves(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """(depth, code, value, payload) of the leaves, in pre-order."""
@@ -333,8 +335,8 @@ def expand_leaves(depth: np.ndarray, codes: np.ndarray, values: np.ndarray,
     return _codes_of_morton(fine), values[rep], pay
 
 
-def _as_column(a, n: int, name: str) -> np.ndarray:
-    a = np.asarray(a)
+def _as_column(rows: ArrayLike, n: int, name: str) -> np.ndarray:
+    a = np.asarray(rows)
     if a.ndim == 0 or a.shape[0] != n:
         raise InvalidDataError(f"{name} must have {n} rows, got shape {a.shape}")
     return a

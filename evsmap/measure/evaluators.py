@@ -23,6 +23,7 @@ Built in:
 from __future__ import annotations
 
 import abc
+import functools
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -35,6 +36,7 @@ from evsmap.errors import EvsmapError, InvalidDataError
 from evsmap.interfaces import FILE_FORMATS, MapUpdater, check_file_format
 
 if TYPE_CHECKING:
+    from evsmap.metrics import ConfusionMatrix, SegmentationResult
     from evsmap.metrics.mapping import MapQuality
 
 
@@ -92,8 +94,9 @@ class ConfusionEvaluator(SegmentationEvaluator):
         self.source = source
         self.needs = needs
         self.class_names = tuple(class_names)
-        self._make = (lambda: ConfusionMatrix(num_classes)) if ignore_index is None else \
-            (lambda: ConfusionMatrix(num_classes, ignore_index))
+        self._make: Callable[[], ConfusionMatrix] = (
+            functools.partial(ConfusionMatrix, num_classes) if ignore_index is None
+            else functools.partial(ConfusionMatrix, num_classes, ignore_index))
         self.matrix = self._make()
 
     def reset(self) -> None:
@@ -107,9 +110,11 @@ class ConfusionEvaluator(SegmentationEvaluator):
 
     def process(self, index: int, frame: Frame, observation: SemanticObservation) -> None:
         self.check(index, frame)
-        self.matrix.update(observation.argmax, frame.labels)
+        labels = frame.labels
+        assert labels is not None  # check() refused the frame otherwise
+        self.matrix.update(observation.argmax, labels)
 
-    def evaluate(self):
+    def evaluate(self) -> SegmentationResult:
         """The :class:`~evsmap.metrics.SegmentationResult` (mIoU over the classes present in
         ground truth or prediction)."""
         return self.matrix.result(class_names=self.class_names)

@@ -325,7 +325,7 @@ class OctreeUpdater(MapUpdater):
     @contextlib.contextmanager
     def reuse_tree(self) -> Iterator[None]:
         """Within the block, :meth:`tree` is built once (the map must not change inside)."""
-        self._reused_tree: Tree | None = None
+        self._reused_tree = None
         self._reusing = True
         try:
             yield
