@@ -55,3 +55,12 @@ def test_a_huge_box_falls_back_to_sorting(monkeypatch, tum_frame):
     a, b = _both(tum_frame, 0.05)
     assert np.array_equal(a.voxel_codes, b.voxel_codes)
     assert np.array_equal(a.point_voxel, b.point_voxel)
+
+
+def test_the_kernels_switch_is_checked():
+    from evsmap.errors import InvalidDataError
+    from evsmap.updaters.orgb import ORGBMap
+
+    assert ORGBMap().kernels == "compiled" and ORGBMap(kernels="reference").kernels == "reference"
+    with pytest.raises(InvalidDataError, match="kernels must be one of compiled, reference"):
+        ORGBMap(kernels="fast")
