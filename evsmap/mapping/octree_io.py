@@ -46,7 +46,7 @@ import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -132,7 +132,7 @@ def _check_write_args(tree: Tree, resolution: float, tree_id: str) -> None:
         raise InvalidDataError(f"tree id must be one ASCII word, got {tree_id!r}")
 
 
-def _atomic_write(path: str | os.PathLike, chunks: list[bytes]) -> int:
+def _atomic_write(path: str | os.PathLike[str], chunks: list[bytes]) -> int:
     try:
         with atomic_write(path, "wb", durable=True) as f:
             for c in chunks:
@@ -142,7 +142,7 @@ def _atomic_write(path: str | os.PathLike, chunks: list[bytes]) -> int:
     return sum(len(c) for c in chunks)
 
 
-def _read_bytes(path: str | os.PathLike) -> bytes:
+def _read_bytes(path: str | os.PathLike[str]) -> bytes:
     try:
         return Path(path).read_bytes()
     except OSError as e:
@@ -288,12 +288,16 @@ def _by_depth(depth: np.ndarray) -> list[np.ndarray]:
 # --------------------------------------------------------------------------- .ot
 
 
-def _payload_format(tree_id: str, payload_format, name: str | None) -> np.dtype | None:
+PayloadFormat = DTypeLike | Mapping[str, DTypeLike] | None
+"""A payload layout given by the caller: one dtype, or one per tree id."""
+
+
+def _payload_format(tree_id: str, payload_format: PayloadFormat,
+                    name: str | None) -> np.dtype | None:
     if tree_id in _BUILTIN:
         return _BUILTIN[tree_id]
-    fmt = payload_format
-    if isinstance(payload_format, Mapping):
-        fmt = payload_format.get(tree_id)
+    fmt: Any = (payload_format.get(tree_id) if isinstance(payload_format, Mapping)
+                else payload_format)
     if fmt is None and tree_id in NODE_TYPES:
         fmt = NODE_TYPES.get(tree_id).record
         if fmt is None:
@@ -303,7 +307,8 @@ def _payload_format(tree_id: str, payload_format, name: str | None) -> np.dtype 
         raise DataFormatError(f"{where}unknown tree id {tree_id!r} (known: "
                               f"{', '.join(NODE_TYPES.names())}; a plug-in's node type is known "
                               "once its module is imported, or pass payload_format)")
-    return np.dtype(fmt)
+    dtype: np.dtype = np.dtype(fmt)
+    return dtype
 
 
 def _le(fmt: np.dtype) -> np.dtype:
@@ -356,7 +361,7 @@ def ot_bytes(tree: Tree, resolution: float, *, tree_id: str = "OcTree",
     return _header(OT_HEADER, tree_id, tree.num_nodes, resolution) + rec.tobytes()
 
 
-def write_ot(path: str | os.PathLike, tree: Tree, resolution: float, *,
+def write_ot(path: str | os.PathLike[str], tree: Tree, resolution: float, *,
              tree_id: str = "OcTree", payload_format: DTypeLike | None = None) -> int:
     """Write ``tree`` as an OctoMap ``.ot`` file (atomically); returns the byte size.
 
@@ -380,7 +385,7 @@ def parse_ot(data: bytes, *, name: str = "<bytes>",
         raise DataFormatError(f"{name}: corrupt octree file: {e}") from None
 
 
-def _parse_ot(data: bytes, name: str, payload_format) -> OctreeFile:
+def _parse_ot(data: bytes, name: str, payload_format: PayloadFormat) -> OctreeFile:
     tree_id, size, res, off = _parse_header(data, OT_HEADER, name)
     fmt = _payload_format(tree_id, payload_format, name)
     rd = _record_dtype(fmt)
@@ -423,7 +428,7 @@ def _native_base(fmt: np.dtype) -> np.dtype:
     return (fmt.base if fmt.subdtype is not None else fmt).newbyteorder("=")
 
 
-def read_ot(path: str | os.PathLike, *,
+def read_ot(path: str | os.PathLike[str], *,
             payload_format: DTypeLike | Mapping[str, DTypeLike] | None = None) -> OctreeFile:
     """Read an ``.ot`` file: ``(tree_id, resolution, tree)``.
 
@@ -478,7 +483,7 @@ def bt_bytes(tree: Tree, resolution: float, *, tree_id: str = "OcTree",
     return head + out.tobytes()
 
 
-def write_bt(path: str | os.PathLike, tree: Tree, resolution: float, *,
+def write_bt(path: str | os.PathLike[str], tree: Tree, resolution: float, *,
              tree_id: str = "OcTree", occupancy_thres: float = DEFAULT_OCCUPANCY_THRES,
              clamp_min: float = DEFAULT_CLAMP_MIN, clamp_max: float = DEFAULT_CLAMP_MAX) -> int:
     """Write ``tree`` as an OctoMap ``.bt`` file (atomically), as ``writeBinary`` does: maximum
@@ -566,7 +571,7 @@ def _parse_bt(data: bytes, name: str, lo: np.float32, hi: np.float32) -> OctreeF
     return OctreeFile(tree_id, res, tree)
 
 
-def read_bt(path: str | os.PathLike, *, clamp_min: float = DEFAULT_CLAMP_MIN,
+def read_bt(path: str | os.PathLike[str], *, clamp_min: float = DEFAULT_CLAMP_MIN,
             clamp_max: float = DEFAULT_CLAMP_MAX) -> OctreeFile:
     """Read a ``.bt`` file: ``(tree_id, resolution, tree)`` as ``readBinary`` rebuilds it
     (leaves at the clamping log-odds, inner nodes the max of their children, the root at the
