@@ -46,17 +46,15 @@ def voxel_distributions(voxel: np.ndarray, classes: np.ndarray, probs: np.ndarra
     return state.classes[:, :slots], conf[:, :slots].astype(np.float32)
 
 
-USE_KERNEL = True
-"""Fuse with the compiled kernel (:mod:`baselines.classic_semantic_kernels`); False selects the
-numpy reference (:func:`fuse_frame`; the tests compare the two)."""
-
 _NO_COLOURS = np.zeros((0, 3), np.uint8)
 
 
 def _update(updater: ClassicSemanticMap, frame: Frame, points: FramePoints, update: ScanUpdate,
             observation: SemanticObservation) -> None:
     """The frame's colours and semantics on its hit voxels: ``averageNodeColor`` and one
-    fusion per voxel of the mean distribution of its points (compiled kernel, or numpy)."""
+    fusion per voxel of the mean distribution of its points: the compiled kernel
+    (:mod:`baselines.classic_semantic_kernels`), or the numpy reference (:func:`fuse_frame`)
+    with ``kernels="reference"``."""
     pixels, voxels, local = updater.endpoint_voxels(points)
     if not voxels.size:
         return
@@ -65,7 +63,7 @@ def _update(updater: ClassicSemanticMap, frame: Frame, points: FramePoints, upda
     k = observation.k
     args = (m.payload("sem_classes"), m.payload("sem_conf"), m.payload("rgb"), voxels, local,
             pixels, observation.classes.reshape(-1, k), observation.probs.reshape(-1, k))
-    if USE_KERNEL and classic_semantic_kernels.frame_update(
+    if updater.kernels == "compiled" and classic_semantic_kernels.frame_update(
             *args, _NO_COLOURS if colors is None else colors, colors is not None,
             updater.slots == 3, fusion.PROB_MIN, fusion.DENSE_LIMIT):
         return

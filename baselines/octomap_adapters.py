@@ -17,7 +17,7 @@ import numpy as np
 from evsmap.data import Frame, SemanticObservation
 from evsmap.fileio import atomic_write_bytes
 from evsmap.geometry import transform_points
-from evsmap.interfaces import MapStats, MapUpdater, PointQuery
+from evsmap.interfaces import MapStats, MapUpdater, PointQuery, check_file_format
 from evsmap.mapping.fusion.colour import mean_per_voxel
 from evsmap.mapping.keys import key_to_coord, unpack
 from evsmap.mapping.raycast import frame_points
@@ -89,7 +89,8 @@ class OctoMapAdapter(MapUpdater):
         return int(len(self.tree.extractPointCloud()[0]))
 
     def write(self, path: str | PathLike[str], file_format: str = "full") -> int:
-        """OctoMap's own file (the same for ``full`` and ``published``)."""
+        """OctoMap's own file (the same for ``full`` and ``published``; no ``colour``)."""
+        check_file_format(self, file_format)
         path = Path(path)
         # note: writeBinary turns the live tree to maximum likelihood, as in OctoMap itself
         data = self.tree.writeBinary() if path.suffix == ".bt" else self.tree.write()

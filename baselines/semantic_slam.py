@@ -255,7 +255,8 @@ class SemanticSlamMap(OctreeUpdater):
         cloud = ends[inside]
         if len(cloud):
             keys = scan_keys(cloud, origin.astype(np.float64), self.resolution,
-                             max_range=self.raycast_range, discretize=True)
+                             max_range=self.raycast_range, discretize=True,
+                             kernels=self.kernels)
             self._update(unpack(keys.free), np.zeros(len(keys.free), dtype=bool))
             self._update(unpack(keys.occupied), np.ones(len(keys.occupied), dtype=bool))
         # colours and semantics of every centroid, in the voxel grid's order
@@ -285,10 +286,10 @@ class SemanticSlamMap(OctreeUpdater):
     def restore(self, path: str | PathLike[str]) -> SemanticSlamMap:
         from evsmap.mapping.octree_io import read_ot
 
-        kind, resolution, tree = read_ot(path, payload_format={self.tree_type:
-                                                               self.node_type.record})
-        if kind != self.tree_type:
-            raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
+        tree_id, resolution, tree = read_ot(path, payload_format={self.tree_id:
+                                                                  self.node_type.record})
+        if tree_id != self.tree_id:
+            raise DataFormatError(f"{path}: a {tree_id} file, not a {self.tree_id} map")
         # OctoMap writes "res" with 6 significant digits: 0.1f comes back as 0.1
         if as_float_parameter(resolution) != self.resolution:
             raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "

@@ -58,10 +58,16 @@ UPDATERS.add("classic-semantic-max", octree_factory(functools.partial(classic, "
 
 
 def octomap(color: bool, **options: Any) -> OctoMapAdapter:
-    """The C++ OctoMap's ``OcTree`` or (``color``) ``ColorOcTree``."""
+    """The C++ OctoMap's ``OcTree`` or (``color``) ``ColorOcTree``; ``kernels`` has one value
+    here, ``compiled`` (the library is C++ throughout)."""
     from baselines.octomap_adapters import OctoMapAdapter
 
-    return OctoMapAdapter(color=color, **options)
+    if options["kernels"] != "compiled":
+        from evsmap.errors import InvalidDataError
+
+        raise InvalidDataError("octomap-cpp / octomap-color: kernels=reference applies to "
+                               "evsmap's updaters only (OctoMap runs in C++)")
+    return OctoMapAdapter(color=color, **given(options, "kernels"))
 
 
 UPDATERS.add("octomap-cpp", octree_factory(functools.partial(octomap, False)),

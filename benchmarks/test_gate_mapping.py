@@ -28,7 +28,8 @@ Against classic-semantic as semantic_slam runs it, both on the octomap_generator
   8 B a node; EVSMap: its top-3 + others node, 24 B): with eq. 5's occupancy, free space
   saturates after 21 misses of phi = -0.1 instead of OctoMap's 5, so far fewer nodes prune
 * update rate(multiclass-bayes direct with its numpy reference update) / rate(classic-semantic
-  direct with its numpy reference update) > 1: numpy against numpy
+  direct with its numpy reference update) > 1: numpy against numpy (``kernels="reference"``:
+  the rays and points in numpy too)
 
 Each pass maps the whole sequence into a fresh map with every updater, the updaters in
 alternating order from pass to pass; a rate is 1000 / the median ms per frame over all passes.
@@ -49,10 +50,23 @@ from evsmap.registry import SEGMENTERS, UPDATERS
 NAMES = ("octomap-cpp", "classic-semantic", "classic-semantic/direct",
          "classic-semantic/direct-numpy", "multiclass-bayes", "multiclass-bayes/direct",
          "multiclass-bayes/direct-numpy")
-VARIANTS = {"direct": {"front_end": "direct"}, "direct-numpy": {"front_end": "direct"}}
+VARIANTS = {"direct": {"front_end": "direct"}}
+REFERENCE = {  # "<name>/direct-numpy": what "<name>" -o front_end=direct builds, in numpy
+    "multiclass-bayes": mb.MultiClassBayesMap,
+    "classic-semantic": lambda **options: cs.ClassicSemanticMap(fusion_rule="bayes", **options)}
 RESOLUTIONS = (0.05, 0.02)
 PASSES = 3
 MAX_RANGE = 4.0
+
+
+def _updater(registered: str, variant: str, resolution: float):
+    """The updater of one name in ``NAMES``: a ``-numpy`` variant runs every loop of the
+    update in numpy (``kernels="reference"``)."""
+    if variant.endswith("numpy"):
+        return REFERENCE[registered](resolution=resolution, max_range=MAX_RANGE,
+                                     kernels="reference")
+    return UPDATERS.create(registered, resolution=resolution, max_range=MAX_RANGE,
+                           **VARIANTS.get(variant, {}))
 
 
 def _measure(frames, observations) -> dict:
@@ -64,15 +78,12 @@ def _measure(frames, observations) -> dict:
         for p in range(PASSES):
             for name in NAMES if p % 2 == 0 else NAMES[::-1]:
                 registered, _, variant = name.partition("/")
-                mb.USE_KERNEL = cs.USE_KERNEL = not variant.endswith("numpy")
                 mapped = run_mapping(  # the engine every rate of evsmap is timed with
-                    sequence, lambda r=registered, v=variant, res=res: UPDATERS.create(
-                        r, resolution=res, max_range=MAX_RANGE, **VARIANTS.get(v, {})),
+                    sequence, lambda r=registered, v=variant, res=res: _updater(r, v, res),
                     observations=observations, measure_memory=False,
                     evaluators=[MapFiles(formats=("published",))])  # Table IV's map size
                 times[name] += mapped.update_ms
                 size[name] = mapped.results["files"].sizes["published"]
-        mb.USE_KERNEL = cs.USE_KERNEL = True
         out[res] = {n: {"hz": float(1000.0 / np.median(times[n])),
                         "ms_median": float(np.median(times[n])),
                         "ms_iqr": float(np.subtract(*np.percentile(times[n], [75, 25]))),

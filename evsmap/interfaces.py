@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from os import PathLike
 from types import MappingProxyType
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -74,7 +74,8 @@ class Segmenter(abc.ABC):
         raise InvalidDataError(f"{type(self).__name__} is not a network: it has no inputs to "
                                f"measure")
 
-    def set_threads(self, threads: int | None = None, *, spinning: bool = True) -> dict:
+    def set_threads(self, threads: int | None = None, *, spinning: bool = True
+                    ) -> dict[str, Any]:
         """Threads of the segmenter's own runtime (a network's ONNX Runtime intra-op pool;
         ``None``: its default) and whether its idle workers may busy-wait (``spinning``: good
         alone, bad when other stages of a pipeline need the cores). Returns what it uses now
@@ -131,6 +132,21 @@ colour for semantic maps) that any OctoMap tool opens (see
 :meth:`~evsmap.updaters.base.OctreeUpdater.write`)."""
 
 
+def check_file_format(updater: MapUpdater, file_format: str) -> None:
+    """Refuse a ``file_format`` that is not one of :data:`FILE_FORMATS`, or one ``updater``
+    does not write.
+
+    Raises:
+        InvalidDataError: names the formats there are, or those the updater writes.
+    """
+    if file_format not in FILE_FORMATS:
+        raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, got "
+                               f"{file_format!r}")
+    if file_format not in updater.file_formats():
+        raise InvalidDataError(f"{type(updater).__name__} writes no {file_format} file (it "
+                               f"writes {', '.join(updater.file_formats())})")
+
+
 class MapUpdater(abc.ABC):
     """Integrates frames (and optionally their semantics) into a volumetric map.
 
@@ -154,12 +170,17 @@ class MapUpdater(abc.ABC):
         """Current node and memory counts."""
 
     @abc.abstractmethod
-    def write(self, path: str | PathLike[str]) -> int:
-        """Write the map to ``path``; returns the file size in bytes (the paper's "Map Size").
+    def write(self, path: str | PathLike[str], file_format: str = "full") -> int:
+        """Write the map to ``path`` in ``file_format`` (one of :meth:`file_formats`); returns
+        the file size in bytes (the paper's "Map Size").
 
-        An updater may also take ``file_format="full"|"published"`` (the resumable state, or
-        what the compared system itself writes; see :meth:`OctreeUpdater.write`); one without
-        it writes a single file, used for both."""
+        ``"full"`` is the resumable state, ``"published"`` what the compared system itself
+        writes (the same file where the updater keeps one form), ``"colour"`` a
+        ``ColorOcTree`` (see :meth:`~evsmap.updaters.base.OctreeUpdater.write`).
+
+        Raises:
+            InvalidDataError: a format the updater does not write (:func:`check_file_format`).
+        """
 
     @abc.abstractmethod
     def query(self, points: np.ndarray) -> PointQuery:
@@ -176,10 +197,14 @@ class MapUpdater(abc.ABC):
         return {}
 
     def file_formats(self) -> tuple[str, ...]:
-        """The :data:`FILE_FORMATS` this updater writes (an updater without ``file_format``
-        writes one file, its full and its published one; one that lists ``colour`` takes
-        ``write(path, file_format=...)``)."""
+        """The :data:`FILE_FORMATS` this updater writes; by default ``full`` and
+        ``published``, one file that is both."""
         return ("full", "published")
+
+    def pruned_share(self) -> float | None:
+        """The share of the map's finest leaves merged into pruned nodes; None where the
+        updater does not say (a map without an octree of evsmap's)."""
+        return None
 
     def reuse_tree(self) -> contextlib.AbstractContextManager[None]:
         """A block in which the map does not change, so that what is derived from it (an
@@ -197,9 +222,8 @@ class MapUpdater(abc.ABC):
 
         stats = self.stats()
         with tempfile.TemporaryDirectory() as tmp:
-            # an updater without file formats writes one file: its published one
-            published = int(self.write(Path(tmp) / "published.ot"))
-            colour = (int(self.write(Path(tmp) / "colour.ot", file_format="colour"))
+            published = int(self.write(Path(tmp) / "published.ot", "published"))
+            colour = (int(self.write(Path(tmp) / "colour.ot", "colour"))
                       if "colour" in self.file_formats() else None)
         return {"nodes": int(stats.nodes), "leaves": int(stats.leaves),
                 "published_bytes": published, "colour_bytes": colour,

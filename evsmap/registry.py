@@ -1,4 +1,5 @@
-"""Plug-in registries: one per kind (segmenter, updater, reader).
+"""Plug-in registries: one per kind (segmenter, updater, reader), each typed by the interface
+its plug-ins implement (``Registry[Segmenter]``, ``Registry[MapUpdater]``, ``Registry[Sequence]``).
 
 Modelled on torchvision's ``models/_api.py``: a name maps to a factory; registering a taken name
 raises, asking for an unknown name raises with the known names and the closest match, and every
@@ -19,9 +20,13 @@ import inspect
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from importlib import metadata
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from evsmap.errors import DuplicateNameError, EvsmapError, UnknownNameError
+
+if TYPE_CHECKING:  # the interfaces pull in numpy: naming the plug-ins must not
+    from evsmap.data import Sequence
+    from evsmap.interfaces import MapUpdater, Segmenter
 
 T = TypeVar("T")
 
@@ -60,7 +65,8 @@ class Entry(Generic[T]):
 
 
 class Registry(Generic[T]):
-    """Names -> factories for one kind of plug-in.
+    """Names -> factories for one kind of plug-in, every factory returning a ``T`` (the kind's
+    interface).
 
     Args:
         kind: what the registry holds ("segmenter", "updater", "reader"), used in messages.
@@ -238,9 +244,9 @@ def _qualname(obj: object) -> str:
     return f"{getattr(obj, '__module__', '?')}.{getattr(obj, '__qualname__', repr(obj))}"
 
 
-SEGMENTERS: Registry[Any] = Registry("segmenter")
-UPDATERS: Registry[Any] = Registry("updater")
-READERS: Registry[Any] = Registry("reader")
+SEGMENTERS: Registry[Segmenter] = Registry("segmenter")
+UPDATERS: Registry[MapUpdater] = Registry("updater")
+READERS: Registry[Sequence] = Registry("reader")
 
 
 def list_segmenters() -> list[str]:
@@ -255,15 +261,15 @@ def list_readers() -> list[str]:
     return READERS.names()
 
 
-def get_segmenter(name: str, **config: Any) -> Any:
+def get_segmenter(name: str, **config: Any) -> Segmenter:
     return SEGMENTERS.create(name, **config)
 
 
-def get_updater(name: str, **config: Any) -> Any:
+def get_updater(name: str, **config: Any) -> MapUpdater:
     return UPDATERS.create(name, **config)
 
 
-def get_reader(name: str, **config: Any) -> Any:
+def get_reader(name: str, **config: Any) -> Sequence:
     return READERS.create(name, **config)
 
 

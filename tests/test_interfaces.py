@@ -2,7 +2,15 @@ import numpy as np
 import pytest
 
 from evsmap.data import SemanticObservation
-from evsmap.interfaces import OCCUPIED, UNKNOWN, MapStats, MapUpdater, PointQuery, Segmenter
+from evsmap.interfaces import (
+    OCCUPIED,
+    UNKNOWN,
+    MapStats,
+    MapUpdater,
+    PointQuery,
+    Segmenter,
+    check_file_format,
+)
 from evsmap.registry import Registry, get_reader
 
 
@@ -45,7 +53,8 @@ class VoxelSet(MapUpdater):
         return MapStats(nodes=len(self.cells), leaves=len(self.cells),
                         octomap_memory_bytes=32 * len(self.cells))
 
-    def write(self, path):
+    def write(self, path, file_format="full"):
+        check_file_format(self, file_format)
         data = np.array([(*k, v) for k, v in self.cells.items()], dtype=np.int64)
         np.save(path, data)
         return path.stat().st_size
@@ -154,3 +163,21 @@ def test_mapping_refuses_a_sequence_without_poses():
                     meta={"poses": False, "layout": "nyuv2"})
     with pytest.raises(EvsmapError, match="stills: nyuv2 has no camera poses"):
         map_sequence(seq, VoxelSet(), updater_name="voxel-set")
+
+
+def test_every_updater_takes_a_file_format_and_refuses_one_it_cannot_write(tmp_path):
+    from evsmap.errors import InvalidDataError
+    from evsmap.measure.evaluators import write_map
+
+    updater = VoxelSet()
+    assert write_map(updater, tmp_path / "p.npy", "published") == \
+        (tmp_path / "p.npy").stat().st_size
+    with pytest.raises(InvalidDataError, match="VoxelSet writes no colour file"):
+        updater.write(tmp_path / "c.npy", "colour")
+    with pytest.raises(InvalidDataError, match="file format must be one of"):
+        write_map(updater, tmp_path / "x.npy", "png")
+
+
+def test_map_statistics_come_from_the_interface():
+    updater = VoxelSet()
+    assert updater.pruned_share() is None and updater.occupied_voxels() is None

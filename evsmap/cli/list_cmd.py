@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import Any
 
-from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+from evsmap.registry import READERS, SEGMENTERS, UPDATERS, Registry
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -18,7 +19,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    kinds = {"segmenters": SEGMENTERS, "updaters": UPDATERS, "readers": READERS}
+    kinds: dict[str, Registry[Any]] = {"segmenters": SEGMENTERS, "updaters": UPDATERS,
+                                       "readers": READERS}
     if args.json:
         print(json.dumps({k: reg.names() for k, reg in kinds.items()}))
         return 0

@@ -31,9 +31,11 @@ sets and is the reference the tests compare this kernel with.
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import numpy as np
 
+from evsmap.errors import InvalidDataError
 from evsmap.mapping import threads  # noqa: F401 - chooses numba's threading layer first
 
 try:
@@ -42,6 +44,27 @@ try:
 except ImportError:  # pragma: no cover - numba is a dependency; the numpy path still works
     numba = None
     prange = range
+
+Kernels = Literal["compiled", "reference"]
+"""Which code runs the map-update loops: ``"compiled"`` - the numba kernels of this module and
+of the updaters (the default; the numpy code where numba cannot be imported) - or
+``"reference"`` - the numpy code the tests compare them with. The results are the same."""
+
+KERNELS: tuple[Kernels, ...] = ("compiled", "reference")
+
+
+def check_kernels(kernels: str) -> Kernels:
+    """``kernels`` if it is one of :data:`KERNELS`.
+
+    Raises:
+        InvalidDataError: any other value.
+    """
+    if kernels == "compiled":
+        return "compiled"
+    if kernels == "reference":
+        return "reference"
+    raise InvalidDataError(f"kernels must be one of {', '.join(KERNELS)}, got {kernels!r}")
+
 
 _BLOCK = 1 << 16
 """Cells (or rows) per block of the block-numbered passes."""

@@ -38,13 +38,16 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from evsmap.errors import DuplicateNameError, InvalidDataError, UnknownNameError
 from evsmap.mapping.fusion.colour import average_frame_colours
 from evsmap.mapping.tree import Tree, octomap_colour_average, octomap_colour_prune
+
+if TYPE_CHECKING:
+    from evsmap.data import Frame, SemanticObservation
 
 __all__ = ["COLOR_FORMAT", "COLOR_OCTREE", "NODE_TYPES", "OCTREE", "Column", "NodeType",
            "NodeTypeRegistry"]
@@ -160,7 +163,7 @@ class NodeType:
     def column_names(self) -> tuple[str, ...]:
         return self._names
 
-    def __reduce__(self):
+    def __reduce__(self) -> tuple[Callable[[str], NodeType], tuple[str]]:
         """A registered node type pickles as its id (its rules may be lambdas or closures), so
         an updater holding one can cross a process boundary."""
         if NODE_TYPES._types.get(self.tree_id) is not self:
@@ -240,7 +243,7 @@ class NodeTypeRegistry:
         try:
             return self._types[tree_id]
         except KeyError:
-            raise UnknownNameError(f"unknown tree type {tree_id!r} (known: "
+            raise UnknownNameError(f"unknown tree id {tree_id!r} (known: "
                                    f"{', '.join(self.names())}; a plug-in's node type is known "
                                    f"once its module is imported)") from None
 
@@ -269,7 +272,8 @@ def _registered(tree_id: str) -> NodeType:
 COLOR_FORMAT = np.dtype((np.uint8, (3,)))
 
 
-def _average_hit_colours(updater, frame, points, scan, observation) -> None:
+def _average_hit_colours(updater: Any, frame: Frame, points: Any, scan: Any,
+                         observation: SemanticObservation | None) -> None:
     """``ColorOcTree::averageNodeColor`` of every hit voxel with its points' mean colour."""
     pixels, voxels, local = updater.endpoint_voxels(points)
     if voxels.size:

@@ -5,7 +5,7 @@
     # Octomap OcTree file
     # (feel free to add / change comments, but leave the first line as it is!)
     #
-    id <tree type>
+    id <tree id>
     size <number of nodes>
     res <resolution, C++ ostream default = printf %g>
     data
@@ -13,9 +13,9 @@
      exists); children follow in child order 0..7>
 
 Node data (``writeData``, native = little-endian): ``OcTree``: float32 log-odds (5 B per node);
-``ColorOcTree``: float32 log-odds + uint8 r, g, b (8 B per node). Any other tree type written
+``ColorOcTree``: float32 log-odds + uint8 r, g, b (8 B per node). Any other tree id written
 here is a custom layout: float32 log-odds + one fixed-size little-endian payload record (a numpy
-dtype, e.g. the semantics of a voxel), + the mask byte. The record of a tree type is its
+dtype, e.g. the semantics of a voxel), + the mask byte. The record of a tree id is its
 registered node type's (:data:`evsmap.mapping.node_type.NODE_TYPES`, keyed by the file's id) or
 one the caller passes (``payload_format``).
 
@@ -46,7 +46,7 @@ import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -88,7 +88,7 @@ DEFAULT_CLAMP_MAX = OCTOMAP.clamp_max
 class OctreeFile(NamedTuple):
     """What :func:`read_ot` / :func:`read_bt` return."""
 
-    tree_type: str
+    tree_id: str
     resolution: float
     tree: Tree
 
@@ -118,22 +118,22 @@ def _fmt_res(resolution: float) -> bytes:
     return format(float(resolution), "g").encode("ascii")
 
 
-def _header(magic: bytes, tree_type: str, size: int, resolution: float) -> bytes:
-    return (magic + _COMMENT + b"id " + tree_type.encode("ascii") + b"\nsize "
+def _header(magic: bytes, tree_id: str, size: int, resolution: float) -> bytes:
+    return (magic + _COMMENT + b"id " + tree_id.encode("ascii") + b"\nsize "
             + str(int(size)).encode("ascii") + b"\nres " + _fmt_res(resolution) + b"\ndata\n")
 
 
-def _check_write_args(tree: Tree, resolution: float, tree_type: str) -> None:
+def _check_write_args(tree: Tree, resolution: float, tree_id: str) -> None:
     if not isinstance(tree, Tree):
         raise InvalidDataError(f"expected an evsmap.mapping.tree.Tree, got {type(tree).__name__}")
     if not (np.isfinite(resolution) and resolution > 0):
         raise InvalidDataError(f"resolution must be a positive number, got {resolution!r}")
-    if (not isinstance(tree_type, str) or not tree_type or not tree_type.isascii()
-            or re.search(r"\s", tree_type) or tree_type.startswith("#")):
-        raise InvalidDataError(f"tree type must be one ASCII word, got {tree_type!r}")
+    if (not isinstance(tree_id, str) or not tree_id or not tree_id.isascii()
+            or re.search(r"\s", tree_id) or tree_id.startswith("#")):
+        raise InvalidDataError(f"tree id must be one ASCII word, got {tree_id!r}")
 
 
-def _atomic_write(path: str | os.PathLike, chunks: list[bytes]) -> int:
+def _atomic_write(path: str | os.PathLike[str], chunks: list[bytes]) -> int:
     try:
         with atomic_write(path, "wb", durable=True) as f:
             for c in chunks:
@@ -143,7 +143,7 @@ def _atomic_write(path: str | os.PathLike, chunks: list[bytes]) -> int:
     return sum(len(c) for c in chunks)
 
 
-def _read_bytes(path: str | os.PathLike) -> bytes:
+def _read_bytes(path: str | os.PathLike[str]) -> bytes:
     try:
         return Path(path).read_bytes()
     except OSError as e:
@@ -289,22 +289,27 @@ def _by_depth(depth: np.ndarray) -> list[np.ndarray]:
 # --------------------------------------------------------------------------- .ot
 
 
-def _payload_format(tree_type: str, payload_format, name: str | None) -> np.dtype | None:
-    if tree_type in _BUILTIN:
-        return _BUILTIN[tree_type]
-    fmt = payload_format
-    if isinstance(payload_format, Mapping):
-        fmt = payload_format.get(tree_type)
-    if fmt is None and tree_type in NODE_TYPES:
-        fmt = NODE_TYPES.get(tree_type).record
+PayloadFormat = DTypeLike | Mapping[str, DTypeLike] | None
+"""A payload layout given by the caller: one dtype, or one per tree id."""
+
+
+def _payload_format(tree_id: str, payload_format: PayloadFormat,
+                    name: str | None) -> np.dtype | None:
+    if tree_id in _BUILTIN:
+        return _BUILTIN[tree_id]
+    fmt: Any = (payload_format.get(tree_id) if isinstance(payload_format, Mapping)
+                else payload_format)
+    if fmt is None and tree_id in NODE_TYPES:
+        fmt = NODE_TYPES.get(tree_id).record
         if fmt is None:
             return None
     if fmt is None:
         where = f"{name}: " if name else ""
-        raise DataFormatError(f"{where}unknown tree type {tree_type!r} (known: "
+        raise DataFormatError(f"{where}unknown tree id {tree_id!r} (known: "
                               f"{', '.join(NODE_TYPES.names())}; a plug-in's node type is known "
                               "once its module is imported, or pass payload_format)")
-    return np.dtype(fmt)
+    dtype: np.dtype = np.dtype(fmt)
+    return dtype
 
 
 def _le(fmt: np.dtype) -> np.dtype:
@@ -323,30 +328,30 @@ def _default_format(payload: np.ndarray) -> np.dtype:
     return np.dtype((payload.dtype, payload.shape[1:]))
 
 
-def ot_bytes(tree: Tree, resolution: float, *, tree_type: str = "OcTree",
+def ot_bytes(tree: Tree, resolution: float, *, tree_id: str = "OcTree",
              payload_format: DTypeLike | None = None) -> bytes:
     """The bytes :func:`write_ot` writes."""
-    _check_write_args(tree, resolution, tree_type)
-    if tree_type == "OcTree":
+    _check_write_args(tree, resolution, tree_id)
+    if tree_id == "OcTree":
         fmt = None
-    elif tree_type == "ColorOcTree":
+    elif tree_id == "ColorOcTree":
         # a system may write more under this id (SSMI's writeData), as OctoMap lets it
         fmt = COLOR_FORMAT if payload_format is None else np.dtype(payload_format)
     elif payload_format is not None:
         fmt = np.dtype(payload_format)
-    elif tree_type in NODE_TYPES:
-        fmt = NODE_TYPES.get(tree_type).record
+    elif tree_id in NODE_TYPES:
+        fmt = NODE_TYPES.get(tree_id).record
     elif tree.payload is not None:
         fmt = _default_format(tree.payload)
     else:
-        raise InvalidDataError(f"tree type {tree_type!r} needs a payload (the tree has none)")
+        raise InvalidDataError(f"tree id {tree_id!r} needs a payload (the tree has none)")
     rec = np.zeros(tree.num_nodes, dtype=_record_dtype(fmt))
     rec["value"] = tree.value
     rec["mask"] = tree.child_mask
     if fmt is not None:
         if tree.payload is None:
-            if tree_type != "ColorOcTree":
-                raise InvalidDataError(f"tree type {tree_type!r} needs a payload")
+            if tree_id != "ColorOcTree":
+                raise InvalidDataError(f"tree id {tree_id!r} needs a payload")
             rec["payload"] = 255  # OctoMap's unset colour (white)
         else:
             try:
@@ -354,19 +359,19 @@ def ot_bytes(tree: Tree, resolution: float, *, tree_type: str = "OcTree",
             except (ValueError, TypeError) as e:
                 raise InvalidDataError(f"payload of shape {tree.payload.shape} and dtype "
                                        f"{tree.payload.dtype} does not fit {fmt}: {e}") from e
-    return _header(OT_HEADER, tree_type, tree.num_nodes, resolution) + rec.tobytes()
+    return _header(OT_HEADER, tree_id, tree.num_nodes, resolution) + rec.tobytes()
 
 
-def write_ot(path: str | os.PathLike, tree: Tree, resolution: float, *,
-             tree_type: str = "OcTree", payload_format: DTypeLike | None = None) -> int:
+def write_ot(path: str | os.PathLike[str], tree: Tree, resolution: float, *,
+             tree_id: str = "OcTree", payload_format: DTypeLike | None = None) -> int:
     """Write ``tree`` as an OctoMap ``.ot`` file (atomically); returns the byte size.
 
-    ``tree_type`` "OcTree" writes the log-odds only, "ColorOcTree" log-odds + the (M, 3)
+    ``tree_id`` "OcTree" writes the log-odds only, "ColorOcTree" log-odds + the (M, 3)
     ``uint8`` payload as r, g, b (white where the tree has no payload); any other name writes
     log-odds + ``tree.payload`` in ``payload_format`` (default: the payload's own dtype), as
     little-endian fixed-size records.
     """
-    data = ot_bytes(tree, resolution, tree_type=tree_type, payload_format=payload_format)
+    data = ot_bytes(tree, resolution, tree_id=tree_id, payload_format=payload_format)
     return _atomic_write(path, [data])
 
 
@@ -381,16 +386,16 @@ def parse_ot(data: bytes, *, name: str = "<bytes>",
         raise DataFormatError(f"{name}: corrupt octree file: {e}") from None
 
 
-def _parse_ot(data: bytes, name: str, payload_format) -> OctreeFile:
-    tree_type, size, res, off = _parse_header(data, OT_HEADER, name)
-    fmt = _payload_format(tree_type, payload_format, name)
+def _parse_ot(data: bytes, name: str, payload_format: PayloadFormat) -> OctreeFile:
+    tree_id, size, res, off = _parse_header(data, OT_HEADER, name)
+    fmt = _payload_format(tree_id, payload_format, name)
     rd = _record_dtype(fmt)
     body = len(data) - off
     if size == 0:
         if body:
             raise DataFormatError(f"{name}: header says 0 nodes but {body} data bytes follow")
         empty_pay = None if fmt is None else np.zeros(0, dtype=_native(fmt))
-        return OctreeFile(tree_type, res, Tree.empty(empty_pay))
+        return OctreeFile(tree_id, res, Tree.empty(empty_pay))
     need = size * rd.itemsize
     if body < need:
         raise DataFormatError(f"{name}: truncated: header says {size} nodes "
@@ -411,7 +416,7 @@ def _parse_ot(data: bytes, name: str, payload_format) -> OctreeFile:
     payload = None
     if fmt is not None:
         payload = np.ascontiguousarray(rec["payload"]).astype(_native_base(fmt))
-    return OctreeFile(tree_type, res, Tree(depth.astype(np.uint8), _codes_of_morton(m), mask,
+    return OctreeFile(tree_id, res, Tree(depth.astype(np.uint8), _codes_of_morton(m), mask,
                                            value, payload))
 
 
@@ -424,17 +429,17 @@ def _native_base(fmt: np.dtype) -> np.dtype:
     return (fmt.base if fmt.subdtype is not None else fmt).newbyteorder("=")
 
 
-def read_ot(path: str | os.PathLike, *,
+def read_ot(path: str | os.PathLike[str], *,
             payload_format: DTypeLike | Mapping[str, DTypeLike] | None = None) -> OctreeFile:
-    """Read an ``.ot`` file: ``(tree_type, resolution, tree)``.
+    """Read an ``.ot`` file: ``(tree_id, resolution, tree)``.
 
     "OcTree" files give no payload, "ColorOcTree" files an (M, 3) ``uint8`` r, g, b payload; any
-    other tree type has the record of its registered node type
+    other tree id has the record of its registered node type
     (:data:`~evsmap.mapping.node_type.NODE_TYPES`), or ``payload_format`` (its payload dtype, or
-    a mapping from tree type to dtype), which takes precedence.
+    a mapping from tree id to dtype), which takes precedence.
 
     Raises:
-        DataFormatError: missing, truncated or corrupt file, or an unknown tree type.
+        DataFormatError: missing, truncated or corrupt file, or an unknown tree id.
     """
     return parse_ot(_read_bytes(path), name=str(path), payload_format=payload_format)
 
@@ -452,14 +457,14 @@ def to_max_likelihood(tree: Tree, *, occupancy_thres: float = DEFAULT_OCCUPANCY_
     return tree.prune(ml, min_depth=1, stop_early=True)
 
 
-def bt_bytes(tree: Tree, resolution: float, *, tree_type: str = "OcTree",
+def bt_bytes(tree: Tree, resolution: float, *, tree_id: str = "OcTree",
              occupancy_thres: float = DEFAULT_OCCUPANCY_THRES,
              clamp_min: float = DEFAULT_CLAMP_MIN, clamp_max: float = DEFAULT_CLAMP_MAX) -> bytes:
     """The bytes :func:`write_bt` writes."""
-    _check_write_args(tree, resolution, tree_type)
+    _check_write_args(tree, resolution, tree_id)
     t = to_max_likelihood(tree, occupancy_thres=occupancy_thres, clamp_min=clamp_min,
                           clamp_max=clamp_max)
-    head = _header(BT_HEADER, tree_type, t.num_nodes, resolution)
+    head = _header(BT_HEADER, tree_id, t.num_nodes, resolution)
     if t.num_nodes == 0:
         return head
     thr = logodds(occupancy_thres)
@@ -479,13 +484,13 @@ def bt_bytes(tree: Tree, resolution: float, *, tree_type: str = "OcTree",
     return head + out.tobytes()
 
 
-def write_bt(path: str | os.PathLike, tree: Tree, resolution: float, *,
-             tree_type: str = "OcTree", occupancy_thres: float = DEFAULT_OCCUPANCY_THRES,
+def write_bt(path: str | os.PathLike[str], tree: Tree, resolution: float, *,
+             tree_id: str = "OcTree", occupancy_thres: float = DEFAULT_OCCUPANCY_THRES,
              clamp_min: float = DEFAULT_CLAMP_MIN, clamp_max: float = DEFAULT_CLAMP_MAX) -> int:
     """Write ``tree`` as an OctoMap ``.bt`` file (atomically), as ``writeBinary`` does: maximum
     likelihood + prune first (``tree`` itself is not changed). Returns the byte size.
     ``occupancy_thres``, ``clamp_min``, ``clamp_max`` are probabilities (OctoMap defaults)."""
-    data = bt_bytes(tree, resolution, tree_type=tree_type, occupancy_thres=occupancy_thres,
+    data = bt_bytes(tree, resolution, tree_id=tree_id, occupancy_thres=occupancy_thres,
                     clamp_min=clamp_min, clamp_max=clamp_max)
     return _atomic_write(path, [data])
 
@@ -502,12 +507,12 @@ def parse_bt(data: bytes, *, name: str = "<bytes>", clamp_min: float = DEFAULT_C
 
 
 def _parse_bt(data: bytes, name: str, lo: np.float32, hi: np.float32) -> OctreeFile:
-    tree_type, size, res, off = _parse_header(data, BT_HEADER, name)
+    tree_id, size, res, off = _parse_header(data, BT_HEADER, name)
     body = len(data) - off
     if size == 0:
         if body:
             raise DataFormatError(f"{name}: header says 0 nodes but {body} data bytes follow")
-        return OctreeFile(tree_type, res, Tree.empty())
+        return OctreeFile(tree_id, res, Tree.empty())
     if body < 2:
         raise DataFormatError(f"{name}: truncated: no node data after the header")
     nrec = body // 2
@@ -564,12 +569,12 @@ def _parse_bt(data: bytes, name: str, lo: np.float32, hi: np.float32) -> OctreeF
     tree = Tree(depth[order].astype(np.uint8), _codes_of_morton(m[order]),
                 np.concatenate([rmask, np.zeros(len(lm), np.uint8)])[order],
                 np.concatenate([rval, lval])[order])
-    return OctreeFile(tree_type, res, tree)
+    return OctreeFile(tree_id, res, tree)
 
 
-def read_bt(path: str | os.PathLike, *, clamp_min: float = DEFAULT_CLAMP_MIN,
+def read_bt(path: str | os.PathLike[str], *, clamp_min: float = DEFAULT_CLAMP_MIN,
             clamp_max: float = DEFAULT_CLAMP_MAX) -> OctreeFile:
-    """Read a ``.bt`` file: ``(tree_type, resolution, tree)`` as ``readBinary`` rebuilds it
+    """Read a ``.bt`` file: ``(tree_id, resolution, tree)`` as ``readBinary`` rebuilds it
     (leaves at the clamping log-odds, inner nodes the max of their children, the root at the
     clamping max).
 

@@ -45,15 +45,11 @@ import numpy as np
 
 from evsmap.data import Frame
 from evsmap.geometry import backproject
-from evsmap.mapping.kernels import grid_codes, trace
+from evsmap.mapping.kernels import Kernels, grid_codes, trace
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 
 CHUNK_ELEMENTS = 1 << 21
 """Cells (rays x padded crossings) per chunk; about 60 bytes of temporaries each."""
-
-USE_KERNEL = True
-"""Walk the rays with the compiled kernel (:mod:`evsmap.mapping.kernels`) when numba is
-installed; False selects the pure-numpy merge (the reference the tests compare it with)."""
 
 DENSE_GRID_LIMIT = 1 << 28
 """Largest bounding box (voxels) de-duplicated with a dense ``bool`` grid (256 MB)."""
@@ -93,7 +89,8 @@ def _norm(d: np.ndarray) -> np.ndarray:
 
 
 def scan_keys(points: np.ndarray, origin: np.ndarray, resolution: float, *,
-              max_range: float = -1.0, discretize: bool = False) -> ScanKeys:
+              max_range: float = -1.0, discretize: bool = False,
+              kernels: Kernels = "compiled") -> ScanKeys:
     """Free and occupied voxels of one scan, exactly as OctoMap's ``insertPointCloud``.
 
     Args:
@@ -103,6 +100,8 @@ def scan_keys(points: np.ndarray, origin: np.ndarray, resolution: float, *,
         max_range: rays longer than this are cut and only free space (negative: no limit).
         discretize: reduce the end points to unique voxel centres first (OctoMap's
             ``computeDiscreteUpdate``), far fewer rays for dense clouds.
+        kernels: walk the rays with the compiled kernel (:mod:`evsmap.mapping.kernels`) or the
+            pure-numpy merge (``"reference"``); the same sets.
     """
     resolution = float(resolution)
     if not resolution > 0:
@@ -133,7 +132,7 @@ def scan_keys(points: np.ndarray, origin: np.ndarray, resolution: float, *,
         far = ~inside
         direction = (pts[far] - org) / dist[far].astype(np.float32)[:, None]
         ends[far] = org + direction * np.float32(max_range)
-    free = _ray_keys(org, ends, resolution, occupied)
+    free = _ray_keys(org, ends, resolution, occupied, kernels)
     return ScanKeys(free, occupied)
 
 
@@ -169,7 +168,7 @@ def _space(lo: np.ndarray, hi: np.ndarray) -> _Space:
 
 
 def _ray_keys(org: np.ndarray, ends: np.ndarray, resolution: float,
-              occupied: np.ndarray) -> np.ndarray:
+              occupied: np.ndarray, kernels: Kernels = "compiled") -> np.ndarray:
     """Sorted unique codes of the voxels freed by the rays ``org -> ends`` (float32), minus
     ``occupied``."""
     empty = np.zeros(0, dtype=np.int64)
@@ -205,49 +204,82 @@ def _ray_keys(org: np.ndarray, ends: np.ndarray, resolution: float,
     end_index = space.index(ke)
     increments = step * space.strides  # index change of one step along each axis
 
-    total = counts.sum(axis=1)
-    if USE_KERNEL and trace is not None:
-        grid = np.zeros(space.size, dtype=bool) if space.size else np.zeros(0, dtype=bool)
-        out = np.empty(0 if space.size else int(total.sum()), dtype=np.int64)
-        n = trace(tmax, tdelta, total, length.astype(np.float64), increments,
-                  end_index - origin_index, origin_index, grid, out)
-        if space.size:
-            grid[origin_index] = True
-            if len(occupied):
-                _clear_occupied(grid, space, occupied)
-            return _grid_codes(grid, space)
-        free = np.unique(np.concatenate([out[:n], [origin_index]]))
-        if len(occupied):
-            free = free[~np.isin(free, occupied, assume_unique=True)]
-        return free
+    walk = _walk_compiled if kernels == "compiled" and trace is not None else _walk_reference
+    return walk(_Rays(tmax, tdelta, counts, length, increments, end_index - origin_index),
+                origin_index, space, occupied)
+
+
+class _Rays(NamedTuple):
+    """The DDA start values of a scan's rays (one row a ray): ``tMax``, ``tDelta``, crossings
+    per axis, length, index change of one step per axis, and the end voxel's index offset from
+    the origin voxel."""
+
+    tmax: np.ndarray
+    tdelta: np.ndarray
+    counts: np.ndarray
+    length: np.ndarray
+    increments: np.ndarray
+    end_offset: np.ndarray
+
+
+def _walk_compiled(rays: _Rays, origin_index: np.ndarray, space: _Space,
+                   occupied: np.ndarray) -> np.ndarray:
+    """:func:`_ray_keys`'s walk with the compiled :func:`~evsmap.mapping.kernels.trace`."""
+    total = rays.counts.sum(axis=1)
+    grid = np.zeros(space.size, dtype=bool) if space.size else np.zeros(0, dtype=bool)
+    out = np.empty(0 if space.size else int(total.sum()), dtype=np.int64)
+    n = trace(rays.tmax, rays.tdelta, total, rays.length.astype(np.float64), rays.increments,
+              rays.end_offset, origin_index, grid, out)
+    if space.size:
+        return _grid_free(grid, origin_index, space, occupied, compiled=True)
+    return _unique_free([out[:n]], origin_index, occupied)
+
+
+def _walk_reference(rays: _Rays, origin_index: np.ndarray, space: _Space,
+                    occupied: np.ndarray) -> np.ndarray:
+    """:func:`_ray_keys`'s walk in numpy: chunks of rays of similar length, each merged by
+    :func:`_chunk` within :data:`CHUNK_ELEMENTS` cells."""
+    total = rays.counts.sum(axis=1)
     order = np.argsort(total, kind="stable")
     total_sorted = total[order]
     grid = np.zeros(space.size, dtype=bool) if space.size else None
-    parts = []
+    parts: list[np.ndarray] = []
     start, n = 0, len(order)
     while start < n:
         stop = min(n, start + max(1, CHUNK_ELEMENTS // (int(total_sorted[start]) + 1)))
         while stop - start > 1 and (stop - start) * (int(total_sorted[stop - 1]) + 1) > \
                 CHUNK_ELEMENTS:
             stop = start + max(1, CHUNK_ELEMENTS // (int(total_sorted[stop - 1]) + 1))
-        rays = order[start:stop]
-        visited = _chunk(tmax[rays], tdelta[rays], counts[rays], length[rays],
-                         increments[rays], end_index[rays] - origin_index)
+        chunk = order[start:stop]
+        visited = _chunk(rays.tmax[chunk], rays.tdelta[chunk], rays.counts[chunk],
+                         rays.length[chunk], rays.increments[chunk], rays.end_offset[chunk])
         visited += origin_index
         if grid is not None:
             grid[visited] = True
         else:
             parts.append(np.unique(visited))
         start = stop
-
     if grid is not None:
-        grid[origin_index] = True
-        if len(occupied):
-            _clear_occupied(grid, space, occupied)
-        return _grid_codes(grid, space)
+        return _grid_free(grid, origin_index, space, occupied, compiled=False)
+    return _unique_free(parts, origin_index, occupied)
+
+
+def _grid_free(grid: np.ndarray, origin_index: np.ndarray, space: _Space, occupied: np.ndarray,
+               *, compiled: bool) -> np.ndarray:
+    """The free codes of a grid of the voxels the rays entered: with the origin's, without the
+    occupied ones."""
+    grid[origin_index] = True
+    if len(occupied):
+        _clear_occupied(grid, space, occupied)
+    return _grid_codes(grid, space, compiled)
+
+
+def _unique_free(parts: list[np.ndarray], origin_index: np.ndarray,
+                 occupied: np.ndarray) -> np.ndarray:
+    """The free codes (the whole key space's) of the voxels the rays entered, listed in
+    ``parts``: with the origin's, without the occupied ones."""
     parts.append(np.array([origin_index], dtype=np.int64))
     free = np.unique(np.concatenate(parts))
-    del parts
     if len(occupied):
         free = free[~np.isin(free, occupied, assume_unique=True)]
     return free
@@ -261,10 +293,11 @@ def _clear_occupied(grid: np.ndarray, space: _Space, occupied: np.ndarray) -> No
     grid[space.index(keys[inside])] = False
 
 
-def _grid_codes(grid: np.ndarray, space: _Space, block: int = 1 << 22) -> np.ndarray:
+def _grid_codes(grid: np.ndarray, space: _Space, compiled: bool,
+                block: int = 1 << 22) -> np.ndarray:
     """Sorted codes of the set cells of a dense grid, converted a block at a time (by the
-    compiled :func:`~evsmap.mapping.kernels.grid_codes` with the kernel)."""
-    if USE_KERNEL and grid_codes is not None:
+    compiled :func:`~evsmap.mapping.kernels.grid_codes` when ``compiled``)."""
+    if compiled and grid_codes is not None:
         return grid_codes(grid, *(int(b) for b in space.base), int(space.shape[1]),
                           int(space.shape[2]))
     out = np.empty(np.count_nonzero(grid), dtype=np.int64)

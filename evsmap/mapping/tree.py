@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from evsmap.errors import InvalidDataError
 from evsmap.mapping.keys import TREE_DEPTH, morton, unpack
@@ -85,9 +86,9 @@ def _shift(depth: np.ndarray | int) -> np.ndarray | int:
 
 
 def _rows_equal(col: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    eq = np.asarray(col == ref)
+    eq: np.ndarray = np.asarray(col == ref)
     if eq.ndim > 1:
-        eq = eq.reshape(eq.shape[0], -1).all(axis=1)
+        eq = np.asarray(eq.reshape(eq.shape[0], -1).all(axis=1))
     return eq
 
 
@@ -157,7 +158,7 @@ class Tree:
 
     @property
     def is_leaf(self) -> np.ndarray:
-        return self.child_mask == 0
+        return np.asarray(self.child_mask == 0)
 
     @property
     def num_leaves(self) -> int:
@@ -226,7 +227,8 @@ class Tree:
                 and np.array_equal(self.value.view(np.uint32), other.value.view(np.uint32)))
         if not same or (self.payload is None) != (other.payload is None):
             return False
-        return self.payload is None or np.array_equal(self.payload, other.payload)
+        return (self.payload is None or other.payload is None
+                or np.array_equal(self.payload, other.payload))
 
     def leaves(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """(depth, code, value, payload) of the leaves, in pre-order."""
@@ -333,8 +335,8 @@ def expand_leaves(depth: np.ndarray, codes: np.ndarray, values: np.ndarray,
     return _codes_of_morton(fine), values[rep], pay
 
 
-def _as_column(a, n: int, name: str) -> np.ndarray:
-    a = np.asarray(a)
+def _as_column(rows: ArrayLike, n: int, name: str) -> np.ndarray:
+    a = np.asarray(rows)
     if a.ndim == 0 or a.shape[0] != n:
         raise InvalidDataError(f"{name} must have {n} rows, got shape {a.shape}")
     return a
@@ -364,6 +366,25 @@ def build_tree(codes: np.ndarray, values: np.ndarray, *, payload: np.ndarray | N
     Returns:
         The tree in pre-order; empty (no root) when ``codes`` is empty.
     """
+    codes, values, payload, eq_cols = _checked_leaves(codes, values, payload, equal_columns,
+                                                      inner_payload, prune_payload)
+    if len(codes) == 0:
+        return Tree.empty(payload)
+    level = _finest_level(codes, values, payload, eq_cols)
+    nodes = _Nodes()
+    for d in range(TREE_DEPTH, 0, -1):
+        keep, parents = _parent_level(level, d, inner_value, inner_payload, prune_payload)
+        nodes.add(level, keep, d)
+        level = parents
+    nodes.add(level, np.ones(len(level.m), dtype=bool), 0)  # the root
+    return nodes.tree(with_payload=payload is not None)
+
+
+def _checked_leaves(codes: np.ndarray, values: np.ndarray, payload: np.ndarray | None,
+                    equal_columns: Sequence[np.ndarray] | None,
+                    inner_payload: Aggregator | None, prune_payload: str | Aggregator
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, list[np.ndarray]]:
+    """:func:`build_tree`'s arguments checked: ``(codes, values, payload, equal columns)``."""
     codes = np.asarray(codes)
     if codes.ndim != 1:
         raise InvalidDataError(f"codes must be 1-D, got shape {codes.shape}")
@@ -381,89 +402,112 @@ def build_tree(codes: np.ndarray, values: np.ndarray, *, payload: np.ndarray | N
     if not (callable(prune_payload) or prune_payload in ("first", "inner")):
         raise InvalidDataError(f"prune_payload must be 'first', 'inner' or a callable, "
                                f"got {prune_payload!r}")
-    if n == 0:
-        return Tree.empty(payload)
+    return codes, values, payload, eq_cols
+
+
+@dataclass
+class _Level:
+    """The nodes of one depth while :func:`build_tree` climbs, in Morton order: Morton codes of
+    their first corners, values, payload rows, equal columns, which are leaves, child masks."""
+
+    m: np.ndarray
+    val: np.ndarray
+    pay: np.ndarray | None
+    eqs: list[np.ndarray]
+    leaf: np.ndarray
+    mask: np.ndarray
+
+
+def _finest_level(codes: np.ndarray, values: np.ndarray, payload: np.ndarray | None,
+                  eq_cols: list[np.ndarray]) -> _Level:
+    """The (non-empty) leaves as the deepest level, sorted by Morton code."""
     if codes.min() < 0 or codes.max() > _M48:
         raise InvalidDataError("codes must be packed 16-bit keys (0 <= code < 2**48)")
-
     m = _morton_of_codes(codes)
     order = np.argsort(m, kind="stable")
     m = m[order]
     if np.any(m[1:] == m[:-1]):
         raise InvalidDataError("codes must be unique")
-    val = values[order]
-    pay = None if payload is None else payload[order]
-    eqs = [c[order] for c in eq_cols]
-    leaf = np.ones(n, dtype=bool)
-    mask = np.zeros(n, dtype=np.uint8)
+    n = len(codes)
+    return _Level(m, values[order], None if payload is None else payload[order],
+                  [c[order] for c in eq_cols], np.ones(n, dtype=bool),
+                  np.zeros(n, dtype=np.uint8))
 
-    out_m: list[np.ndarray] = []
-    out_d: list[np.ndarray] = []
-    out_mask: list[np.ndarray] = []
-    out_val: list[np.ndarray] = []
-    out_pay: list[np.ndarray] = []
 
-    for d in range(TREE_DEPTH, 0, -1):
-        sh = 3 * (TREE_DEPTH - d)
-        pm = (m >> (sh + 3)) << (sh + 3)
-        cidx = (m >> sh) & 7
-        new = np.r_[True, pm[1:] != pm[:-1]]
-        starts = np.flatnonzero(new)
-        group = np.cumsum(new) - 1
-        ng = len(starts)
-        counts = np.diff(np.r_[starts, len(m)])
+def _parent_level(level: _Level, d: int, inner_value: np.ufunc,
+                  inner_payload: Aggregator | None, prune_payload: str | Aggregator
+                  ) -> tuple[np.ndarray, _Level]:
+    """The parents (depth ``d - 1``) of the nodes of depth ``d``, 8 equal leaf children pruned
+    into their parent: (which nodes of ``level`` stay in the tree, the parents' level)."""
+    m, val, pay = level.m, level.val, level.pay
+    sh = 3 * (TREE_DEPTH - d)
+    pm = (m >> (sh + 3)) << (sh + 3)
+    cidx = (m >> sh) & 7
+    new = np.r_[True, pm[1:] != pm[:-1]]
+    starts = np.flatnonzero(new)
+    group = np.cumsum(new) - 1
+    counts = np.diff(np.r_[starts, len(m)])
 
-        pmask = np.bitwise_or.reduceat((1 << cidx).astype(np.uint8), starts)
-        pval = inner_value.reduceat(val, starts).astype(np.float32)
+    pmask = np.bitwise_or.reduceat((1 << cidx).astype(np.uint8), starts)
+    pval = inner_value.reduceat(val, starts).astype(np.float32)
+    ok = level.leaf.copy()
+    for col in level.eqs:
+        ok &= _rows_equal(col, col[starts][group])
+    coll = (counts == 8) & np.logical_and.reduceat(ok, starts)
+    pval[coll] = val[starts[coll]]
+    ppay = None if pay is None else _parent_payload(pay, group, starts, coll, inner_payload,
+                                                    prune_payload)
+    parents = _Level(pm[starts], pval, ppay, [col[starts] for col in level.eqs], coll,
+                     np.where(coll, np.uint8(0), pmask).astype(np.uint8))
+    return ~coll[group], parents
 
-        ok = leaf.copy()
-        for col in eqs:
-            ok &= _rows_equal(col, col[starts][group])
-        coll = (counts == 8) & np.logical_and.reduceat(ok, starts)
-        pval[coll] = val[starts[coll]]
 
-        if pay is not None:
-            if inner_payload is not None:
-                ppay = np.asarray(inner_payload(pay, group, ng)).astype(pay.dtype, copy=False)
-            else:
-                ppay = np.zeros((ng,) + pay.shape[1:], dtype=pay.dtype)
-            if coll.any():
-                if prune_payload == "first":
-                    ppay[coll] = pay[starts[coll]]
-                elif callable(prune_payload):
-                    ppay[coll] = np.asarray(prune_payload(pay, group, ng))[coll]
-                # "inner": the aggregate already in ppay
+def _parent_payload(pay: np.ndarray, group: np.ndarray, starts: np.ndarray, coll: np.ndarray,
+                    inner_payload: Aggregator | None, prune_payload: str | Aggregator
+                    ) -> np.ndarray:
+    """The parents' payload rows: ``inner_payload``'s aggregate (zero without one), a pruned
+    parent's as ``prune_payload`` says."""
+    ng = len(starts)
+    if inner_payload is not None:
+        ppay = np.asarray(inner_payload(pay, group, ng)).astype(pay.dtype, copy=False)
+    else:
+        ppay = np.zeros((ng,) + pay.shape[1:], dtype=pay.dtype)
+    if coll.any():
+        if prune_payload == "first":
+            ppay[coll] = pay[starts[coll]]
+        elif callable(prune_payload):
+            ppay[coll] = np.asarray(prune_payload(pay, group, ng))[coll]
+        # "inner": the aggregate already in ppay
+    return ppay
 
-        keep = ~coll[group]
-        out_m.append(m[keep])
-        out_d.append(np.full(int(keep.sum()), d, dtype=np.uint8))
-        out_mask.append(mask[keep])
-        out_val.append(val[keep])
-        if pay is not None:
-            out_pay.append(pay[keep])
 
-        m = pm[starts]
-        val = pval
-        eqs = [col[starts] for col in eqs]
-        leaf = coll
-        mask = np.where(coll, np.uint8(0), pmask).astype(np.uint8)
-        if pay is not None:
-            pay = ppay
+class _Nodes:
+    """The nodes that stay in the tree, collected level by level."""
 
-    # the root (depth 0)
-    out_m.append(m)
-    out_d.append(np.zeros(1, dtype=np.uint8))
-    out_mask.append(mask)
-    out_val.append(val)
-    if pay is not None:
-        out_pay.append(pay)
+    def __init__(self) -> None:
+        self.m: list[np.ndarray] = []
+        self.depth: list[np.ndarray] = []
+        self.mask: list[np.ndarray] = []
+        self.val: list[np.ndarray] = []
+        self.pay: list[np.ndarray] = []
 
-    all_m = np.concatenate(out_m)
-    all_d = np.concatenate(out_d)
-    order = np.lexsort((all_d, all_m))
-    return Tree(all_d[order], _codes_of_morton(all_m[order]),
-                np.concatenate(out_mask)[order], np.concatenate(out_val)[order],
-                None if payload is None else np.concatenate(out_pay)[order])
+    def add(self, level: _Level, keep: np.ndarray, d: int) -> None:
+        """The nodes of ``level`` (depth ``d``) where ``keep``."""
+        self.m.append(level.m[keep])
+        self.depth.append(np.full(int(keep.sum()), d, dtype=np.uint8))
+        self.mask.append(level.mask[keep])
+        self.val.append(level.val[keep])
+        if level.pay is not None:
+            self.pay.append(level.pay[keep])
+
+    def tree(self, *, with_payload: bool) -> Tree:
+        """The collected nodes in pre-order."""
+        all_m = np.concatenate(self.m)
+        all_d = np.concatenate(self.depth)
+        order = np.lexsort((all_d, all_m))
+        return Tree(all_d[order], _codes_of_morton(all_m[order]),
+                    np.concatenate(self.mask)[order], np.concatenate(self.val)[order],
+                    np.concatenate(self.pay)[order] if with_payload else None)
 
 
 def build_color_tree(codes: np.ndarray, values: np.ndarray, colours: np.ndarray) -> Tree:

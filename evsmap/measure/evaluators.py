@@ -23,20 +23,21 @@ Built in:
 from __future__ import annotations
 
 import abc
-import inspect
+import functools
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import EvsmapError, InvalidDataError
-from evsmap.interfaces import FILE_FORMATS, MapStats, MapUpdater
-from evsmap.metrics.mapping import MapQuality
+from evsmap.interfaces import FILE_FORMATS, MapStats, MapUpdater, check_file_format
+
+if TYPE_CHECKING:
+    from evsmap.metrics import ConfusionMatrix, SegmentationResult
+    from evsmap.metrics.mapping import MapQuality
 
 
 class SegmentationEvaluator(abc.ABC):
@@ -93,8 +94,9 @@ class ConfusionEvaluator(SegmentationEvaluator):
         self.source = source
         self.needs = needs
         self.class_names = tuple(class_names)
-        self._make = (lambda: ConfusionMatrix(num_classes)) if ignore_index is None else \
-            (lambda: ConfusionMatrix(num_classes, ignore_index))
+        self._make: Callable[[], ConfusionMatrix] = (
+            functools.partial(ConfusionMatrix, num_classes) if ignore_index is None
+            else functools.partial(ConfusionMatrix, num_classes, ignore_index))
         self.matrix = self._make()
 
     def reset(self) -> None:
@@ -108,9 +110,11 @@ class ConfusionEvaluator(SegmentationEvaluator):
 
     def process(self, index: int, frame: Frame, observation: SemanticObservation) -> None:
         self.check(index, frame)
-        self.matrix.update(observation.argmax, frame.labels)
+        labels = frame.labels
+        assert labels is not None  # check() refused the frame otherwise
+        self.matrix.update(observation.argmax, labels)
 
-    def evaluate(self):
+    def evaluate(self) -> SegmentationResult:
         """The :class:`~evsmap.metrics.SegmentationResult` (mIoU over the classes present in
         ground truth or prediction)."""
         return self.matrix.result(class_names=self.class_names)
@@ -151,17 +155,10 @@ class KeepObservations(SegmentationEvaluator):
 
 # ------------------------------------------------------------------------------------ mapping
 def write_map(updater: MapUpdater, path: str | PathLike[str], file_format: str = "full") -> int:
-    """``updater.write(path, file_format)``; a plug-in whose ``write`` takes no file format
-    writes one file, which is both its full and its published one. Returns the bytes written."""
-    if file_format not in FILE_FORMATS:
-        raise InvalidDataError(f"file format must be one of {', '.join(FILE_FORMATS)}, got "
-                               f"{file_format!r}")
-    if file_format not in updater.file_formats():
-        raise InvalidDataError(f"{type(updater).__name__} writes no {file_format} file (it "
-                               f"writes {', '.join(updater.file_formats())})")
-    if file_format != "full" and "file_format" in inspect.signature(updater.write).parameters:
-        return int(updater.write(path, file_format=file_format))
-    return int(updater.write(path))
+    """``updater.write(path, file_format)``, a format it does not write refused first. Returns
+    the bytes written."""
+    check_file_format(updater, file_format)
+    return int(updater.write(path, file_format))
 
 
 @dataclass(frozen=True)
@@ -213,16 +210,9 @@ class MapFiles(MapEvaluator):
 
 
 def pruned_share(updater: MapUpdater) -> float | None:
-    """The share of the finest leaves merged into pruned nodes (octree updaters), else None."""
-    tree_of = getattr(updater, "tree", None)
-    leaves = getattr(getattr(updater, "map", None), "num_leaves", None)
-    if not callable(tree_of) or not leaves:
-        return None
-    from evsmap.mapping.keys import TREE_DEPTH
-
-    tree = tree_of()
-    finest = int(np.count_nonzero(tree.is_leaf & (tree.depth == TREE_DEPTH)))
-    return 1.0 - finest / int(leaves)
+    """The share of the finest leaves merged into pruned nodes
+    (:meth:`MapUpdater.pruned_share`), else None."""
+    return updater.pruned_share()
 
 
 class MapStatistics(MapEvaluator):

@@ -29,7 +29,7 @@ from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.geometry import backproject, transform_points
 from evsmap.interfaces import FILE_FORMATS, MapStats, MapUpdater, PointQuery
-from evsmap.mapping.kernels import depth_points, group_points
+from evsmap.mapping.kernels import Kernels, check_kernels, depth_points, group_points
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 from evsmap.mapping.node_type import OCTREE, NodeType
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams
@@ -56,19 +56,25 @@ class FramePoints:
         point_voxel: (N,) index of each point's voxel in ``voxel_codes`` (-1: outside the map).
         rays: end points of the scan's rays (float32): the points, or with ``discretize`` the
             centres of their voxels (OctoMap's ``computeDiscreteUpdate``), computed here once.
+
+    ``kernels`` (:data:`~evsmap.mapping.kernels.Kernels`): back-project and group the points
+    with the compiled kernels (:func:`~evsmap.mapping.kernels.depth_points`,
+    :func:`~evsmap.mapping.kernels.group_points`) or with numpy (:func:`octomap_keys` +
+    :func:`group_keys`); the same voxels.
     """
 
     def __init__(self, frame: Frame, resolution: float, max_range: float,
-                 discretize: bool = False) -> None:
+                 discretize: bool = False, kernels: Kernels = "compiled") -> None:
         from evsmap.mapping.raycast import _norm, octomap_keys
 
         self._frame = frame
         self._points: np.ndarray | None = None
+        compiled = kernels == "compiled"
         if frame.is_cloud:
             self.pixels = np.arange(len(frame.points))
             self._points = transform_points(frame.points, frame.pose)
             pts = self._points.astype(np.float32)
-        elif USE_KERNEL and depth_points is not None:
+        elif compiled and depth_points is not None:
             i = frame.intrinsics
             self.pixels, pts = depth_points(frame.depth, i.fx, i.fy, i.cx, i.cy, frame.pose)
         else:
@@ -79,7 +85,7 @@ class FramePoints:
             pts = self._points.astype(np.float32)
         self.origin = frame.pose[:3, 3].astype(np.float64)
         done = False
-        if USE_KERNEL and group_points is not None:
+        if compiled and group_points is not None:
             self.point_voxel, ok, self.voxel_codes, done = group_points(
                 pts, 1.0 / float(resolution), KEY_OFFSET, KEY_MAX, _DENSE_BOX)
         if not done:
@@ -111,10 +117,6 @@ class FramePoints:
 
 _DENSE_BOX = 1 << 24
 """Largest key box (cells) :func:`group_keys` indexes densely instead of sorting."""
-
-USE_KERNEL = True
-"""Group a frame's points with the compiled kernel (:func:`evsmap.mapping.kernels.group_points`)
-when numba is installed; False selects :func:`octomap_keys` + :func:`group_keys` (numpy)."""
 
 
 def group_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -177,6 +179,9 @@ class OctreeUpdater(MapUpdater):
         discretize: reduce the end points to unique voxel centres before ray casting (OctoMap's
             ``discretize`` flag).
         prob_hit, prob_miss, clamp_min, clamp_max, occupancy_threshold: OctoMap's sensor model.
+        kernels: ``"compiled"`` (numba kernels) or ``"reference"`` (the numpy code) for every
+            loop of an update: points, rays and the node type's payload update
+            (:data:`~evsmap.mapping.kernels.Kernels`); the same map either way.
     """
 
     name: ClassVar[str] = ""
@@ -189,7 +194,8 @@ class OctreeUpdater(MapUpdater):
                  discretize: bool = True, prob_hit: float = OCTOMAP.prob_hit,
                  prob_miss: float = OCTOMAP.prob_miss, clamp_min: float = OCTOMAP.clamp_min,
                  clamp_max: float = OCTOMAP.clamp_max,
-                 occupancy_threshold: float = OCTOMAP.occupancy_threshold) -> None:
+                 occupancy_threshold: float = OCTOMAP.occupancy_threshold,
+                 kernels: Kernels = "compiled") -> None:
         if node_type is not None:
             if not isinstance(node_type, NodeType):
                 raise InvalidDataError(f"node_type must be a NodeType, got "
@@ -199,6 +205,7 @@ class OctreeUpdater(MapUpdater):
             self.name = name
         elif not self.name:
             self.name = self.node_type.tree_id
+        self.kernels = check_kernels(kernels)
         if not (isinstance(max_range, (int, float)) and math.isfinite(max_range)):
             raise InvalidDataError(f"max_range must be a finite number, got {max_range!r}")
         try:
@@ -214,10 +221,12 @@ class OctreeUpdater(MapUpdater):
         self.discretize = bool(discretize)
         self.frames = 0
         self._front_end_counts: dict[str, list[int]] = {"centroids": [], "hits": [], "rays": []}
+        self._reusing = False
+        self._reused_tree: Tree | None = None
         self._init_payloads()
 
     @property
-    def tree_type(self) -> str:
+    def tree_id(self) -> str:
         """The ``.ot`` id of the map's files (its node type's)."""
         return self.node_type.tree_id
 
@@ -259,10 +268,11 @@ class OctreeUpdater(MapUpdater):
         # the compiled kernels run on evsmap.mapping.threads' number of threads, set here in
         # the thread that launches them
         with kernel_threads():
-            points = FramePoints(frame, self.resolution, self.max_range, self.discretize)
+            points = FramePoints(frame, self.resolution, self.max_range, self.discretize,
+                                 self.kernels)
             # the rays are already discretized (once, in FramePoints) when that option is on
             keys = scan_keys(points.rays, points.origin, self.resolution,
-                             max_range=self.max_range, discretize=False)
+                             max_range=self.max_range, discretize=False, kernels=self.kernels)
             update = self.map.apply(keys.free, keys.occupied)
             if self.node_type.update is not None:
                 self.node_type.update(self, frame, points, update, observation)
@@ -279,7 +289,7 @@ class OctreeUpdater(MapUpdater):
         return {k: list(v) for k, v in self._front_end_counts.items()}
 
     def file_formats(self) -> tuple[str, ...]:
-        has_colour = (self.node_type.colour_only is not None or self.tree_type == "ColorOcTree"
+        has_colour = (self.node_type.colour_only is not None or self.tree_id == "ColorOcTree"
                       or self.node_type.label is not None or self.node_type.colour is not None)
         return FILE_FORMATS if has_colour else ("full", "published")
 
@@ -291,7 +301,7 @@ class OctreeUpdater(MapUpdater):
         nt = self.node_type
         if nt.colour_only is not None:
             return nt.colour_only(self, tree)
-        if self.tree_type == "ColorOcTree" or tree.payload is None:
+        if self.tree_id == "ColorOcTree" or tree.payload is None:
             return "ColorOcTree", tree, None
         columns = nt.from_record(tree.payload)
         if nt.label is not None:
@@ -318,7 +328,7 @@ class OctreeUpdater(MapUpdater):
     @contextlib.contextmanager
     def reuse_tree(self) -> Iterator[None]:
         """Within the block, :meth:`tree` is built once (the map must not change inside)."""
-        self._reused_tree: Tree | None = None
+        self._reused_tree = None
         self._reusing = True
         try:
             yield
@@ -328,7 +338,7 @@ class OctreeUpdater(MapUpdater):
 
     def tree(self) -> Tree:
         """The pruned octree of the current map (built once inside :meth:`reuse_tree`)."""
-        if getattr(self, "_reusing", False):
+        if self._reusing:
             if self._reused_tree is None:
                 self._reused_tree = self._build_tree()
             return self._reused_tree
@@ -342,6 +352,18 @@ class OctreeUpdater(MapUpdater):
         return build_tree(self.map.codes, np.asarray(self.map.logodds),
                           payload=self._payload_record(), equal_columns=self._equal_columns(),
                           inner_payload=self._bound(nt.inner), prune_payload=pruned)
+
+    def pruned_share(self) -> float | None:
+        """The share of the finest leaves merged into pruned nodes (builds :meth:`tree`);
+        None for an empty map."""
+        from evsmap.mapping.keys import TREE_DEPTH
+
+        leaves = self.map.num_leaves
+        if not leaves:
+            return None
+        tree = self.tree()
+        finest = int(np.count_nonzero(tree.is_leaf & (tree.depth == TREE_DEPTH)))
+        return 1.0 - finest / int(leaves)
 
     def stats(self) -> MapStats:
         tree = self.tree()
@@ -364,14 +386,14 @@ class OctreeUpdater(MapUpdater):
 
         path = Path(path)
         tree = self.tree()
-        if path.suffix == ".bt":  # occupancy only; OctoMap writes its own tree type's id
-            kind = self.tree_type if self.tree_type in ("OcTree", "ColorOcTree") else "OcTree"
+        if path.suffix == ".bt":  # occupancy only; OctoMap writes its own tree's id
+            tree_id = self.tree_id if self.tree_id in ("OcTree", "ColorOcTree") else "OcTree"
             p = self.params
-            return write_bt(path, tree, self.resolution, tree_type=kind,
+            return write_bt(path, tree, self.resolution, tree_id=tree_id,
                             occupancy_thres=p.occupancy_threshold, clamp_min=p.clamp_min,
                             clamp_max=p.clamp_max)
-        kind, tree, fmt = self._file_tree(tree, file_format)
-        return write_ot(path, tree, self.resolution, tree_type=kind, payload_format=fmt)
+        tree_id, tree, fmt = self._file_tree(tree, file_format)
+        return write_ot(path, tree, self.resolution, tree_id=tree_id, payload_format=fmt)
 
     def _file_tree(self, tree: Tree, file_format: str) -> tuple[str, Tree, np.dtype | None]:
         """(tree id, tree, record) of the ``.ot`` in ``file_format``."""
@@ -380,12 +402,12 @@ class OctreeUpdater(MapUpdater):
                                    f"got {file_format!r}")
         if file_format == "colour":
             if file_format not in self.file_formats():
-                raise InvalidDataError(f"{self.name}: its {self.tree_type} nodes have no colour "
+                raise InvalidDataError(f"{self.name}: its {self.tree_id} nodes have no colour "
                                        f"to write a colour file with")
             return self.colour_only(tree)
         if file_format == "published" and self.node_type.publish is not None:
             return self.node_type.publish(self, tree)
-        return self.tree_type, tree, self.node_type.record
+        return self.tree_id, tree, self.node_type.record
 
     def size_readings(self) -> dict[str, int | None]:
         """The map's counts and its size under each reading from one build of the tree."""
@@ -395,8 +417,8 @@ class OctreeUpdater(MapUpdater):
         sizes = {}
         for fmt in ("published", "colour"):
             if fmt in self.file_formats():
-                kind, t, rec = self._file_tree(tree, fmt)
-                sizes[fmt] = len(ot_bytes(t, self.resolution, tree_type=kind,
+                tree_id, t, rec = self._file_tree(tree, fmt)
+                sizes[fmt] = len(ot_bytes(t, self.resolution, tree_id=tree_id,
                                           payload_format=rec))
             else:
                 sizes[fmt] = None
@@ -410,9 +432,9 @@ class OctreeUpdater(MapUpdater):
         mapping continues from it; returns ``self``.
 
         Raises:
-            DataFormatError: unreadable file, another tree type or another resolution.
+            DataFormatError: unreadable file, another tree id or another resolution.
         """
-        kind, tree = self._read_own(path)
+        _, tree = self._read_own(path)
         try:
             codes, values, payload = tree.expand()
         except InvalidDataError as exc:  # coarse leaves covering too many voxels
@@ -429,15 +451,15 @@ class OctreeUpdater(MapUpdater):
         from evsmap.mapping.octree_io import read_ot
 
         fmt = self.node_type.record
-        kind, resolution, tree = read_ot(path, payload_format=None if fmt is None
-                                         else {self.tree_type: fmt})
-        if kind != self.tree_type:
-            raise DataFormatError(f"{path}: a {kind} file, not a {self.tree_type} map")
+        tree_id, resolution, tree = read_ot(path, payload_format=None if fmt is None
+                                            else {self.tree_id: fmt})
+        if tree_id != self.tree_id:
+            raise DataFormatError(f"{path}: a {tree_id} file, not a {self.tree_id} map")
         # OctoMap writes "res" with 6 digits: a float resolution (0.05f) comes back as 0.05
         if np.float32(resolution) != np.float32(self.resolution):
             raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "
                                   f"{self.resolution} m")
-        return kind, tree
+        return tree_id, tree
 
     def query(self, points: np.ndarray) -> PointQuery:
         """What the map knows at ``points``; occupied voxels carry the first slot of the node

@@ -25,7 +25,7 @@ from evsmap.mapping.sensor_model import OCTOMAP
 T = TypeVar("T")
 
 OCTREE_OPTIONS: dict[str, Any] = {"resolution": 0.05, "max_range": 5.0, "discretize": True,
-                                  **asdict(OCTOMAP)}
+                                  **asdict(OCTOMAP), "kernels": "compiled"}
 """The options of :class:`~evsmap.updaters.base.OctreeUpdater`'s constructor, with its
 defaults (a test holds the two equal)."""
 

@@ -63,6 +63,7 @@ from evsmap.mapping.generator import (
     unpack_rgb,
     voc_colormap,
 )
+from evsmap.mapping.kernels import Kernels
 from evsmap.mapping.keys import pack
 from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.raycast import octomap_keys, scan_keys
@@ -72,7 +73,7 @@ from evsmap.mapping.tree import Tree, octomap_colour_average, octomap_colour_pru
 from evsmap.mapping.voxel_grid import voxel_grid
 from evsmap.updaters.base import OctreeUpdater, check_observation
 
-TREE_TYPE = "MultiClassBayesGeneratorOcTree"
+TREE_ID = "MultiClassBayesGeneratorOcTree"
 
 RECORD = np.dtype([("rgb", "u1", (3,)), ("colors", "<u4", (3,)), ("logodds", "<f4", (3,)),
                    ("others", "<f4")])
@@ -192,7 +193,7 @@ def _colour_only(updater: GeneratorMultiClassBayesMap, tree: Tree):
 
 
 NODE_TYPE = NODE_TYPES.add(NodeType(
-    TREE_TYPE, record=RECORD, columns=_columns(), inner=_inner, pruned=_pruned,
+    TREE_ID, record=RECORD, columns=_columns(), inner=_inner, pruned=_pruned,
     prune_on=("sem_colors", "class_logodds", "others"), node_bytes=NODE_BYTES,
     label="classes", colour="rgb", encode=_encode, decode=_decode, publish=_publish,
     colour_only=_colour_only, uses_semantics=True,
@@ -212,6 +213,8 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
         clamp_min, clamp_max: SSMI's clamping probabilities, for the occupancy floor and the
             semantic log-odds (1e-4 / 0.9999).
         resolution: the leaf size; like every parameter it reaches the tree as a ``float``.
+        kernels: the ray casting's (:class:`~evsmap.updaters.base.OctreeUpdater`); SSMI's node
+            update is always the compiled :func:`~evsmap.mapping.ssmi_kernel.frame_update`.
     """
 
     name = "multiclass-bayes"
@@ -224,7 +227,8 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
                  resolution: float = 0.05, max_range: float = ROS_DEFAULTS["max_range"],
                  clamp_min: float = ROS_DEFAULTS["clamp_min"],
                  clamp_max: float = ROS_DEFAULTS["clamp_max"],
-                 occupancy_threshold: float = OCTOMAP.occupancy_threshold) -> None:
+                 occupancy_threshold: float = OCTOMAP.occupancy_threshold,
+                 kernels: Kernels = "compiled") -> None:
         if pairing not in fusion.PAIRINGS:
             raise InvalidDataError(f"multiclass-bayes: pairing must be one of "
                                    f"{', '.join(fusion.PAIRINGS)}; got {pairing!r}")
@@ -239,7 +243,8 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
                          max_range=as_float_parameter(max_range), discretize=True,
                          clamp_min=as_float_parameter(clamp_min),
                          clamp_max=as_float_parameter(clamp_max),
-                         occupancy_threshold=as_float_parameter(occupancy_threshold))
+                         occupancy_threshold=as_float_parameter(occupancy_threshold),
+                         kernels=kernels)
         self.psi, self.phi, self.min_logodds, self.max_logodds, self.min_occupancy = \
             tree_constants(psi=psi, phi=phi, clamp_min=clamp_min, clamp_max=clamp_max)
 
@@ -267,7 +272,7 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
         hit_colour = np.ascontiguousarray(fields[inside][hit_ok, 0]).view(np.uint32)
         hit_rgb = np.ascontiguousarray(cent_rgb[inside][hit_ok])
         keys = scan_keys(world[valid], origin.astype(np.float64), self.resolution,
-                         max_range=self.raycast_range, discretize=True)
+                         max_range=self.raycast_range, discretize=True, kernels=self.kernels)
         codes = np.union1d(hit_codes, keys.free)
         index = self.map.insert_leaves(codes)
         hit_index = index[np.searchsorted(codes, hit_codes)]

@@ -48,13 +48,9 @@ PAYLOAD_FORMAT = np.dtype([("classes", "u1", (3,)), ("logodds", "<f4", (3,)),
 """Per-node payload after the float32 occupancy log-odds in the ``.ot`` stream (19 bytes): class
 ids (255 = empty slot) and the class and "others" log-odds, float32 as the map keeps them."""
 EMPTY_ID = 255
-TREE_TYPE = "MultiClassBayesOcTree"
+TREE_ID = "MultiClassBayesOcTree"
 LEAF_UPDATES = ("bayes", "average")
 OCCUPANCIES = ("semantic", "octomap")
-
-USE_KERNEL = True
-"""Update the payloads with the compiled kernel (:mod:`evsmap.mapping.mcb_kernel`) when numba
-is installed; False selects the numpy reference (the tests compare the two)."""
 
 
 def _to_ids(classes: np.ndarray) -> np.ndarray:
@@ -82,9 +78,10 @@ def _decode(record: np.ndarray) -> dict[str, np.ndarray]:
 
 def _update(updater: MultiClassBayesMap, frame: Frame, points: FramePoints, update: ScanUpdate,
             observation: SemanticObservation) -> None:
-    """A frame's semantics on the leaves it observed (compiled kernel, or numpy)."""
+    """A frame's semantics on the leaves it observed: the compiled kernel
+    (:mod:`evsmap.mapping.mcb_kernel`), or the numpy reference with ``kernels="reference"``."""
     updater.check_classes(observation)
-    if USE_KERNEL and frame_update is not None:
+    if updater.kernels == "compiled" and frame_update is not None:
         pixels, voxels, local_index = updater.endpoint_voxels(points)
         span = int(observation.classes.max()) + 1 if observation.classes.size else 0
         if 0 < span and len(voxels) * span <= fusion.DENSE_LIMIT:
@@ -149,7 +146,7 @@ def _inner(updater: MultiClassBayesMap, child_payload: np.ndarray, group: np.nda
 
 
 NODE_TYPE = NODE_TYPES.add(NodeType(
-    TREE_TYPE, record=PAYLOAD_FORMAT,
+    TREE_ID, record=PAYLOAD_FORMAT,
     columns=(Column("classes", np.int16, (3,), fill=fusion.EMPTY),
              Column("class_logodds", np.float32, (3,), fill=0),
              Column("others", np.float32, (), fill=0)),
@@ -235,14 +232,14 @@ def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBaye
     ``kwargs`` are the map's options.
 
     Raises:
-        DataFormatError: unreadable or corrupt file, another tree type, or leaves covering more
+        DataFormatError: unreadable or corrupt file, another tree id, or leaves covering more
             than :data:`MAX_RESTORE_VOXELS` finest voxels (names the file).
     """
     from evsmap.errors import DataFormatError, InvalidDataError
     from evsmap.mapping.keys import TREE_DEPTH
     from evsmap.mapping.octree_io import read_ot
 
-    saved = read_ot(path, payload_format={TREE_TYPE: PAYLOAD_FORMAT})
+    saved = read_ot(path, payload_format={TREE_ID: PAYLOAD_FORMAT})
     resolution, tree = saved.resolution, saved.tree
     depth = tree.leaves()[0].astype(np.float64)
     voxels = float(np.sum(8.0 ** (TREE_DEPTH - depth)))

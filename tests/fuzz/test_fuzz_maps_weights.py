@@ -53,7 +53,7 @@ def _leaves(n: int = 60, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def octree_samples() -> dict[str, bytes]:
-    from evsmap.updaters.multiclass_bayes import PAYLOAD_FORMAT, TREE_TYPE
+    from evsmap.updaters.multiclass_bayes import PAYLOAD_FORMAT, TREE_ID
 
     codes, values = _leaves()
     plain = build_tree(codes, values)
@@ -64,8 +64,8 @@ def octree_samples() -> dict[str, bytes]:
     pay["classes"][:, 1:] = 255
     pay["logodds"][:, 0] = 1.5
     mcb = build_tree(codes, values, payload=pay)
-    return {"ot": ot_bytes(plain, RES), "color": ot_bytes(colour, RES, tree_type="ColorOcTree"),
-            "mcb": ot_bytes(mcb, RES, tree_type=TREE_TYPE, payload_format=PAYLOAD_FORMAT),
+    return {"ot": ot_bytes(plain, RES), "color": ot_bytes(colour, RES, tree_id="ColorOcTree"),
+            "mcb": ot_bytes(mcb, RES, tree_id=TREE_ID, payload_format=PAYLOAD_FORMAT),
             "bt": bt_bytes(plain, RES)}
 
 
@@ -225,10 +225,10 @@ def test_octree_refuses_huge_and_looping_claims(tmp_path):
     for name, data in cases.items():
         path = write_variant(tmp_path / name, data)
         check_file("octree/claims", lambda p=path: _read_any(p), path)
-    from evsmap.updaters.multiclass_bayes import PAYLOAD_FORMAT, TREE_TYPE, load_multiclass_bayes
+    from evsmap.updaters.multiclass_bayes import PAYLOAD_FORMAT, TREE_ID, load_multiclass_bayes
 
     root = np.zeros(1, dtype=[("value", "<f4"), ("payload", PAYLOAD_FORMAT), ("mask", "u1")])
-    head = b"# Octomap OcTree file\nid " + TREE_TYPE.encode() + b"\nsize 1\nres 0.05\ndata\n"
+    head = b"# Octomap OcTree file\nid " + TREE_ID.encode() + b"\nsize 1\nres 0.05\ndata\n"
     path = write_variant(tmp_path / "root-leaf.ot", head + root.tobytes())
     check_file("octree/claims", lambda: load_multiclass_bayes(path), path)
     # 10 records (a chain to depth 7, two leaves at depth 8): 3.4e7 finest voxels to restore

@@ -52,9 +52,9 @@ def test_builtin_types_are_registered_by_their_ot_id():
             "SemanticOcTreeMax", "SemanticSlamOcTreeBayes",
             "SemanticSlamOcTreeMax"} <= set(NODE_TYPES.names())
     assert UPDATERS.create("orgb").node_type is COLOR_OCTREE
-    assert UPDATERS.create("multiclass-bayes").tree_type == "MultiClassBayesGeneratorOcTree"
+    assert UPDATERS.create("multiclass-bayes").tree_id == "MultiClassBayesGeneratorOcTree"
     assert UPDATERS.create("multiclass-bayes",
-                           front_end="direct").tree_type == "MultiClassBayesOcTree"
+                           front_end="direct").tree_id == "MultiClassBayesOcTree"
 
 
 def test_duplicate_id_raises_and_the_first_stays(visits):
@@ -76,7 +76,7 @@ def test_reading_an_unknown_id_is_a_clear_error(tmp_path):
     codes = np.arange(8, dtype=np.int64)
     tree = build_tree(codes, np.zeros(8, np.float32), payload=np.arange(8, dtype=np.uint16))
     path = tmp_path / "x.ot"
-    write_ot(path, tree, 0.1, tree_type="NoSuchOcTree")
+    write_ot(path, tree, 0.1, tree_id="NoSuchOcTree")
     with pytest.raises(DataFormatError) as err:
         read_ot(path)
     message = str(err.value)
@@ -106,7 +106,7 @@ def test_default_codec_needs_matching_names():
 
 def test_custom_node_type_round_trips_through_write_and_restore(visits, frames, tmp_path):
     updater = OctreeUpdater(node_type=visits, resolution=0.1)
-    assert updater.name == VISITS_ID and updater.tree_type == VISITS_ID
+    assert updater.name == VISITS_ID and updater.tree_id == VISITS_ID
     assert not updater.uses_semantics
     for frame in frames:
         updater.integrate(frame)

@@ -91,8 +91,8 @@ def test_ot_bytes_identical_to_octomap(octomap, om_tree, tmp_path):
 def test_read_ot_written_by_octomap(om_tree, tmp_path):
     path = tmp_path / "octomap.ot"
     assert om_tree.write(str(path).encode())
-    tree_type, res, t = read_ot(path)
-    assert (tree_type, res) == ("OcTree", RES)
+    tree_id, res, t = read_ot(path)
+    assert (tree_id, res) == ("OcTree", RES)
     d, c, v, leaf = octomap_nodes(om_tree)
     assert t.num_nodes == om_tree.size() and t.num_leaves == om_tree.getNumLeafNodes()
     assert np.array_equal(t.depth, d) and np.array_equal(t.code, c)
@@ -112,8 +112,8 @@ def test_bt_bytes_identical_and_readable(octomap, tmp_path):
     assert back.readBinary(str(path).encode())
     assert back.size() == om.size() and back.getNumLeafNodes() == om.getNumLeafNodes()
     # reading: the same nodes and values as octomap's readBinary
-    tree_type, res, rt = read_bt(path)
-    assert (tree_type, res) == ("OcTree", RES)
+    tree_id, res, rt = read_bt(path)
+    assert (tree_id, res) == ("OcTree", RES)
     d, c, v, leaf = octomap_nodes(back)
     assert np.array_equal(rt.depth, d) and np.array_equal(rt.code, c)
     assert np.array_equal(rt.value, v) and np.array_equal(rt.is_leaf, leaf)
@@ -154,21 +154,21 @@ def test_colour_ot_identical(octomap, tmp_path):
     om.updateInnerOccupancy()
     t = ours_from(om, colour=True)
     path = tmp_path / "c.ot"
-    write_ot(path, t, RES, tree_type="ColorOcTree")
+    write_ot(path, t, RES, tree_id="ColorOcTree")
     data = path.read_bytes()
     assert data == om.write()
     assert len(data) - data.index(b"data\n") - 5 == 8 * t.num_nodes  # 8 B per node
     back = octomap.ColorOcTree.read(str(path).encode())
     assert back.size() == t.num_nodes and back.getNumLeafNodes() == t.num_leaves
-    tree_type, _, rt = read_ot(path)
-    assert tree_type == "ColorOcTree" and rt.identical(t)
+    tree_id, _, rt = read_ot(path)
+    assert tree_id == "ColorOcTree" and rt.identical(t)
     assert rt.payload.shape == (t.num_nodes, 3) and rt.payload.dtype == np.uint8
-    assert bt_bytes(t, RES, tree_type="ColorOcTree") == om.writeBinary()
+    assert bt_bytes(t, RES, tree_id="ColorOcTree") == om.writeBinary()
 
 
 def test_colour_ot_without_payload_is_white():
     t = build_tree(pack(np.array([[1, 2, 3]])), np.ones(1, np.float32))
-    _, _, rt = parse_ot(ot_bytes(t, RES, tree_type="ColorOcTree"))
+    _, _, rt = parse_ot(ot_bytes(t, RES, tree_id="ColorOcTree"))
     assert np.all(rt.payload == 255)
 
 
@@ -186,13 +186,13 @@ def semantic_tree(seed=0):
 def test_custom_semantic_payload_round_trip(tmp_path):
     t = semantic_tree()
     path = tmp_path / "sem.ot"
-    n = write_ot(path, t, 0.02, tree_type="SemanticOcTree")
+    n = write_ot(path, t, 0.02, tree_id="SemanticOcTree")
     assert n == path.stat().st_size
     rec = 4 + SEM.itemsize + 1
     data = path.read_bytes()
     assert len(data) - data.index(b"data\n") - 5 == rec * t.num_nodes
-    tree_type, res, rt = read_ot(path, payload_format=SEM)
-    assert (tree_type, res) == ("SemanticOcTree", 0.02)
+    tree_id, res, rt = read_ot(path, payload_format=SEM)
+    assert (tree_id, res) == ("SemanticOcTree", 0.02)
     assert rt.identical(t)
     assert rt.payload.dtype.names == SEM.names
     # a mapping from tree type to layout works too; the bytes are little-endian
@@ -201,14 +201,14 @@ def test_custom_semantic_payload_round_trip(tmp_path):
     # a plain (M, k) payload
     p2 = np.arange(t.num_nodes * 4, dtype=np.uint16).reshape(-1, 4)
     t2 = Tree(t.depth, t.code, t.child_mask, t.value, p2)
-    write_ot(path, t2, 0.02, tree_type="Plain")
+    write_ot(path, t2, 0.02, tree_id="Plain")
     _, _, rt3 = read_ot(path, payload_format=np.dtype(("<u2", (4,))))
     assert rt3.identical(t2)
 
 
-def test_unknown_tree_type_names_file_and_id(tmp_path):
+def test_unknown_tree_id_names_file_and_id(tmp_path):
     path = tmp_path / "sem.ot"
-    write_ot(path, semantic_tree(), RES, tree_type="SemanticOcTree")
+    write_ot(path, semantic_tree(), RES, tree_id="SemanticOcTree")
     with pytest.raises(DataFormatError, match=r"sem\.ot.*SemanticOcTree"):
         read_ot(path)
     with pytest.raises(DataFormatError, match="SemanticOcTree"):
@@ -301,9 +301,9 @@ def test_write_is_atomic_overwrite_and_validates(tmp_path):
     with pytest.raises(InvalidDataError):
         write_ot(path, t, -1.0)
     with pytest.raises(InvalidDataError):
-        write_ot(path, t, RES, tree_type="two words")
+        write_ot(path, t, RES, tree_id="two words")
     with pytest.raises(InvalidDataError):
-        write_ot(path, build_tree(np.array([1]), np.ones(1)), RES, tree_type="Custom")
+        write_ot(path, build_tree(np.array([1]), np.ones(1)), RES, tree_id="Custom")
     assert read_ot(path).tree.num_nodes == t.num_nodes  # failed writes left the file alone
 
 
@@ -330,4 +330,4 @@ def test_colour_of_pruned_node_like_octomap(octomap, first_set):
     t = build_color_tree(pack(base + OFFSETS),
                          np.full(8, om.getClampingThresMaxLog(), np.float32), cols)
     assert t.num_nodes == om.size() == 16
-    assert ot_bytes(t, RES, tree_type="ColorOcTree") == om.write()
+    assert ot_bytes(t, RES, tree_id="ColorOcTree") == om.write()

@@ -163,12 +163,11 @@ def test_points_outside_the_key_range_are_skipped_like_octomap():
         scan_keys(points, np.zeros(3), 0.0)
 
 
-@pytest.fixture(params=["kernel", "numpy"])
-def dda(request, monkeypatch):
+@pytest.fixture(params=["compiled", "reference"])
+def dda(request):
     """Both ray walkers: the compiled kernel and the pure-numpy merge."""
-    if request.param == "kernel" and raycast.trace is None:
+    if request.param == "compiled" and raycast.trace is None:
         missing("numba cannot be imported: the compiled ray walker is untested")
-    monkeypatch.setattr(raycast, "USE_KERNEL", request.param == "kernel")
     return request.param
 
 
@@ -183,7 +182,8 @@ def test_matches_octomap_on_random_clouds(case, discretize, dda):
     if case % 2 == 0:  # ends and origin on voxel borders and centres: many exact ties
         points = np.round(points / res) * res
         origin = np.round(origin / res) * res + (res / 2 if case % 4 == 0 else 0.0)
-    got = scan_keys(points, origin, res, max_range=max_range, discretize=discretize)
+    got = scan_keys(points, origin, res, max_range=max_range, discretize=discretize,
+                    kernels=dda)
     ref = octomap_scan(points, origin, res, max_range=max_range, discretize=discretize)
     assert ref.free.size > 100
     assert np.array_equal(got.occupied, ref.occupied)
@@ -194,15 +194,13 @@ def test_chunking_and_dedup_paths_agree(monkeypatch):
     rng = np.random.default_rng(7)
     points = rng.normal(size=(3000, 3)) * 1.5
     origin = np.array([0.1, -0.2, 0.05])
-    monkeypatch.setattr(raycast, "USE_KERNEL", False)
-    expected = scan_keys(points, origin, 0.05, max_range=2.0)
+    expected = scan_keys(points, origin, 0.05, max_range=2.0, kernels="reference")
     monkeypatch.setattr(raycast, "CHUNK_ELEMENTS", 5000)
-    small = scan_keys(points, origin, 0.05, max_range=2.0)
+    small = scan_keys(points, origin, 0.05, max_range=2.0, kernels="reference")
     monkeypatch.setattr(raycast, "DENSE_GRID_LIMIT", 0)  # np.unique in packed-code space
-    sparse = scan_keys(points, origin, 0.05, max_range=2.0)
+    sparse = scan_keys(points, origin, 0.05, max_range=2.0, kernels="reference")
     results = [small, sparse]
     if raycast.trace is not None:  # the compiled kernel, with the unique path and the grid
-        monkeypatch.setattr(raycast, "USE_KERNEL", True)
         results.append(scan_keys(points, origin, 0.05, max_range=2.0))
         monkeypatch.setattr(raycast, "DENSE_GRID_LIMIT", 1 << 28)
         results.append(scan_keys(points, origin, 0.05, max_range=2.0))

@@ -18,19 +18,16 @@ def tum_frame(tum_dir):
     return READERS.create("tum", path=str(tum_dir)).frame(5)
 
 
-def _both(monkeypatch, frame, resolution, max_range=5.0, discretize=True):
-    out = []
-    for use in (True, False):
-        monkeypatch.setattr(base, "USE_KERNEL", use)
-        out.append(base.FramePoints(frame, resolution, max_range, discretize))
-    return out
+def _both(frame, resolution, max_range=5.0, discretize=True):
+    return [base.FramePoints(frame, resolution, max_range, discretize, kernels)
+            for kernels in ("compiled", "reference")]
 
 
 @pytest.mark.parametrize("resolution", [0.02, 0.05, 0.1])
-def test_kernel_and_numpy_grouping_agree(monkeypatch, tum_frame, resolution):
+def test_kernel_and_numpy_grouping_agree(tum_frame, resolution):
     if base.group_points is None:
         missing("numba cannot be imported: the compiled grouping is untested")
-    a, b = _both(monkeypatch, tum_frame, resolution)
+    a, b = _both(tum_frame, resolution)
     assert np.array_equal(a.voxel_codes, b.voxel_codes)
     assert np.array_equal(a.point_voxel, b.point_voxel)
     assert np.array_equal(a.endpoint, b.endpoint)
@@ -41,13 +38,13 @@ def test_kernel_and_numpy_grouping_agree(monkeypatch, tum_frame, resolution):
     assert np.array_equal(a.voxel_codes[a.point_voxel], pack(keys))
 
 
-def test_points_outside_the_key_range_are_left_out(monkeypatch):
+def test_points_outside_the_key_range_are_left_out():
     # a 4x1 image whose last pixel lies beyond OctoMap's 16-bit key range at 1 mm
     intr = Intrinsics(1.0, 1.0, 1.5, 0.0, 4, 1)
     depth = np.array([[1.0, 2.0, 0.0, 40.0]], dtype=np.float32)
     frame = Frame(rgb=np.zeros((1, 4, 3), np.uint8), depth=depth, intrinsics=intr,
                   pose=np.eye(4), timestamp=0.0)
-    for points in _both(monkeypatch, frame, 0.001, max_range=-1.0, discretize=False):
+    for points in _both(frame, 0.001, max_range=-1.0, discretize=False):
         assert points.point_voxel.tolist()[:2] != [-1, -1] and points.point_voxel[2] == -1
         assert len(points.voxel_codes) == 2
         assert points.endpoint.tolist() == [True, True, False]
@@ -55,6 +52,15 @@ def test_points_outside_the_key_range_are_left_out(monkeypatch):
 
 def test_a_huge_box_falls_back_to_sorting(monkeypatch, tum_frame):
     monkeypatch.setattr(base, "_DENSE_BOX", 10)
-    a, b = _both(monkeypatch, tum_frame, 0.05)
+    a, b = _both(tum_frame, 0.05)
     assert np.array_equal(a.voxel_codes, b.voxel_codes)
     assert np.array_equal(a.point_voxel, b.point_voxel)
+
+
+def test_the_kernels_switch_is_checked():
+    from evsmap.errors import InvalidDataError
+    from evsmap.updaters.orgb import ORGBMap
+
+    assert ORGBMap().kernels == "compiled" and ORGBMap(kernels="reference").kernels == "reference"
+    with pytest.raises(InvalidDataError, match="kernels must be one of compiled, reference"):
+        ORGBMap(kernels="fast")

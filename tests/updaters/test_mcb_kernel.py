@@ -7,7 +7,7 @@ import pytest
 
 import evsmap.mapping.occupancy as occupancy
 import evsmap.updaters.multiclass_bayes as mb
-from evsmap.registry import READERS, SEGMENTERS, UPDATERS
+from evsmap.registry import READERS, SEGMENTERS
 from evsmap.testing import missing
 
 
@@ -17,12 +17,12 @@ def _compiled_kernel():
         missing("numba cannot be imported: the compiled multiclass-bayes update is untested")
 
 
-def _maps(monkeypatch, frames, observations, resolution, **options):
+def _maps(frames, observations, resolution, **options):
     out = []
-    for use in (True, False):
-        monkeypatch.setattr(mb, "USE_KERNEL", use)
-        m = UPDATERS.create("multiclass-bayes", front_end="direct", resolution=resolution,
-                            max_range=4.0, **options)
+    for kernels in ("compiled", "reference"):
+        # what UPDATERS.create("multiclass-bayes", front_end="direct", ...) builds
+        m = mb.MultiClassBayesMap(resolution=resolution, max_range=4.0, kernels=kernels,
+                                  **options)
         for frame, obs in zip(frames, observations, strict=True):
             m.integrate(frame, obs)
         out.append(m)
@@ -48,9 +48,9 @@ def tum_observed(tum_dir):
 
 
 @pytest.mark.parametrize("resolution", [0.05, 0.02])
-def test_kernel_equals_numpy_on_real_frames(monkeypatch, tum_observed, resolution):
+def test_kernel_equals_numpy_on_real_frames(tum_observed, resolution):
     frames, observations = tum_observed
-    kernel, reference = _maps(monkeypatch, frames, observations, resolution)
+    kernel, reference = _maps(frames, observations, resolution)
     _assert_same(kernel, reference)
     known = kernel.map.payload("classes")[:, 0] >= 0
     assert known.sum() > 1000  # observed many times: the hit rule ran on most of them
@@ -67,12 +67,12 @@ VARIANTS = [
 
 @pytest.mark.parametrize("variant", VARIANTS, ids=lambda v: ",".join(
     f"{k}={x}" for k, x in v.items()) or "paper")
-def test_kernel_equals_numpy_with_other_parameters(monkeypatch, variant):
+def test_kernel_equals_numpy_with_other_parameters(variant):
     seq = READERS.create("synthetic", frames=5, width=160, height=120)
     oracle = SEGMENTERS.create("oracle", seed=4, accuracy=0.6)
     frames = [seq.frame(i) for i in range(len(seq))]
     observations = [oracle.predict(f) for f in frames]
-    kernel, reference = _maps(monkeypatch, frames, observations, 0.1, theta=0.3, psi=0.8,
+    kernel, reference = _maps(frames, observations, 0.1, theta=0.3, psi=0.8,
                               phi=-0.2, **variant)
     _assert_same(kernel, reference)
     assert (kernel.map.payload("classes")[:, 0] >= 0).sum() > 100
@@ -80,12 +80,10 @@ def test_kernel_equals_numpy_with_other_parameters(monkeypatch, variant):
 
 def test_growing_the_leaf_arrays_with_and_without_the_kernel(monkeypatch, tum_observed):
     frames, observations = tum_observed
-    monkeypatch.setattr(mb, "USE_KERNEL", False)
     grown = []
     for kernel in (occupancy.grow_rows, None):
         monkeypatch.setattr(occupancy, "grow_rows", kernel)
-        m = UPDATERS.create("multiclass-bayes", front_end="direct", resolution=0.05,
-                            max_range=4.0)
+        m = mb.MultiClassBayesMap(resolution=0.05, max_range=4.0, kernels="reference")
         for frame, obs in zip(frames[:3], observations[:3], strict=True):
             m.integrate(frame, obs)
         grown.append(m)

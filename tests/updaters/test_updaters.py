@@ -8,7 +8,7 @@ import pytest
 from evsmap.errors import InvalidDataError
 from evsmap.mapping.octree_io import read_ot
 from evsmap.registry import READERS, SEGMENTERS, UPDATERS
-from evsmap.updaters.multiclass_bayes import PAYLOAD_FORMAT, TREE_TYPE, load_multiclass_bayes
+from evsmap.updaters.multiclass_bayes import PAYLOAD_FORMAT, TREE_ID, load_multiclass_bayes
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +37,7 @@ def test_orgb_occupancy_equals_octomap_cpp(tum_frames, tmp_path):
     ours.write(tmp_path / "a.ot")
     ref.write(tmp_path / "b.ot")
     a, b = read_ot(tmp_path / "a.ot"), read_ot(tmp_path / "b.ot")
-    assert a.tree_type == b.tree_type == "ColorOcTree"
+    assert a.tree_id == b.tree_id == "ColorOcTree"
     assert np.array_equal(a.tree.code, b.tree.code)
     assert np.array_equal(a.tree.value, b.tree.value)
     # .bt (occupancy, maximum likelihood) is byte-identical
@@ -94,8 +94,8 @@ def test_multiclass_bayes_file_reloads_and_mapping_continues(synthetic, tmp_path
         a.integrate(frame, obs)
     size = a.write(tmp_path / "m.ot")
     assert size == (tmp_path / "m.ot").stat().st_size
-    kind, _, tree = read_ot(tmp_path / "m.ot", payload_format={TREE_TYPE: PAYLOAD_FORMAT})
-    assert kind == TREE_TYPE and tree.num_nodes == a.stats().nodes
+    kind, _, tree = read_ot(tmp_path / "m.ot", payload_format={TREE_ID: PAYLOAD_FORMAT})
+    assert kind == TREE_ID and tree.num_nodes == a.stats().nodes
     b = load_multiclass_bayes(tmp_path / "m.ot")
     assert np.array_equal(b.map.codes, a.map.codes)
     assert np.array_equal(b.map.logodds, a.map.logodds)
