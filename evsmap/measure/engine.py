@@ -217,7 +217,7 @@ class MappingPass:
             StageThreads`' record).
         wall_s: seconds from the first frame's read to the last frame's update (reading,
             segmentation and update, however they overlapped; not the warm-up nor the
-            evaluators): ``frames / wall_s`` is the end-to-end rate.
+            evaluators): ``frames / wall_s`` is ``wall_hz`` (docs/measurement.md).
         pipelined: whether the stages of consecutive frames overlapped
             (:mod:`evsmap.measure.pipelined`).
     """
@@ -239,8 +239,8 @@ class MappingPass:
         return len(self.indices)
 
     @property
-    def hz_wall(self) -> float:
-        """End-to-end rate: frames / wall time (``nan`` without frames)."""
+    def wall_hz(self) -> float:
+        """``wall_hz``: frames / wall time (``nan`` without frames)."""
         return self.frames / self.wall_s if self.frames and self.wall_s > 0 else float("nan")
 
     @property
@@ -255,7 +255,7 @@ class MappingPass:
 
 
 def rates(update_ms: list[float], segment_ms: list[float] | None = None) -> tuple[float, float]:
-    """``(update Hz, end-to-end Hz)``: ``1000 / median(update ms)`` and ``1000 / (median(update
+    """``(update_hz, segment_update_hz)``: ``1000 / median(update ms)`` and ``1000 / (median(update
     ms) + median(segmentation ms))`` (Table IV's "Runtime (Hz)": segmentation and update). The
     two medians may come from different numbers of frames: a network's time hardly depends on
     the frame, so it is timed until its median is precise enough rather than on every frame

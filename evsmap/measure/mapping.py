@@ -118,7 +118,7 @@ class MappingRecord:
             updater=updater, segmenter=segmenter, sequence=run.sequence, frames=run.frames,
             resolution=float(the_map.resolution), update_ms=list(run.update_ms),
             segment_ms=segment, update_hz=update_hz, segment_update_hz=segment_update_hz,
-            wall_hz=run.hz_wall, wall_s=run.wall_s,
+            wall_hz=run.wall_hz, wall_s=run.wall_s,
             pipeline={"enabled": run.pipelined, **run.threads},
             map_bytes=int(files.written_bytes), map_file=files.file,
             octomap_memory_bytes=stats.octomap_memory_bytes, nodes=stats.nodes,

@@ -45,7 +45,7 @@ def test_the_pipelined_map_is_the_sequential_map(tmp_path, seq, segmenter):
     # every stage timed once per frame, in both loops
     assert {k: len(v) for k, v in pipe_run.times.stages.items()} == \
         {k: len(v) for k, v in seq_run.times.stages.items()}
-    assert pipe_run.wall_s > 0 and pipe_run.hz_wall == pytest.approx(5 / pipe_run.wall_s)
+    assert pipe_run.wall_s > 0 and pipe_run.wall_hz == pytest.approx(5 / pipe_run.wall_s)
 
 
 def test_observations_given_beforehand_are_used_in_order(tmp_path, seq):
