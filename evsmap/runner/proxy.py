@@ -32,6 +32,7 @@ from evsmap.interrupt import reraise_interruption
 from evsmap.paths import REPO_ROOT
 from evsmap.runner.context import RunContext
 from evsmap.runner.records import CellRecord, RecordStore
+from evsmap.tables.schema import mapping_table_id
 
 DATASET = "synthrooms"
 PROXY_MODELS = ("feagnet-v1", "feagnet-v2", "fchardnet-70")
@@ -173,12 +174,12 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
     from evsmap.registry import READERS, UPDATERS
     from evsmap.runner.network_cells import build_segmenter
     from evsmap.synth.sequence import SyntheticSequence
-    from evsmap.tables.schema import Component, load_tables
+    from evsmap.tables.schema import Component, mapping_table
 
     manifest = read_manifest(data) or {}
     room = int(manifest["split_rooms"]["test"][0])
     info = next(r for r in manifest["rooms"] if int(r["index"]) == room)
-    systems = {r.id: r for r in load_tables()["table4"].rows}
+    systems = {r.id: r for r in mapping_table().rows}
     choice = proxy_choice(ctx, model)
     sequence_name = f"{DATASET}-room{room}"
     records = []
@@ -274,7 +275,7 @@ def run_proxy(ctx: RunContext, models: list[str], recipe: str, *, tables: list[s
                              "accuracy")], ctx)[0]
             store.write(rec)
         out.append(rec)
-    if "table4" in tables and models:
+    if mapping_table_id() in tables and models:
         from evsmap.datasets.common import read_manifest
 
         net = MAPPING_NETWORK if MAPPING_NETWORK in models else models[0]
