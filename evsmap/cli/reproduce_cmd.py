@@ -1,7 +1,10 @@
 """``evsmap reproduce``: the main job. Expands the paper's Tables I-IV into cells, measures every
 cell that can be measured on this machine (the rest say what they need), stores one record per
 cell and writes the report folder: one Markdown and one CSV file per table with the paper's value
-beside each measured one, an index and plots."""
+beside each measured one, an index and plots.
+
+This module parses and checks the options (one line and exit 2 for a bad one, before anything is
+written); the run itself is :func:`evsmap.runner.reproduce.reproduce`'s."""
 
 from __future__ import annotations
 
@@ -62,6 +65,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "real TUM sample; mIoU where prepared datasets and trained weights are "
                     "given) and write reports/<run>/ with the paper's value beside every "
                     "measured one. Cells that cannot be measured say what they need.")
+    _add_what(p)
+    _add_where(p)
+    _add_resume_and_passes(p)
+    p.set_defaults(run=run)
+
+
+def _add_what(p: argparse.ArgumentParser) -> None:
+    """What the run measures, from which data."""
     p.add_argument("--tables", type=_tables, default=None,
                    metavar="LIST", help="tables to reproduce, e.g. I,IV (default I,II,III,IV; "
                                         "with --resume, those of the run)")
@@ -97,6 +108,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "e.g. 'table1/feagnet-*/complexity*' (keys as in records/*.json; a "
                         "Table IV cell brings its mapping runs); default: every cell of "
                         "--tables (with --resume: the run's)")
+
+
+def _add_where(p: argparse.ArgumentParser) -> None:
+    """Where and how the cells run, and the user's systems."""
     p.add_argument("--workers", type=positive_int, default=None, metavar="N",
                    help="processes for the cells that are not timed (default 2; with --resume, "
                         "the run's); timed cells "
@@ -119,6 +134,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="with Table IV: a TOML file of your own mapping systems (registered "
                         "updaters and segmenters, e.g. plug-ins) mapped beside the paper's on "
                         "the same sequences; see docs/plugins.md (with --resume: the run's)")
+
+
+def _add_resume_and_passes(p: argparse.ArgumentParser) -> None:
+    """Resuming, and the opt-in passes (proxy training, int8)."""
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out (after Ctrl-C, a failure or a crash): keep "
                         "its finished cells, run the rest, with the run's own settings (tables, "
@@ -145,7 +164,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "where weights and data are here), in an 'int8 beside fp32' section of "
                         "Tables I-III and int8.csv; the paper's cells stay fp32 (default fp32; "
                         "with --resume, the run's)")
-    p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -423,27 +423,9 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
                left_out: Callable[[str, str], str | None]) -> None:
     """Complexity and accuracy in a pool (once per configuration), then the timed cells one at a
     time per timing slot, each in a fresh process, then the mapping runs."""
-    pooled = [s for s in specs if not s.fresh_process]
+    _run_pooled(ctx, [s for s in specs if not s.fresh_process], keep, executor, workers,
+                left_out)
     timed = [s for s in specs if s.fresh_process]
-    by_config: dict[str, list[CellSpec]] = {}
-    for spec in pooled:
-        why = left_out(spec.key, spec.kind)
-        if why:
-            keep(_skip_record(spec, why, ctx))
-        else:
-            by_config.setdefault(spec.config_key, []).append(spec)
-    if by_config:
-        threads = executor.pool_threads(ctx.threads)
-        data = (ctx if threads == ctx.threads else replace(ctx, threads=threads)).as_dict()
-        with executor.pool(workers, threads) as ex:
-            futures: dict[Future, list[CellSpec]] = {
-                ex.submit(_spec_worker, group[0].table, group[0].key, data): group
-                for group in by_config.values()}
-            for fut in as_completed(futures):
-                group = futures[fut]
-                first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
-                for spec in group:
-                    keep(_copy_for(first, spec))
 
     def time_spec(spec: CellSpec, slot: TimingSlot) -> CellRecord:
         why = left_out(spec.key, spec.kind)
@@ -478,6 +460,33 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
             continue
         to_map.append(run)
     _run_timed(to_map, time_run, slots, keep)
+
+
+def _run_pooled(ctx: RunContext, pooled: list[CellSpec], keep: Callable[[CellRecord], None],
+                executor: CellExecutor, workers: int,
+                left_out: Callable[[str, str], str | None]) -> None:
+    """The cells that are not timed, in the executor's pool: each configuration once, its
+    record copied under every key that shares it."""
+    by_config: dict[str, list[CellSpec]] = {}
+    for spec in pooled:
+        why = left_out(spec.key, spec.kind)
+        if why:
+            keep(_skip_record(spec, why, ctx))
+        else:
+            by_config.setdefault(spec.config_key, []).append(spec)
+    if not by_config:
+        return
+    threads = executor.pool_threads(ctx.threads)
+    data = (ctx if threads == ctx.threads else replace(ctx, threads=threads)).as_dict()
+    with executor.pool(workers, threads) as ex:
+        futures: dict[Future, list[CellSpec]] = {
+            ex.submit(_spec_worker, group[0].table, group[0].key, data): group
+            for group in by_config.values()}
+        for fut in as_completed(futures):
+            group = futures[fut]
+            first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
+            for spec in group:
+                keep(_copy_for(first, spec))
 
 
 def _copy_for(record: CellRecord, spec: CellSpec) -> CellRecord:

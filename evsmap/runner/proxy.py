@@ -194,13 +194,7 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
     sequence = READERS.create(DATASET, path=str(data), room=room)
     n = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
     net = build_segmenter(Component(model), backend="torch", weights=str(choice.path))
-    frames, observations, segment_ms = [], [], []
-    for i in range(n):
-        frame = sequence.frame(i)
-        t0 = time.perf_counter()
-        observations.append(net.predict(frame))
-        segment_ms.append((time.perf_counter() - t0) * 1000.0)
-        frames.append(frame)
+    frames, observations, segment_ms = _segmented(sequence, n, net)
     truth = SyntheticSequence(scene=info["scene"], seed=int(info["seed"])).ground_truth(
         ctx.voxel_size)
     for row in MAPPING_ROWS:
@@ -230,6 +224,19 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
                     "sequence": sequence_name, "voxel_size": ctx.voxel_size,
                     "weights": choice.file}))
     return records
+
+
+def _segmented(sequence: Any, n: int, net: Any) -> tuple[list[Any], list[Any], list[float]]:
+    """The first ``n`` frames of ``sequence``, ``net``'s prediction of each, and its time in
+    milliseconds."""
+    frames, observations, segment_ms = [], [], []
+    for i in range(n):
+        frame = sequence.frame(i)
+        t0 = time.perf_counter()
+        observations.append(net.predict(frame))
+        segment_ms.append((time.perf_counter() - t0) * 1000.0)
+        frames.append(frame)
+    return frames, observations, segment_ms
 
 
 def _guarded(make: Callable[[], list[CellRecord]], keys: list[tuple[str, str, str, str]],
