@@ -169,7 +169,7 @@ def make_executor(name: str, *, address: str | None = None) -> CellExecutor:
     return RayExecutor(address=address)
 
 
-def _result(fut: Future, key: str, out: Path) -> dict[str, Any]:
+def _result(fut: Future[dict[str, Any]], key: str, out: str | Path) -> dict[str, Any]:
     """A cell's record from its worker; a worker that died (killed from outside, out of
     memory) stops the run with one line: the finished cells are kept for ``--resume``."""
     from concurrent.futures.process import BrokenProcessPool
@@ -242,7 +242,7 @@ def lacks_labels(ctx: RunContext, run: MappingRun, cache: dict[str, bool] | None
             and _unlabelled(ctx, run.sequence, {} if cache is None else cache))
 
 
-def _run_timed(items: list, run_one: Callable[[Any, TimingSlot], CellRecord],
+def _run_timed(items: list[Any], run_one: Callable[[Any, TimingSlot], CellRecord],
                slots: list[TimingSlot], keep: Callable[[CellRecord], None]) -> None:
     """``run_one(item, slot)`` for every item, one at a time per slot; each record kept (by
     this thread) as it finishes. One slot: in order, in this thread."""
@@ -449,7 +449,7 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
     labels_cache: dict[str, bool] = {}
     to_map: list[MappingRun] = []
     for run in runs:
-        if lacks_labels(ctx, run, labels_cache):
+        if run.segmenter is not None and lacks_labels(ctx, run, labels_cache):
             need = f"weights:{run.segmenter.spec}@nyuv2"
             rec = CellRecord(
                 **run.base_fields(), status="na", needs=[need],
@@ -479,7 +479,7 @@ def _run_pooled(ctx: RunContext, pooled: list[CellSpec], keep: Callable[[CellRec
     threads = executor.pool_threads(ctx.threads)
     data = (ctx if threads == ctx.threads else replace(ctx, threads=threads)).as_dict()
     with executor.pool(workers, threads) as ex:
-        futures: dict[Future, list[CellSpec]] = {
+        futures: dict[Future[dict[str, Any]], list[CellSpec]] = {
             ex.submit(_spec_worker, group[0].table, group[0].key, data): group
             for group in by_config.values()}
         for fut in as_completed(futures):
