@@ -79,18 +79,19 @@ class _Tally:
 
     def add(self, frame: Frame) -> None:
         """Count one frame: a point cloud's ranges, or an image's depth, size and labels."""
-        if frame.is_cloud:  # a point cloud: its "depth" is each point's range from the sensor
+        if frame.points is not None:  # a point cloud: its "depth" is each point's range
             self.ranges.append(np.linalg.norm(frame.points, axis=1))
             self.cloud_points.append(len(self.ranges[-1]))
         else:
-            self._add_image(frame)
+            assert frame.depth is not None, "a frame without a point cloud has a depth image"
+            self._add_image(frame, frame.depth)
         self.positions.append(frame.pose[:3, 3])
         self.stamps.append(frame.timestamp)
 
-    def _add_image(self, frame: Frame) -> None:
-        d = frame.depth[frame.depth > 0]
+    def _add_image(self, frame: Frame, depth: np.ndarray) -> None:
+        d = depth[depth > 0]
         self.valid += d.size
-        self.total += frame.depth.size
+        self.total += depth.size
         dd = d.astype(np.float64)
         near = dd < _FAR_FROM_M
         self.depth_hist += np.bincount(np.round(dd[near] * 5000.0).astype(np.int64),
@@ -159,7 +160,7 @@ class _Tally:
             "classes_present": len(present),
             "void_fraction": float(counts[255] / max(counts.sum(), 1)),
             "classes": [
-                {"id": int(c), "name": names[c] if c < len(names) else f"class {c}",
+                {"id": int(c), "name": names[int(c)] if c < len(names) else f"class {c}",
                  "fraction": float(counts[c] / max(labelled, 1))}
                 for c in present
             ],
