@@ -154,11 +154,11 @@ def build_report(run_dir: str | Path) -> list[Path]:
         frame = table_frame(table, by_key, specs, skipped)
         frames[tid] = frame
         md = table_markdown(table, by_key, specs, frame=frame,
-                            extras=extras if tid == "table4" else None)
+                            extras=extras if table.role == "mapping" else None)
         relative = relative_markdown(table, frame)
         if relative:
             md = md + "\n" + "\n".join(relative).rstrip() + "\n"
-        if tid in ("table1", "table3"):  # reproduce --train's networks, beside the table
+        if table.trained_beside:  # reproduce --train's networks, beside the table
             proxy = proxy_accuracy_markdown(extras)
             if proxy:
                 md = md + "\n" + "\n".join(proxy).rstrip() + "\n"
@@ -215,8 +215,8 @@ def _write_csv(path: Path, frame: pd.DataFrame) -> Path:
 
 def _map_labels(tables: Mapping[str, PaperTable], records: list[CellRecord]) -> dict[str, str]:
     labels = {"octomap-cpp": "OctoMap (C++)"}
-    if "table4" in tables:
-        labels.update({r.id: r.label for r in tables["table4"].rows})
+    for table in (t for t in tables.values() if t.role == "mapping"):
+        labels.update({r.id: r.label for r in table.rows})
     for rec in records:
         if rec.key.startswith("extra/") and rec.label:
             labels.setdefault(rec.row, rec.label)

@@ -30,9 +30,9 @@ CLAIMED_SHRINK = 2.6
 
 def paper_ratios(seq_column: str = "size_seq1") -> dict[str, float]:
     """The paper's :data:`PAIRS` ratios from its printed Table IV cells."""
-    from evsmap.tables.schema import load_tables
+    from evsmap.tables.schema import mapping_table
 
-    table = load_tables()["table4"]
+    table = mapping_table()
     return {name: table.cell(a, seq_column).value / table.cell(b, seq_column).value
             for name, (a, b) in PAIRS.items()}
 

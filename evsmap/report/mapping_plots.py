@@ -12,7 +12,7 @@ import numpy as np
 
 from evsmap.report.figure_base import MAP_ROWS, new_figure, save_figure
 from evsmap.runner.records import CellRecord
-from evsmap.tables.schema import PaperTable
+from evsmap.tables.schema import PaperTable, mapping_table_id
 
 # ------------------------------------------------------------------------------- mapping
 MAPPING_QUANTITIES = ("update_hz", "segment_update_hz", "map_bytes")
@@ -31,9 +31,9 @@ def mapping_entries(records: Iterable[CellRecord],
     # the mapping runs only: the proxy maps (``extra/proxy-mapping/``, a trained network on a
     # synthrooms room) have their own table in table4.md and would read as a second system here
     extras = [r for r in records if r.status == "ok" and r.key.startswith("extra/mapping/")]
-    table4 = [r for r in records if r.status == "ok" and r.table == "table4"
+    table4 = [r for r in records if r.status == "ok" and r.table == mapping_table_id()
               and not r.key.startswith("extra/")]
-    columns = {c.id: c for c in tables["table4"].columns} if tables and "table4" in tables else {}
+    columns = {c.id: c for t in (tables or {}).values() if t.role == "mapping" for c in t.columns}
 
     def add(seq: Any, voxel: Any, rec: CellRecord, got: Mapping[str, Any]) -> None:
         if not seq:

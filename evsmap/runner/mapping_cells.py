@@ -25,7 +25,7 @@ from evsmap.runner.context import RunContext
 from evsmap.runner.network_cells import build_segmenter
 from evsmap.runner.records import CellRecord, needs_text
 from evsmap.runner.systems import ExtraSystem
-from evsmap.tables.schema import CellSpec, Component, load_tables
+from evsmap.tables.schema import CellSpec, Component, mapping_table
 
 MAPPING_WEIGHTS = "nyuv2"
 """The dataset the segmenters of the mapping systems are trained on (40 NYUv2 classes)."""
@@ -98,7 +98,7 @@ def mapping_runs(sequences: list[str], voxel_sizes: Sequence[float],
     ``reference_on_synthetic=False`` leaves the reference out on the built-in sequences (the
     Python binding inserts a 640x480 frame at 2 cm in about 1.5 s: 94 s for the synthetic
     room's 60 frames, the longest mapping run; the real sequences keep it)."""
-    table = load_tables()["table4"]
+    table = mapping_table()
     runs = []
     for voxel_size in voxel_sizes:
         for seq in sequences:
@@ -502,7 +502,7 @@ def runtime_sequence(sequences: list[str], runs: dict[str, CellRecord],
     the column's ``sequences`` that every implemented Table IV system mapped here, else the
     synthetic one (which every system can map, with the oracle's labels). Returns it and
     whether it is that fallback."""
-    rows = [r.id for r in load_tables()["table4"].rows
+    rows = [r.id for r in mapping_table().rows
             if r.implemented and r.updater is not None]
     for seq in sequences:
         found = [runs.get(mapping_key(row, seq, voxel)) for row in rows]

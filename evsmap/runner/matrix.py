@@ -43,7 +43,6 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.errors import EvsmapError
-from evsmap.fileio import atomic_write_text
 from evsmap.runner.context import RunContext
 from evsmap.runner.estimate import Budget, Estimator
 from evsmap.runner.execute import (
@@ -65,9 +64,8 @@ from evsmap.runner.executors import (
 )
 from evsmap.runner.records import CellRecord, RecordStore, needs_text
 from evsmap.runner.systems import ExtraSystem
-from evsmap.tables.schema import CellSpec, expand, load_tables
+from evsmap.tables.schema import CellSpec, expand, load_tables, mapping_table_id
 
-TABLES = ("table1", "table2", "table3", "table4")
 QUICK_MAX_PIXELS = 1024 * 512
 """``--quick`` skips speed cells above this input size (ESANet at 2048x1024 takes seconds per
 frame); they are recorded as not run."""
@@ -87,13 +85,14 @@ class Plan:
         return [s.key for s in self.specs] + [r.key for r in self.runs]
 
 
-def plan(ctx: RunContext, tables: Iterable[str] = TABLES,
+def plan(ctx: RunContext, tables: Iterable[str] | None = None,
          systems: Sequence[ExtraSystem] = (), *, cells: Sequence[str] | None = None) -> Plan:
-    """Expand ``tables`` against what is available here; with Table IV, the user's ``systems``
-    (``--systems``) map the same sequences as its rows. ``cells``: keep only the cells whose
-    key matches one of these globs (``fnmatch``), and the mapping runs that a kept Table IV
-    cell is read from or that match themselves."""
+    """Expand ``tables`` (default: all) against what is available here; with the mapping table
+    (Table IV), the user's ``systems`` (``--systems``) map the same sequences as its rows.
+    ``cells``: keep only the cells whose key matches one of these globs (``fnmatch``), and the
+    mapping runs that a kept Table IV cell is read from or that match themselves."""
     loaded = load_tables()
+    tables = list(loaded) if tables is None else list(tables)
     specs: list[CellSpec] = []
     for tid in tables:
         first = expand(loaded[tid])
@@ -117,7 +116,7 @@ def plan(ctx: RunContext, tables: Iterable[str] = TABLES,
                 keep.append(s)
         specs = keep
     sequences = []
-    if "table4" in tables:
+    if mapping_table_id(loaded) in tables:
         sequences = ["synthetic"] + (["synthetic-long"] if ctx.synthetic_long else []) + [
             d for d in ("tum", "rtabmap", "asl", "ours1", "ours2")
             if ctx.dataset_path(d) is not None]
@@ -170,7 +169,7 @@ def make_executor(name: str, *, address: str | None = None) -> CellExecutor:
     return RayExecutor(address=address)
 
 
-def _result(fut: Future, key: str, out: Path) -> dict[str, Any]:
+def _result(fut: Future[dict[str, Any]], key: str, out: str | Path) -> dict[str, Any]:
     """A cell's record from its worker; a worker that died (killed from outside, out of
     memory) stops the run with one line: the finished cells are kept for ``--resume``."""
     from concurrent.futures.process import BrokenProcessPool
@@ -243,7 +242,7 @@ def lacks_labels(ctx: RunContext, run: MappingRun, cache: dict[str, bool] | None
             and _unlabelled(ctx, run.sequence, {} if cache is None else cache))
 
 
-def _run_timed(items: list, run_one: Callable[[Any, TimingSlot], CellRecord],
+def _run_timed(items: list[Any], run_one: Callable[[Any, TimingSlot], CellRecord],
                slots: list[TimingSlot], keep: Callable[[CellRecord], None]) -> None:
     """``run_one(item, slot)`` for every item, one at a time per slot; each record kept (by
     this thread) as it finishes. One slot: in order, in this thread."""
@@ -304,12 +303,7 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
     elif pool is not None or fresh is not None:
         raise ValueError("give pool/fresh or an executor, not both")
     store = RecordStore(ctx.out)
-    done: dict[str, CellRecord] = {}
-    if resume and not force:
-        for key in the_plan.keys:
-            rec = store.get(key)
-            if rec is not None and rec.status == "ok":
-                done[key] = rec
+    done = _kept(store, the_plan) if resume and not force else {}
 
     def keep(record: CellRecord) -> None:
         store.write(record)
@@ -317,31 +311,15 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
         if on_record is not None:
             on_record(record)
 
-    env = None
-    # what cannot run here
-    todo: list[CellSpec] = []
-    for spec in the_plan.specs:
-        if spec.key in done or spec.kind == "mapping":
-            continue
-        if spec.needs:
-            rec = na_record(spec, list(spec.needs), ctx)
-            rec.environment = env = env or environment(ctx.threads)
-            keep(rec)
-        else:
-            todo.append(spec)
-
-    from evsmap.tables.claims import claims_first
-
+    env = _Environment(ctx.threads)
+    todo = _record_needs(ctx, the_plan.specs, done, keep, env)
     runs_left = [r for r in the_plan.runs if r.key not in done]
     if todo or runs_left:
         executor.prepare(ctx)
     slots = executor.timing_slots() if any(s.fresh_process for s in todo) or runs_left else []
+    left_out = _budget_rule(budget, estimator)
 
-    def left_out(key: str, kind: str) -> str | None:
-        """Why --budget leaves this cell out, or None."""
-        if budget is None:
-            return None
-        return budget.refuses(estimator.seconds(key, kind)[0] if estimator else 0.0)
+    from evsmap.tables.claims import claims_first
 
     # the cells the paper's claims rest on first (evsmap.tables.claims), then the others: a run
     # stopped early has answered the claims
@@ -349,8 +327,67 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
         group = [s for s in todo if claims_first(s.table, s.row) == first]
         group_runs = runs_left if first == 0 else []
         _run_group(ctx, group, group_runs, done, keep, executor, workers, slots, left_out)
+    _read_mapping_cells(ctx, the_plan, done, keep, env)
+    return [done[k] for k in the_plan.keys if k in done]
 
-    # Table IV from the mapping runs
+
+class _Environment:
+    """The machine's environment, taken once, when a record first needs it."""
+
+    def __init__(self, threads: int) -> None:
+        self.threads = threads
+        self.taken: dict[str, Any] | None = None
+
+    def __call__(self) -> dict[str, Any]:
+        if self.taken is None:
+            self.taken = environment(self.threads)
+        return self.taken
+
+
+def _kept(store: RecordStore, the_plan: Plan) -> dict[str, CellRecord]:
+    """The plan's records already ``ok`` in ``store`` (a resumed run keeps them)."""
+    done: dict[str, CellRecord] = {}
+    for key in the_plan.keys:
+        rec = store.get(key)
+        if rec is not None and rec.status == "ok":
+            done[key] = rec
+    return done
+
+
+def _record_needs(ctx: RunContext, specs: list[CellSpec], done: dict[str, CellRecord],
+                  keep: Callable[[CellRecord], None],
+                  env: Callable[[], dict[str, Any]]) -> list[CellSpec]:
+    """Record the cells that cannot run here (``needs``) as ``na``; returns those to measure
+    (not the mapping cells, read from the mapping runs, nor those done)."""
+    todo: list[CellSpec] = []
+    for spec in specs:
+        if spec.key in done or spec.kind == "mapping":
+            continue
+        if spec.needs:
+            rec = na_record(spec, list(spec.needs), ctx)
+            rec.environment = env()
+            keep(rec)
+        else:
+            todo.append(spec)
+    return todo
+
+
+def _budget_rule(budget: Budget | None,
+                 estimator: Estimator | None) -> Callable[[str, str], str | None]:
+    """``left_out(key, kind)``: why ``budget`` leaves a cell out, or None."""
+
+    def left_out(key: str, kind: str) -> str | None:
+        if budget is None:
+            return None
+        return budget.refuses(estimator.seconds(key, kind)[0] if estimator else 0.0)
+
+    return left_out
+
+
+def _read_mapping_cells(ctx: RunContext, the_plan: Plan, done: dict[str, CellRecord],
+                        keep: Callable[[CellRecord], None],
+                        env: Callable[[], dict[str, Any]]) -> None:
+    """The mapping table's cells, read from the mapping runs."""
     runs = {r.key: done[r.key] for r in the_plan.runs if r.key in done}
     for spec in the_plan.specs:
         if spec.kind != "mapping" or spec.key in done:
@@ -360,11 +397,10 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
         missing = [n for n in spec.needs if n.startswith("dataset:")]
         if missing and not spec.fresh_process:
             rec = na_record(spec, missing, ctx)
-            rec.environment = env = env or environment(ctx.threads)
+            rec.environment = env()
             keep(rec)
         else:
             keep(table4_record(spec, runs, ctx))
-    return [done[k] for k in the_plan.keys if k in done]
 
 
 def _skip_record(spec: CellSpec | MappingRun, why: str, ctx: RunContext) -> CellRecord:
@@ -387,27 +423,9 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
                left_out: Callable[[str, str], str | None]) -> None:
     """Complexity and accuracy in a pool (once per configuration), then the timed cells one at a
     time per timing slot, each in a fresh process, then the mapping runs."""
-    pooled = [s for s in specs if not s.fresh_process]
+    _run_pooled(ctx, [s for s in specs if not s.fresh_process], keep, executor, workers,
+                left_out)
     timed = [s for s in specs if s.fresh_process]
-    by_config: dict[str, list[CellSpec]] = {}
-    for spec in pooled:
-        why = left_out(spec.key, spec.kind)
-        if why:
-            keep(_skip_record(spec, why, ctx))
-        else:
-            by_config.setdefault(spec.config_key, []).append(spec)
-    if by_config:
-        threads = executor.pool_threads(ctx.threads)
-        data = (ctx if threads == ctx.threads else replace(ctx, threads=threads)).as_dict()
-        with executor.pool(workers, threads) as ex:
-            futures: dict[Future, list[CellSpec]] = {
-                ex.submit(_spec_worker, group[0].table, group[0].key, data): group
-                for group in by_config.values()}
-            for fut in as_completed(futures):
-                group = futures[fut]
-                first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
-                for spec in group:
-                    keep(_copy_for(first, spec))
 
     def time_spec(spec: CellSpec, slot: TimingSlot) -> CellRecord:
         why = left_out(spec.key, spec.kind)
@@ -431,7 +449,7 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
     labels_cache: dict[str, bool] = {}
     to_map: list[MappingRun] = []
     for run in runs:
-        if lacks_labels(ctx, run, labels_cache):
+        if run.segmenter is not None and lacks_labels(ctx, run, labels_cache):
             need = f"weights:{run.segmenter.spec}@nyuv2"
             rec = CellRecord(
                 **run.base_fields(), status="na", needs=[need],
@@ -442,6 +460,33 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
             continue
         to_map.append(run)
     _run_timed(to_map, time_run, slots, keep)
+
+
+def _run_pooled(ctx: RunContext, pooled: list[CellSpec], keep: Callable[[CellRecord], None],
+                executor: CellExecutor, workers: int,
+                left_out: Callable[[str, str], str | None]) -> None:
+    """The cells that are not timed, in the executor's pool: each configuration once, its
+    record copied under every key that shares it."""
+    by_config: dict[str, list[CellSpec]] = {}
+    for spec in pooled:
+        why = left_out(spec.key, spec.kind)
+        if why:
+            keep(_skip_record(spec, why, ctx))
+        else:
+            by_config.setdefault(spec.config_key, []).append(spec)
+    if not by_config:
+        return
+    threads = executor.pool_threads(ctx.threads)
+    data = (ctx if threads == ctx.threads else replace(ctx, threads=threads)).as_dict()
+    with executor.pool(workers, threads) as ex:
+        futures: dict[Future[dict[str, Any]], list[CellSpec]] = {
+            ex.submit(_spec_worker, group[0].table, group[0].key, data): group
+            for group in by_config.values()}
+        for fut in as_completed(futures):
+            group = futures[fut]
+            first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
+            for spec in group:
+                keep(_copy_for(first, spec))
 
 
 def _copy_for(record: CellRecord, spec: CellSpec) -> CellRecord:
@@ -459,16 +504,3 @@ def _copy_for(record: CellRecord, spec: CellSpec) -> CellRecord:
     if spec.key != record.key:
         data["notes"] = list(record.notes) + [f"same configuration as {record.key}"]
     return CellRecord.from_dict(data)
-
-
-def write_run_file(ctx: RunContext, the_plan: Plan, path: Path, **fields: Any) -> None:
-    import json
-
-    data = {"tables": fields.pop("tables", list(TABLES)), "quick": ctx.quick,
-            "data_root": ctx.data_root, "weights_dir": ctx.weights_dir,
-            "available": sorted({r for s in the_plan.specs for r in s.requires}
-                                - {n for s in the_plan.specs for n in s.needs}),
-            "sequences": fields.pop("sequences", {}),
-            "cells": the_plan.keys, "skipped": the_plan.skipped, "context": ctx.as_dict(),
-            **fields}
-    atomic_write_text(path, json.dumps(data, indent=1, default=str))

@@ -22,6 +22,7 @@ import math
 import time
 import traceback
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,8 +31,9 @@ import numpy as np
 from evsmap.errors import EvsmapError
 from evsmap.interrupt import reraise_interruption
 from evsmap.paths import REPO_ROOT
-from evsmap.runner.context import RunContext
+from evsmap.runner.context import RunContext, WeightsChoice
 from evsmap.runner.records import CellRecord, RecordStore
+from evsmap.tables.schema import mapping_table_id
 
 DATASET = "synthrooms"
 PROXY_MODELS = ("feagnet-v1", "feagnet-v2", "fchardnet-70")
@@ -40,7 +42,7 @@ MAPPING_NETWORK = "feagnet-v2"
 MAPPING_ROWS = ("tfeagmap", "evsmap")
 """Table IV's rows whose updaters map with the trained network (classic-semantic,
 multiclass-bayes)."""
-QUICK_ROOMS = {"rooms": 8, "frames_per_room": 1, "size": (128, 192)}
+QUICK_ROOMS: dict[str, Any] = {"rooms": 8, "frames_per_room": 1, "size": (128, 192)}
 QUICK_OVERRIDES = {"epochs": 1, "workers": 0, "batch_size": 4, "crop": [128, 192]}
 SECTION = "Synthetic proxy (evsmap's synthrooms, not the paper's datasets)"
 
@@ -72,11 +74,18 @@ def synthrooms_folder(ctx: RunContext, say: Callable[[str], None] = print) -> Pa
     return folder
 
 
+def _weights_dir(ctx: RunContext) -> Path:
+    """The run's weights folder (``--train`` always has one)."""
+    if ctx.weights_dir is None:
+        raise EvsmapError("reproduce --train needs a weights folder (--weights DIR)")
+    return Path(ctx.weights_dir)
+
+
 def _forget_index(ctx: RunContext) -> None:
     ctx.__dict__.pop("_weights_index", None)
 
 
-def proxy_choice(ctx: RunContext, model: str):
+def proxy_choice(ctx: RunContext, model: str) -> WeightsChoice | None:
     """The weights of ``model`` on synthrooms by card; among equally ranked files of a run, the
     one whose card has the final test pass (``best.pt``)."""
     from dataclasses import replace
@@ -88,9 +97,9 @@ def proxy_choice(ctx: RunContext, model: str):
     cards = {e["file"]: e.get("card") for e in ctx.weights_index()}
     for file in choice.candidates:
         card = cards.get(file) or {}
-        if card.get("test_miou") is not None and card.get("val_miou") == choice.card.get(
+        if card.get("test_miou") is not None and card.get("val_miou") == (choice.card or {}).get(
                 "val_miou"):
-            return replace(choice, path=Path(ctx.weights_dir) / file, file=file, card=card)
+            return replace(choice, path=_weights_dir(ctx) / file, file=file, card=card)
     return choice
 
 
@@ -106,7 +115,7 @@ def train_missing(ctx: RunContext, models: list[str], recipe: str, data: Path,
     for model in models:
         if proxy_choice(ctx, model) is not None:
             continue
-        folder = Path(ctx.weights_dir) / "proxy" / f"{model}@{DATASET}"
+        folder = _weights_dir(ctx) / "proxy" / f"{model}@{DATASET}"
         epochs = apply_overrides(load_recipe(recipe), overrides).epochs
         resume = (folder / "checkpoint.pt").is_file()
         say(f"training proxy weights: {model} on {DATASET}, recipe {recipe}, {epochs} epochs, "
@@ -173,39 +182,34 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
     from evsmap.registry import READERS, UPDATERS
     from evsmap.runner.network_cells import build_segmenter
     from evsmap.synth.sequence import SyntheticSequence
-    from evsmap.tables.schema import Component, load_tables
+    from evsmap.tables.schema import Component, mapping_table
 
     manifest = read_manifest(data) or {}
     room = int(manifest["split_rooms"]["test"][0])
     info = next(r for r in manifest["rooms"] if int(r["index"]) == room)
-    systems = {r.id: r for r in load_tables()["table4"].rows}
+    systems = {r.id: r for r in mapping_table().rows}
     choice = proxy_choice(ctx, model)
     sequence_name = f"{DATASET}-room{room}"
     records = []
     if choice is None:
-        for row in MAPPING_ROWS:
-            records.append(_record(
-                mapping_key(row, room), row, f"{systems[row].label} + proxy {model}",
-                "mapping", status="na", needs=[f"weights:{model}@{DATASET}"],
-                reason=f"n/a - no {DATASET} weights of {model} (training failed)",
-                inputs={"sequence": sequence_name, "voxel_size": ctx.voxel_size}))
-        return records
+        return [_record(mapping_key(row, room), row, f"{systems[row].label} + proxy {model}",
+                        "mapping", status="na", needs=[f"weights:{model}@{DATASET}"],
+                        reason=f"n/a - no {DATASET} weights of {model} (training failed)",
+                        inputs={"sequence": sequence_name, "voxel_size": ctx.voxel_size})
+                for row in MAPPING_ROWS]
     sequence = READERS.create(DATASET, path=str(data), room=room)
     n = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
     net = build_segmenter(Component(model), backend="torch", weights=str(choice.path))
-    frames, observations, segment_ms = [], [], []
-    for i in range(n):
-        frame = sequence.frame(i)
-        t0 = time.perf_counter()
-        observations.append(net.predict(frame))
-        segment_ms.append((time.perf_counter() - t0) * 1000.0)
-        frames.append(frame)
+    frames, observations, segment_ms = _segmented(sequence, n, net)
     truth = SyntheticSequence(scene=info["scene"], seed=int(info["seed"])).ground_truth(
         ctx.voxel_size)
     for row in MAPPING_ROWS:
         system = systems[row]
-        updater = UPDATERS.create(system.updater.name, resolution=ctx.voxel_size,
-                                  **system.updater.config)
+        component = system.updater
+        if component is None:
+            raise EvsmapError(f"the mapping table's row {row} has no updater")
+        updater = UPDATERS.create(component.name, resolution=ctx.voxel_size,
+                                  **component.config)
         update_ms = []
         for frame, obs in zip(frames, observations, strict=True):
             t0 = time.perf_counter()
@@ -225,10 +229,27 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
                    f"voxels", choice.note()],
             details={"quality": quality, "update_ms": update_ms, "segment_ms": segment_ms,
                      "room": room, "scene": info["scene"], "seed": info["seed"]},
-            inputs={"segmenter": model, "updater": system.updater.spec,
+            inputs={"segmenter": model, "updater": component.spec,
                     "sequence": sequence_name, "voxel_size": ctx.voxel_size,
                     "weights": choice.file}))
     return records
+
+
+def _accuracy(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
+    return [proxy_accuracy(ctx, model, data)]
+
+
+def _segmented(sequence: Any, n: int, net: Any) -> tuple[list[Any], list[Any], list[float]]:
+    """The first ``n`` frames of ``sequence``, ``net``'s prediction of each, and its time in
+    milliseconds."""
+    frames, observations, segment_ms = [], [], []
+    for i in range(n):
+        frame = sequence.frame(i)
+        t0 = time.perf_counter()
+        observations.append(net.predict(frame))
+        segment_ms.append((time.perf_counter() - t0) * 1000.0)
+        frames.append(frame)
+    return frames, observations, segment_ms
 
 
 def _guarded(make: Callable[[], list[CellRecord]], keys: list[tuple[str, str, str, str]],
@@ -269,12 +290,12 @@ def run_proxy(ctx: RunContext, models: list[str], recipe: str, *, tables: list[s
     for model in models:
         rec = done(accuracy_key(model))
         if rec is None:
-            rec = _guarded(lambda m=model: [proxy_accuracy(ctx, m, data)],
+            rec = _guarded(partial(_accuracy, ctx, model, data),
                            [(accuracy_key(model), model, f"{model} (synthrooms proxy)",
                              "accuracy")], ctx)[0]
             store.write(rec)
         out.append(rec)
-    if "table4" in tables and models:
+    if mapping_table_id() in tables and models:
         from evsmap.datasets.common import read_manifest
 
         net = MAPPING_NETWORK if MAPPING_NETWORK in models else models[0]
@@ -282,7 +303,7 @@ def run_proxy(ctx: RunContext, models: list[str], recipe: str, *, tables: list[s
         keys = [mapping_key(row, room) for row in MAPPING_ROWS]
         kept = [done(k) for k in keys]
         if all(kept):
-            out += kept
+            out += [k for k in kept if k is not None]
         else:
             recs = _guarded(lambda: proxy_mapping(ctx, net, data),
                             [(k, row, f"{row} + proxy {net}", "mapping")

@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import tomllib
 from collections.abc import Mapping
+from functools import cache
 from importlib import resources
 from os import PathLike
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 from evsmap.tables.cells import make_cell
@@ -44,6 +46,41 @@ def load_tables(path: str | PathLike[str] | None = None) -> dict[str, PaperTable
         TableSchemaError: the file breaks the schema; the message names table, row and column.
     """
     return dict(load_file(path).tables)
+
+
+@cache
+def _package_tables() -> Mapping[str, PaperTable]:
+    return MappingProxyType(load_tables())
+
+
+def table_ids() -> tuple[str, ...]:
+    """The ids of the package's tables, in the file's order."""
+    return tuple(_package_tables())
+
+
+def table_numbers() -> dict[str, str]:
+    """The package's tables by their roman numeral (``number``): ``{"I": "table1", ...}``."""
+    return {t.number: tid for tid, t in _package_tables().items()}
+
+
+def mapping_table_id(tables: Mapping[str, PaperTable] | None = None) -> str | None:
+    """The id of the table whose rows are the mapping systems (``role = "mapping"``) among
+    ``tables`` (default: the package's), or None where none of them is."""
+    chosen = _package_tables() if tables is None else tables
+    return next((tid for tid, t in chosen.items() if t.role == "mapping"), None)
+
+
+def mapping_table(tables: Mapping[str, PaperTable] | None = None) -> PaperTable:
+    """The table whose rows are the mapping systems, among ``tables`` (default: the
+    package's).
+
+    Raises:
+        KeyError: none of ``tables`` is.
+    """
+    tid = mapping_table_id(tables)
+    if tid is None:
+        raise KeyError("no table has role 'mapping'")
+    return (_package_tables() if tables is None else tables)[tid]
 
 
 def load_file(path: str | PathLike[str] | None = None) -> PaperTables:
@@ -92,9 +129,12 @@ def _table(tid: str, raw: TableModel) -> PaperTable:
         system, row_cells = _row(tid, r, columns)
         rows.append(system)
         cells.update(row_cells)
+    claims = tuple(c.record(tid, raw.baseline) for c in raw.claims if raw.baseline)
     return PaperTable(id=tid, number=raw.number, title=raw.title, caption=raw.caption,
                       columns=tuple(columns), rows=tuple(rows), cells=cells,
-                      footnotes=dict(raw.footnotes), note=raw.note)
+                      footnotes=dict(raw.footnotes), note=raw.note, role=raw.role,
+                      baseline=raw.baseline, own_method=raw.own_method,
+                      trained_beside=raw.trained_beside, claims=claims)
 
 
 def _row(tid: str, raw: RowModel,

@@ -34,7 +34,14 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from evsmap.tables.cells import make_cell
-from evsmap.tables.records import BLANK, QUANTITIES, SCHEMA_VERSION, Column, TableSchemaError
+from evsmap.tables.records import (
+    BLANK,
+    QUANTITIES,
+    SCHEMA_VERSION,
+    Claim,
+    Column,
+    TableSchemaError,
+)
 
 _ID_PATTERN = r"^[a-z0-9][a-z0-9_.+-]*$"
 
@@ -44,6 +51,7 @@ Year = Annotated[int, Field(strict=True)]
 Pixels = Annotated[int, Field(strict=True, gt=0)]
 Metres = Annotated[float, Field(strict=True, gt=0)]
 Source = Literal["paper", "assumed"]
+Role = Literal["networks", "ablation", "mapping"]
 
 
 def _error(message: str, *loc: str | int) -> PydanticCustomError:
@@ -203,14 +211,34 @@ class RowModel(_Model):
         return self
 
 
+class ClaimModel(_Model):
+    """``[[tables.<id>.claims]]``: a comparative claim of the paper about ``row``'s ``column``
+    against the table's baseline row."""
+
+    text: Text
+    row: Text
+    column: Text
+    mode: Literal["higher", "lower", "match"]
+
+    def record(self, table: str, base: str) -> Claim:
+        """The :class:`~evsmap.tables.records.Claim` of table ``table`` against ``base``."""
+        return Claim(self.text, table, self.row, base, self.column, self.mode)
+
+
 class TableModel(_Model):
-    """``[tables.<id>]``: one printed table."""
+    """``[tables.<id>]``: one printed table, and what it is (``role``, ``baseline``, ...: see
+    :class:`~evsmap.tables.records.PaperTable`)."""
 
     number: Text
     title: Text
+    role: Role = "networks"
+    baseline: Text | None = None
+    own_method: Flag = False
+    trained_beside: Flag = False
     caption: Text = ""
     footnotes: dict[str, Text] = {}
     note: Text = ""
+    claims: list[ClaimModel] = []
     columns: list[ColumnModel] = Field(min_length=1)
     rows: list[RowModel] = Field(min_length=1)
 
@@ -243,6 +271,22 @@ class TableModel(_Model):
                     raise _error(str(exc), "rows", i, "cells", cid) from None
         return self
 
+    @model_validator(mode="after")
+    def _rules_name_rows(self) -> TableModel:
+        """The baseline and the claims name this table's rows and columns."""
+        rows = {r.id for r in self.rows}
+        columns = {c.id for c in self.columns}
+        if self.baseline is not None and self.baseline not in rows:
+            raise _error(f"baseline {self.baseline!r} is not a row of the table")
+        for i, claim in enumerate(self.claims):
+            if self.baseline is None:
+                raise _error("a claim needs the table's baseline", "claims", i)
+            if claim.row not in rows:
+                raise _error(f"no such row {claim.row!r}", "claims", i, "row")
+            if claim.column not in columns:
+                raise _error(f"no such column {claim.column!r}", "claims", i, "column")
+        return self
+
 
 class FileModel(_Model):
     """The whole file."""
@@ -259,6 +303,15 @@ class FileModel(_Model):
         if value != SCHEMA_VERSION or isinstance(value, bool):
             raise _error(f"schema_version must be {SCHEMA_VERSION}, got {value!r}")
         return value
+
+    @model_validator(mode="after")
+    def _one_mapping_table(self) -> FileModel:
+        """At most one table's rows are the mapping systems."""
+        mapping = [tid for tid, t in self.tables.items() if t.role == "mapping"]
+        if len(mapping) > 1:
+            raise _error(f"only one table may have role 'mapping' (got {', '.join(mapping)})",
+                         "tables", mapping[1], "role")
+        return self
 
     @model_validator(mode="after")
     def _declared(self) -> FileModel:

@@ -260,8 +260,27 @@ class System:
 
 
 @dataclass(frozen=True)
+class Claim:
+    """A comparative claim of the paper about ``value(row, column) / value(base, column)``:
+    above 1 (``mode="higher"``), below 1 (``"lower"``), or within
+    :data:`evsmap.tables.claims.MATCH_TOLERANCE` of the paper's own ratio (``"match"``: the
+    paper trades accuracy for speed, so what it claims is its relative accuracy, not a win)."""
+
+    text: str
+    table: str
+    row: str
+    base: str
+    column: str
+    mode: str
+
+
+@dataclass(frozen=True)
 class PaperTable:
-    """One table of the paper."""
+    """One table of the paper, and what it is: ``number`` (its roman numeral, as
+    ``reproduce --tables`` names it); ``role`` ("networks", "ablation" or "mapping": the one
+    table whose rows are mapping systems); ``baseline`` (the row the paper sets its method
+    against); ``own_method`` (every row is the paper's method: measured first);
+    ``trained_beside`` (``reproduce --train``'s networks are shown beside it); ``claims``."""
 
     id: str
     number: str
@@ -272,6 +291,11 @@ class PaperTable:
     cells: Mapping[tuple[str, str], Cell] = field(repr=False)
     footnotes: Mapping[str, str] = field(default_factory=dict, repr=False)
     note: str = ""
+    role: str = "networks"
+    baseline: str | None = None
+    own_method: bool = False
+    trained_beside: bool = False
+    claims: tuple[Claim, ...] = ()
 
     def column(self, column_id: str) -> Column:
         for c in self.columns:

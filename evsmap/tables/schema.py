@@ -7,12 +7,22 @@ The package is split by job:
   :class:`Component`, :data:`QUANTITIES`;
 * :mod:`evsmap.tables.models` - the file's shape as pydantic models, errors as one line;
 * :mod:`evsmap.tables.cells` - the printed-cell grammar, printed text -> value in base units;
-* :mod:`evsmap.tables.load` - :func:`load_tables`, :func:`load_file`, :func:`parse_tables`;
+* :mod:`evsmap.tables.load` - :func:`load_tables`, :func:`load_file`, :func:`parse_tables`, and
+  the tables' rules as data: :func:`table_ids`, :func:`table_numbers`, :func:`mapping_table`;
 * :mod:`evsmap.tables.plan` - runner planning: :class:`CellSpec`, :func:`expand`,
   :func:`expand_all`.
 """
 
-from evsmap.tables.load import default_path, load_file, load_tables, parse_tables
+from evsmap.tables.load import (
+    default_path,
+    load_file,
+    load_tables,
+    mapping_table,
+    mapping_table_id,
+    parse_tables,
+    table_ids,
+    table_numbers,
+)
 from evsmap.tables.plan import CellSpec, expand, expand_all
 from evsmap.tables.records import (
     BLANK,
@@ -24,6 +34,7 @@ from evsmap.tables.records import (
     TABLES_FILE,
     UNIT_SCALE,
     Cell,
+    Claim,
     Column,
     Component,
     PaperTable,
@@ -35,6 +46,7 @@ from evsmap.tables.records import (
 )
 
 __all__ = ["BLANK", "CHECK", "KINDS", "MARKS", "QUANTITIES", "SCHEMA_VERSION", "TABLES_FILE",
-           "UNIT_SCALE", "Cell", "CellSpec", "Column", "Component", "PaperTable", "PaperTables",
-           "Quantity", "SegmenterRef", "System", "TableSchemaError", "default_path", "expand",
-           "expand_all", "load_file", "load_tables", "parse_tables"]
+           "UNIT_SCALE", "Cell", "CellSpec", "Claim", "Column", "Component", "PaperTable",
+           "PaperTables", "Quantity", "SegmenterRef", "System", "TableSchemaError", "default_path",
+           "expand", "expand_all", "load_file", "load_tables", "mapping_table",
+           "mapping_table_id", "parse_tables", "table_ids", "table_numbers"]
