@@ -34,9 +34,9 @@ from evsmap.report.tables import (
     table_markdown,
 )
 from evsmap.runner.records import CellRecord
+from evsmap.runner.runfile import RUN_FILE, RunFile
 from evsmap.tables.schema import PaperTable, expand_all, load_tables
 
-RUN_FILE = "run.json"
 PLOTS = {
     "networks.png": "speed against parameters and FLOPs (Tables I and II)",
     "mapping.png": "mapping rate and map size per sequence and system",
@@ -53,33 +53,17 @@ _NO_DATA = {
 
 # ------------------------------------------------------------------------------- reading
 def read_run(run_dir: str | Path) -> dict[str, Any]:
-    """``DIR/run.json`` as a dict.
+    """``DIR/run.json`` as a dict of the keys it holds, read and checked by its one schema
+    (:class:`~evsmap.runner.runfile.RunFile`).
 
     Raises:
-        DataFormatError: the folder or the file is missing, or the file is not a JSON object.
+        DataFormatError: the folder or the file is missing, or the file is not a run
+            description; one line naming it.
     """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise DataFormatError(f"{run_dir}: no such run folder")
-    path = run_dir / RUN_FILE
-    if not path.is_file():
-        raise DataFormatError(f"{path}: missing (not a run folder of 'evsmap reproduce')")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DataFormatError(f"{path}: unreadable run description ({exc})") from None
-    except RecursionError:
-        raise DataFormatError(f"{path}: unreadable run description (nested too deeply)") from None
-    if not isinstance(data, dict):
-        raise DataFormatError(f"{path}: expected a JSON object, got {type(data).__name__}")
-    for key, kind in (("tables", list), ("available", list), ("cells", list),
-                      ("environment", dict), ("sequences", dict), ("skipped", list)):
-        if data.get(key) is not None and not isinstance(data[key], kind):
-            raise DataFormatError(f"{path}: {key!r} must be a JSON {kind.__name__}")
-    for key in ("tables", "available", "cells"):
-        if not all(isinstance(v, str) for v in data.get(key) or []):
-            raise DataFormatError(f"{path}: {key!r} must be a list of strings")
-    return data
+    return RunFile.read(run_dir / RUN_FILE).model_dump(exclude_unset=True)
 
 
 def read_records(run_dir: str | Path) -> list[CellRecord]:

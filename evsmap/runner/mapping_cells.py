@@ -215,6 +215,21 @@ def unlabelled_record(run: MappingRun) -> CellRecord:
                       f"labels for the oracle)", started=now())
 
 
+def _unlabelled(ctx: RunContext, sequence: str, cache: dict[str, bool]) -> bool:
+    if sequence not in cache:
+        seq = open_mapping_sequence(ctx, sequence)
+        cache[sequence] = len(seq) == 0 or seq.frame(0).labels is None
+    return cache[sequence]
+
+
+def lacks_labels(ctx: RunContext, run: MappingRun, cache: dict[str, bool] | None = None) -> bool:
+    """A semantic run that cannot be mapped here (:func:`unlabelled_record`): no trained weights
+    for its network and no ground-truth labels on its sequence for the oracle to stand in."""
+    return (run.segmenter is not None and not run.own_labels
+            and ctx.weights_path(run.segmenter.spec, MAPPING_WEIGHTS) is None
+            and _unlabelled(ctx, run.sequence, {} if cache is None else cache))
+
+
 @dataclass
 class Labels:
     """Where a mapping run's labels come from: the observations (``None``: the updater's own

@@ -62,7 +62,8 @@ from evsmap.runner.executors import (
     fresh_process,
     spawn_pool,
 )
-from evsmap.runner.records import CellRecord, RecordStore, needs_text
+from evsmap.runner.mapping_cells import lacks_labels, unlabelled_record
+from evsmap.runner.records import CellRecord, RecordStore
 from evsmap.runner.systems import ExtraSystem
 from evsmap.tables.schema import CellSpec, expand, load_tables, mapping_table_id
 
@@ -223,23 +224,6 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
             environment=record.environment)
     record.notes.append(f"timed twice: the first try was {why}; kept the less contended")
     return record
-
-
-def _unlabelled(ctx: RunContext, sequence: str, cache: dict[str, bool]) -> bool:
-    if sequence not in cache:
-        from evsmap.runner.execute import open_mapping_sequence
-
-        seq = open_mapping_sequence(ctx, sequence)
-        cache[sequence] = len(seq) == 0 or seq.frame(0).labels is None
-    return cache[sequence]
-
-
-def lacks_labels(ctx: RunContext, run: MappingRun, cache: dict[str, bool] | None = None) -> bool:
-    """A semantic run that cannot be mapped here: no trained weights for its network and no
-    ground-truth labels on its sequence for the oracle to stand in."""
-    return (run.segmenter is not None and not run.own_labels
-            and ctx.weights_path(run.segmenter.spec, "nyuv2") is None
-            and _unlabelled(ctx, run.sequence, {} if cache is None else cache))
 
 
 def _run_timed(items: list[Any], run_one: Callable[[Any, TimingSlot], CellRecord],
@@ -450,11 +434,7 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
     to_map: list[MappingRun] = []
     for run in runs:
         if run.segmenter is not None and lacks_labels(ctx, run, labels_cache):
-            need = f"weights:{run.segmenter.spec}@nyuv2"
-            rec = CellRecord(
-                **run.base_fields(), status="na", needs=[need],
-                reason=needs_text([need]) + f" ({run.sequence} has no ground-truth labels for "
-                                            f"the oracle)")
+            rec = unlabelled_record(run)
             rec.environment = environment(ctx.threads)
             keep(rec)
             continue

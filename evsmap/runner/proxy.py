@@ -107,7 +107,8 @@ def train_missing(ctx: RunContext, models: list[str], recipe: str, data: Path,
                   say: Callable[[str], None] = print) -> dict[str, str]:
     """Train every model of ``models`` without synthrooms weights in the weights folder; returns
     model -> error message for those whose training failed."""
-    from evsmap.train.loop import RunOptions, train
+    from evsmap.train.loop import train
+    from evsmap.train.options import RunOptions
     from evsmap.train.recipe import apply_overrides, load_recipe
 
     failed = {}

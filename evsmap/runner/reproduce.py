@@ -23,7 +23,8 @@ from evsmap.runner.context import RunContext
 from evsmap.runner.estimate import Budget, Estimator, format_duration
 from evsmap.runner.execute import environment, open_mapping_sequence
 from evsmap.runner.executors import CellExecutor
-from evsmap.runner.matrix import Plan, lacks_labels, plan, run_matrix
+from evsmap.runner.mapping_cells import lacks_labels
+from evsmap.runner.matrix import Plan, plan, run_matrix
 from evsmap.runner.records import CellRecord, RecordStore
 from evsmap.runner.runfile import RUN_FILE, RunFile, RunSettings
 from evsmap.runner.systems import ExtraSystem, load_systems, systems_from_records
