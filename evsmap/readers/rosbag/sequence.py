@@ -258,7 +258,7 @@ class RosbagSequence(_FramePoseMixin, Sequence):
             raise DataFormatError(f"{self.label}: message on {', '.join(missing)} at bag time "
                                   f"{_fmt(start)} not found again (bag changed since opening?)")
         self._cursor = (gen, keys, last, counts)
-        return out  # type: ignore[return-value]
+        return [raw for raw in out if raw is not None]  # all of them: found == len(msgs)
 
     def _drop_cursor(self) -> None:
         cur, self._cursor = getattr(self, "_cursor", None), None
