@@ -45,11 +45,15 @@ def fuzz(session: nox.Session) -> None:
 
 @nox.session
 def lint(session: nox.Session) -> None:
-    """ruff over the code, then the import contracts of pyproject.toml (import-linter: the
-    layers point downward, no cycles, evsmap never imports the baselines)."""
-    session.install(*CONSTRAINTS, "ruff", "import-linter")
+    """ruff over the code, the import contracts of pyproject.toml (import-linter: the layers
+    point downward, no cycles, evsmap never imports the baselines), then mypy over evsmap
+    (``[tool.mypy]``: strict on the contracts, measuring, running and mapping code). mypy reads
+    the dependencies' types, so the project is installed from the lock as for the tests."""
+    _install(session)
+    session.install(*CONSTRAINTS, "ruff", "import-linter", "mypy")
     session.run("ruff", "check", "evsmap", "baselines", "benchmarks", "tests", "noxfile.py")
     session.run("lint-imports", "--config", "pyproject.toml", "--no-cache")
+    session.run("mypy", "--config-file", "pyproject.toml", *session.posargs)
 
 
 @nox.session

@@ -54,6 +54,7 @@ def source_digest(package: str) -> str:
     import importlib
 
     module = importlib.import_module(package)
+    assert module.__file__ is not None, f"{package} is not a regular package"
     folder = Path(module.__file__).parent
     h = hashlib.sha256()
     for path in sorted(folder.rglob("*.py")):

@@ -250,7 +250,7 @@ class Frame:
     def require_images(self, user: str) -> None:
         """Raise a clear error when ``user`` (a segmenter, a command) needs images and this is a
         point-cloud frame."""
-        if self.is_cloud:
+        if self.points is not None:  # is_cloud
             raise InvalidDataError(
                 f"frame {self.name!r} is a point cloud ({len(self.points)} points): {user} needs "
                 f"RGB-D images")
@@ -258,8 +258,9 @@ class Frame:
     def sensor_points(self) -> np.ndarray:
         """(N, 3) float64 points in the sensor frame: the valid depth pixels back-projected in
         row-major order, or the cloud's points."""
-        if self.is_cloud:
+        if self.points is not None:  # is_cloud
             return self.points.astype(np.float64)
+        assert self.depth is not None and self.intrinsics is not None  # an image frame
         return backproject(self.depth, self.intrinsics)
 
     def colors(self) -> np.ndarray | None:
@@ -268,19 +269,23 @@ class Frame:
         without colours."""
         if self.is_cloud:
             return self.point_colors
+        assert self.rgb is not None  # an image frame
         return self.rgb.reshape(-1, 3)
 
     @property
     def height(self) -> int:
+        assert self.rgb is not None, "a point-cloud frame has no image size"
         return int(self.rgb.shape[0])
 
     @property
     def width(self) -> int:
+        assert self.rgb is not None, "a point-cloud frame has no image size"
         return int(self.rgb.shape[1])
 
     @property
     def valid(self) -> np.ndarray:
         """Boolean HxW mask of pixels with a depth measurement."""
+        assert self.depth is not None, "a point-cloud frame has no depth image"
         return self.depth > 0
 
 

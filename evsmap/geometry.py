@@ -11,14 +11,12 @@ invalid input (zero or non-finite quaternions, matrices that are not rotations) 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from evsmap.errors import InvalidDataError
-
-if TYPE_CHECKING:  # the data model builds on this module, not the other way round
-    from evsmap.data import Intrinsics
 
 
 def _rotations(quats: np.ndarray) -> Any:
@@ -133,7 +131,21 @@ def interpolate_poses(
     return pose_matrix(trans, quat)
 
 
-def backproject(depth: np.ndarray, intrinsics: Intrinsics, pose: np.ndarray | None = None,
+class Pinhole(Protocol):
+    """What :func:`backproject` reads of a camera, in pixels (:class:`evsmap.data.Intrinsics` is
+    one; this module does not import the data model, which builds on it)."""
+
+    @property
+    def fx(self) -> float: ...
+    @property
+    def fy(self) -> float: ...
+    @property
+    def cx(self) -> float: ...
+    @property
+    def cy(self) -> float: ...
+
+
+def backproject(depth: np.ndarray, intrinsics: Pinhole, pose: np.ndarray | None = None,
                 mask: np.ndarray | None = None) -> np.ndarray:
     """3D points (N x 3, float64) of the valid depth pixels, in the camera frame or, with
     ``pose`` (camera-to-world), in the world frame. Row-major pixel order."""
@@ -160,7 +172,8 @@ def transform_points(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return _rigid(np.asarray(pose, dtype=np.float64), p[:, 0], p[:, 1], p[:, 2])
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+def look_at(eye: np.ndarray, target: np.ndarray,
+            up: npt.ArrayLike = (0.0, 0.0, 1.0)) -> np.ndarray:
     """Camera-to-world rotation (3x3) of an OpenCV camera at ``eye`` looking at ``target``
     (z forward, x right, y down), with ``up`` the world's up direction."""
     eye = np.asarray(eye, dtype=np.float64)

@@ -24,7 +24,7 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 
-SIGNAL_NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
+SIGNAL_NAMES: dict[int, str] = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
 
 _hint: str | Callable[[], str | None] | None = None
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sized
 from typing import TypeVar
 
 from tqdm import tqdm
@@ -14,7 +14,7 @@ T = TypeVar("T")
 def progress(items: Iterable[T], *, total: int | None = None, desc: str = "",
              unit: str = "frame") -> Iterator[T]:
     """``tqdm`` over ``items`` on a TTY, the plain iterator otherwise."""
-    if total is None and hasattr(items, "__len__"):
-        total = len(items)  # type: ignore[arg-type]
+    if total is None and isinstance(items, Sized):
+        total = len(items)
     return iter(tqdm(items, total=total, desc=desc, unit=unit, leave=False,
                      disable=not sys.stderr.isatty(), file=sys.stderr))

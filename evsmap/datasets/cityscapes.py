@@ -112,9 +112,9 @@ def read_camera(path: Path) -> tuple[float, Intrinsics]:
         raise DataFormatError(f"{path}: baseline and intrinsics must be finite numbers with a "
                               f"positive baseline, got {shown[:200]}"
                               + ("..." if len(shown) > 200 else ""))
-    baseline, values = numbers[0], numbers[1:]
+    baseline, fx, fy, cx, cy = numbers
     try:
-        return float(baseline), Intrinsics(*values, NATIVE_WIDTH, NATIVE_HEIGHT)
+        return float(baseline), Intrinsics(fx, fy, cx, cy, NATIVE_WIDTH, NATIVE_HEIGHT)
     except EvsmapError as exc:
         raise DataFormatError(f"{path}: bad intrinsics ({exc})") from None
 
@@ -199,7 +199,7 @@ class CityscapesSequence(SegmentationSequence):
         for s in wanted:
             if self.prepared is not None:
                 rows = read_id_list(root / f"{s}.txt", parts=2)
-                frames = sorted(tuple(r.split("/", 1)) for r in rows)
+                frames = sorted((city, name) for city, name in (r.split("/", 1) for r in rows))
                 require_dir(root / LABEL_DIR / s, f"prepared {LABEL_DIR}/{s}")
                 require_dir(source / RGB_DIR / s, f"Cityscapes {RGB_DIR}/{s}")
             else:

@@ -23,6 +23,7 @@ N x 3 x 640 x 480 uint8, ``depths`` N x 640 x 480 float metres, ``labels`` N x 6
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -185,7 +186,7 @@ def _split_indices(path: Path, count: int) -> dict[str, np.ndarray]:
     return out
 
 
-def _check_dataset(f, path: Path, key: str, shape: tuple) -> object:
+def _check_dataset(f, path: Path, key: str, shape: tuple) -> Any:  # an h5py Dataset
     import h5py
 
     try:

@@ -96,7 +96,8 @@ def _read_frames_file(path: Path) -> list[tuple[str, Intrinsics, str]]:
             raise DataFormatError(f"{path}:{number}: expected 'id fx fy cx cy width height "
                                   f"scene', got {line!r}")
         try:
-            intr = Intrinsics(*(float(v) for v in parts[1:5]), int(parts[5]), int(parts[6]))
+            fx, fy, cx, cy = (float(v) for v in parts[1:5])
+            intr = Intrinsics(fx, fy, cx, cy, int(parts[5]), int(parts[6]))
         except (ValueError, EvsmapError) as exc:
             raise DataFormatError(f"{path}:{number}: bad intrinsics ({exc})") from None
         check_frame_id(parts[0], f"{path}:{number}")
@@ -127,7 +128,7 @@ class SUNRGBDSequence(SegmentationSequence):
         if manifest is not None and manifest.get("name") != NAME:
             raise DataFormatError(f"{root}: the manifest says dataset {manifest.get('name')!r}, "
                                   f"not {NAME!r}")
-        wanted = SPLITS if split == "all" else (split,)
+        wanted: tuple[str, ...] = SPLITS if split == "all" else (split,)
         if split == "all":
             wanted = tuple(s for s in SPLITS if (root / s).is_dir()) or SPLITS
         self.root = root
@@ -229,14 +230,13 @@ def _load_meta(path: Path) -> list[_MetaEntry]:
 
 def _split_keys(path: Path) -> dict[str, set[str]]:
     data = load_mat(path, ["alltrain", "alltest"], "SUN RGB-D train/test split")
-    out = {}
+    out: dict[str, set[str]] = {}
     for split, key in (("train", "alltrain"), ("test", "alltest")):
         try:
             names = mat_strings(data[key])
         except DataFormatError as exc:
             raise DataFormatError(f"{path}: {key}: {exc}") from None
-        keys = {scene_key(n.rstrip("/")) for n in names}
-        keys.discard(None)
+        keys = {k for n in names if (k := scene_key(n.rstrip("/"))) is not None}
         if not keys:
             raise DataFormatError(f"{path}: {key} lists no .../SUNRGBD/<scene> folders")
         out[split] = keys

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -163,7 +164,7 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def _room_sequence(scene: str, seed: int, frames: int, height: int, width: int,
-                   path: dict[str, float]):
+                   path: dict[str, Any]):
     """The synth sequence of one room with this room's camera path (noisy depth)."""
     from evsmap.synth.sequence import SyntheticSequence
     from evsmap.synth.trajectory import room_trajectory
@@ -199,9 +200,10 @@ def prepare_synthrooms(out_dir: str | Path, *, rooms: int = DEFAULT_ROOMS,
     types = scene_types()
     splits = split_rooms(rooms)
     split_of = {r: s for s, members in splits.items() for r in members}
-    plan = [{"index": i, "scene": types[i % len(types)], "seed": room_seed(seed, i),
-             "split": split_of[i], "frames": frames_per_room, "path": room_path(seed, i)}
-            for i in range(rooms)]
+    plan: list[dict[str, Any]] = [
+        {"index": i, "scene": types[i % len(types)], "seed": room_seed(seed, i),
+         "split": split_of[i], "frames": frames_per_room, "path": room_path(seed, i)}
+        for i in range(rooms)]
     intrinsics = default_intrinsics(width, height)
     counts = {s: np.zeros(256, dtype=np.int64) for s in SPLITS}
     pose_lines = ["# id room timestamp tx ty tz qx qy qz qw  (camera-to-world, OpenCV camera "
@@ -219,6 +221,7 @@ def prepare_synthrooms(out_dir: str | Path, *, rooms: int = DEFAULT_ROOMS,
                                      width, room["path"])
                 room["size_m"] = [round(float(x), 6) for x in seq.room.size]
                 current = r
+            assert seq is not None  # made for the first task
             frame = seq.frame(v)
             fid = frame_id(r, v)
             write_png(stage / RGB_DIR / f"{fid}.png", frame.rgb)
@@ -372,6 +375,7 @@ class SynthRoomsSequence(SegmentationSequence):
 
     def load(self, index: int):
         fid = self.names[index]
+        assert self.intrinsics is not None  # the prepared layout's
         shape = self.intrinsics.shape
         rgb_path = self.root / RGB_DIR / f"{fid}.png"
         depth_path = self.root / DEPTH_DIR / f"{fid}.png"

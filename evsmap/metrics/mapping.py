@@ -25,6 +25,7 @@ packed codes per offset.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from evsmap.errors import InvalidDataError
 from evsmap.interfaces import MapUpdater
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
 from evsmap.metrics.segmentation import ConfusionMatrix, SegmentationResult
+
+if TYPE_CHECKING:
+    from typing_extensions import TypeIs
 
 
 @dataclass(frozen=True)
@@ -117,7 +121,24 @@ def nearest_within(query_keys: np.ndarray, target_codes: np.ndarray, slack: int)
     return found
 
 
-def _ratio(num: int, den: int) -> float:
+class _LeafArrays(Protocol):
+    def index(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class _LeafMapUpdater(Protocol):
+    """What :func:`evaluate_map` reads of an updater beyond :class:`MapUpdater`: the leaf arrays
+    (``map``) that an updater with ``has_leaf_map`` set holds (evsmap's ``OctreeUpdater``)."""
+
+    @property
+    def map(self) -> _LeafArrays: ...
+
+
+def _has_leaf_map(updater: object) -> TypeIs[_LeafMapUpdater]:
+    """Whether ``updater`` is a :class:`MapUpdater` that declares a leaf map."""
+    return isinstance(updater, MapUpdater) and updater.has_leaf_map
+
+
+def _ratio(num: int | np.integer, den: int) -> float:
     return float(num) / den if den else float("nan")
 
 
@@ -139,7 +160,7 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
     if isinstance(slack_voxels, bool) or not isinstance(slack_voxels, (int, np.integer)) \
             or slack_voxels < 0:
         raise InvalidDataError(f"slack_voxels must be an integer >= 0, got {slack_voxels!r}")
-    if not (isinstance(updater, MapUpdater) and updater.has_leaf_map):
+    if not (isinstance(updater, MapUpdater) and _has_leaf_map(updater)):
         raise InvalidDataError(
             f"{type(updater).__name__} exposes no leaf map (evaluate_map needs an OctreeUpdater)")
     resolution = float(updater.resolution)
@@ -171,7 +192,7 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
     n_gt, n_occ = int(gt_codes.size), int(occ_codes.size)
     n_observed = int(np.count_nonzero(known))
 
-    quality = dict(
+    quality: dict[str, Any] = dict(
         resolution=resolution, slack_voxels=slack, occupied=n_occ, ground_truth=n_gt,
         observed=n_observed, precision=_ratio(np.count_nonzero(matched), n_occ),
         recall=_ratio(np.count_nonzero(covered & known), n_observed),

@@ -18,6 +18,8 @@ the lineage it follows and the arithmetic against Table III, is written down in
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -130,7 +132,19 @@ def _conv_relu(in_channels: int, out_channels: int) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(in_channels, out_channels, 1), nn.ReLU(inplace=True))
 
 
-def _pyramid_setup(module: nn.Module, channels: int, compression: int,
+class _Pyramid(nn.Module):
+    """The parts both DAPPF readings have (declared for the type checker; set by
+    :func:`_pyramid_setup` and the readings' constructors)."""
+
+    pools: tuple[tuple[int, int], ...]
+    base: ConvBNReLU
+    fuse: ConvBNReLU
+    relu: nn.ReLU
+    reduce: nn.ModuleList
+    process: nn.ModuleList
+
+
+def _pyramid_setup(module: _Pyramid, channels: int, compression: int,
                    pools: tuple[tuple[int, int], ...], dilations: tuple[int, ...]) -> int:
     """What both DAPPF readings share: the level check, the 1x1 branch, the fusion of the
     branches back to ``channels`` and the final ReLU; returns the branch width ``C / q``."""
@@ -144,7 +158,7 @@ def _pyramid_setup(module: nn.Module, channels: int, compression: int,
     return mid
 
 
-class DAPPF(nn.Module):
+class DAPPF(_Pyramid):
     """Dilated Asymmetric Pooling Pyramid Fusion module (Fig. 4), the "pooled" reading (default).
 
     (a) Three asymmetric pooling layers, one per pyramid level, each going deeper than the one
@@ -214,7 +228,7 @@ class DAPPF(nn.Module):
         return self.relu(self.fuse(torch.cat(outs, dim=1)) + x)
 
 
-class DAPPFFullRes(nn.Module):
+class DAPPFFullRes(_Pyramid):
     """DAPPF, the "fullres" reading (``dappf="fullres"``; evsmap's default before the Table III
     row fit): every level works at the input's resolution. 0.28 M parameters, 0.09 G (V2).
 
@@ -464,15 +478,15 @@ class FEAGNet(nn.Module):
         self.readings = {"cfim": cfim_name, "dappf": dappf_name, "attention": attention_name}
         self.num_classes = num_classes
         self.use_depth = use_depth
-        enc = dict(stem_strides=init_strides, growth=growth, layers=layers,
+        enc: dict[str, Any] = dict(stem_strides=init_strides, growth=growth, layers=layers,
                    transitions=transitions)
         self.rgb_encoder = HarDNetEncoder(in_channels=3, **enc)
         self.depth_encoder = HarDNetEncoder(in_channels=1, **enc) if use_depth else None
         stage_channels = [self.rgb_encoder.stem_channels, *transitions]
         if use_depth and cfim_name is not None:
             extra = {} if cfim_reduction is None else {"reduction": cfim_reduction}
-            self.fusion = nn.ModuleList(CFIM_READINGS[cfim_name](c, **extra)
-                                        for c in stage_channels)
+            self.fusion: nn.ModuleList | None = nn.ModuleList(
+                CFIM_READINGS[cfim_name](c, **extra) for c in stage_channels)
         else:
             self.fusion = None
         deepest = transitions[-1]
@@ -506,13 +520,18 @@ class FEAGNet(nn.Module):
             raise ValueError("this FEAGNet is RGB-D: forward(rgb, depth) needs the depth image")
         size = rgb.shape[-2:]
         r = self.rgb_encoder.run_stem(rgb)
-        d = self.depth_encoder.run_stem(depth) if self.use_depth else None
+        depth_encoder = self.depth_encoder  # None unless use_depth
+        d = None
+        if self.use_depth:
+            assert depth_encoder is not None and depth is not None
+            d = depth_encoder.run_stem(depth)
         r, d = self._fuse(0, r, d)
         features = []
         for i in range(len(self.rgb_encoder.blocks)):
             _, r = self.rgb_encoder.run_block(i, r)
             if d is not None:
-                _, d = self.depth_encoder.run_block(i, d)
+                assert depth_encoder is not None
+                _, d = depth_encoder.run_block(i, d)
             r, d = self._fuse(i + 1, r, d)
             features.append(r)
         x = self.context(features[-1])
@@ -559,23 +578,23 @@ ABLATIONS: dict[str, dict[str, bool]] = {
 """The six rows of Table III (ablation on NYUv2, FEAGNet-V2), top to bottom."""
 
 
-def feagnet_v1(*, num_classes: int = 40, **switches: bool) -> FEAGNet:
+def feagnet_v1(*, num_classes: int = 40, **switches: Any) -> FEAGNet:
     """FEAGNet-V1: RGB-D, strided init layer (Table I: 4.5 M, 1.9 G at 480x640)."""
     return FEAGNet(num_classes=num_classes, init_strides=V1_INIT_STRIDES, **switches)
 
 
-def feagnet_v2(*, num_classes: int = 40, **switches: bool) -> FEAGNet:
+def feagnet_v2(*, num_classes: int = 40, **switches: Any) -> FEAGNet:
     """FEAGNet-V2: RGB-D, FC-HarDNet's init layer (Table I: 4.5 M, 7.8 G at 480x640)."""
     return FEAGNet(num_classes=num_classes, init_strides=V2_INIT_STRIDES, **switches)
 
 
-def feagnet_s(*, num_classes: int = 19, **switches: bool) -> FEAGNet:
+def feagnet_s(*, num_classes: int = 19, **switches: Any) -> FEAGNet:
     """FEAGNet-S: RGB only, strided init layer (Table II: 2.8 M, Cityscapes)."""
     return FEAGNet(num_classes=num_classes, use_depth=False, init_strides=V1_INIT_STRIDES,
                    **switches)
 
 
-def feagnet_l(*, num_classes: int = 19, **switches: bool) -> FEAGNet:
+def feagnet_l(*, num_classes: int = 19, **switches: Any) -> FEAGNet:
     """FEAGNet-L: RGB only, FC-HarDNet's init layer (Table II: 2.8 M, Cityscapes)."""
     return FEAGNet(num_classes=num_classes, use_depth=False, init_strides=V2_INIT_STRIDES,
                    **switches)

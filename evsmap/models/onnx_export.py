@@ -10,6 +10,7 @@ import re
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -61,7 +62,7 @@ def export_onnx(
             contextlib.redirect_stdout(io.StringIO()):
         warnings.simplefilter("ignore")
         for dynamo in (False, True):
-            extra = {"external_data": False} if dynamo else {}
+            extra: dict[str, Any] = {"external_data": False} if dynamo else {}
             try:
                 torch.onnx.export(
                     module, inputs, str(path), input_names=input_names,

@@ -79,7 +79,7 @@ class SpeedExport:
 
 
 def export_key(module: torch.nn.Module, inputs: Sequence[torch.Tensor],
-               input_names: Sequence[str], *, key: str, size: tuple[int, int] | None) -> str:
+               input_names: Sequence[str], *, key: str, size: tuple[int, ...] | None) -> str:
     """The cache entry's hash: ``key``, the module's class, structure and weights, the input
     names, dtypes and channels (and the size, for a fixed-size export), opset, torch version."""
     h = hashlib.sha256()
@@ -165,7 +165,8 @@ def _publish(module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], names: l
     try:
         graph = tmp / path.name
         if size_free:
-            traced, checked = trace_sizes(tuple(inputs[0].shape[-2:]))
+            height, width = inputs[0].shape[-2:]
+            traced, checked = trace_sizes((height, width))
             export_lean(module, _resized(inputs, traced), names, graph, size_free=True)
             _verify(module, _resized(inputs, checked), names, graph)
         else:

@@ -119,7 +119,7 @@ def _sequence_dirs(folder: Path) -> list[Path]:
             names = [e.name for e in it if _SEQ_DIR.match(e.name) and _is_dir(e)]
     except OSError:
         return []
-    names.sort(key=lambda n: (int(_SEQ_DIR.match(n).group(1)), n))
+    names.sort(key=lambda n: (int(n.removeprefix("seq-")), n))  # the names match _SEQ_DIR
     return [folder / n for n in names]
 
 

@@ -418,6 +418,7 @@ def write_tum(sequence: Sequence, out: Path, *, quaternions: np.ndarray | None =
     for sub in ("rgb", "depth"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     intr = sequence.intrinsics
+    assert intr is not None, "write_tum writes RGB-D sequences, which have intrinsics"
     (out / INTRINSICS_FILE).write_text(
         "# fx fy cx cy width height (pixels, pinhole, no distortion)\n"
         f"{intr.fx!r} {intr.fy!r} {intr.cx!r} {intr.cy!r} {intr.width} {intr.height}\n")
@@ -432,6 +433,7 @@ def write_tum(sequence: Sequence, out: Path, *, quaternions: np.ndarray | None =
     frames = iter(sequence) if progress is None else progress(sequence)
     for frame in frames:
         stamp = f"{frame.timestamp:.6f}"
+        assert frame.rgb is not None and frame.depth is not None  # an RGB-D frame
         write_png(out / "rgb" / f"{stamp}.png", frame.rgb)
         write_png(out / "depth" / f"{stamp}.png", quantize_depth(frame.depth))
         rgb_lines.append(f"{stamp} rgb/{stamp}.png\n")

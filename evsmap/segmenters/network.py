@@ -11,6 +11,7 @@ per-pixel top-k classes and probabilities at the frame's resolution.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from os import PathLike
 from typing import TYPE_CHECKING, ClassVar
 
@@ -49,7 +50,8 @@ def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Nor
     network, and what training feeds it at the randomly scaled size (:mod:`evsmap.train.data`).
     """
     n = normalization
-    size = tuple(size)
+    height, width = size
+    size = (height, width)
     rgb_t = torch.from_numpy(np.array(rgb, copy=True)).permute(2, 0, 1)[None].float()
     rgb_t = rgb_t / 255.0
     if tuple(rgb_t.shape[-2:]) != size:
@@ -78,14 +80,16 @@ def as_size(value: object, what: str = "input_size") -> tuple[int, int]:
     if isinstance(value, str):
         h, sep, w = value.lower().partition("x")
         parts = (h, w) if sep else ()
-    try:
-        size = tuple(int(v) for v in parts)  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        size = ()
+    size: tuple[int, ...] = ()
+    if isinstance(parts, Iterable):
+        try:
+            size = tuple(int(v) for v in parts)
+        except (TypeError, ValueError):
+            size = ()
     if len(size) != 2 or min(size) < 1:
         raise InvalidDataError(f"{what} must be HEIGHTxWIDTH in pixels (e.g. 480x640), "
                                f"got {value!r}")
-    return size  # type: ignore[return-value]
+    return size[0], size[1]
 
 
 def seeded_inputs(uses_depth: bool, height: int, width: int) -> tuple[torch.Tensor, ...]:
@@ -165,16 +169,17 @@ class NetworkSegmenter(Segmenter):
         self.num_classes = num_classes
         self.class_names = tuple(class_names)
         self.uses_depth = uses_depth  # type: ignore[misc]
-        self.default_size = tuple(default_size)
+        height, width = default_size
+        self.default_size: tuple[int, int] = (height, width)
         self.normalization = normalization
-        self.input_size = (as_size(input_size, f"{name}: input_size")
+        self.input_size: tuple[int, int] = (as_size(input_size, f"{name}: input_size")
                            if input_size is not None else self.default_size)
         self.config = dict(config or {})
         self.weights = str(weights) if weights is not None else None
         if weights is not None:
             load_weights(self._module, weights)
         self._session = None
-        self._int8_size: tuple[int, ...] | None = None
+        self._int8_size: tuple[int, int] | None = None
         self._ort_threads: int | None = None
         self._ort_spinning = True
         self.last_timings: dict[str, float] = {}
@@ -199,6 +204,7 @@ class NetworkSegmenter(Segmenter):
     def preprocess(self, frame: Frame) -> tuple[torch.Tensor, ...]:
         """Normalised, resized network inputs (batch 1, float32) for ``frame``."""
         frame.require_images(f"segmenter {self.name!r}")
+        assert frame.rgb is not None and frame.depth is not None  # an image frame
         depth = self.normalization.encode_depth(frame.depth, frame) if self.uses_depth \
             else None
         return network_inputs(frame.rgb, depth, self.normalization, self.input_size)
@@ -275,7 +281,7 @@ class NetworkSegmenter(Segmenter):
             stem=self.name, source=source)
         self.precision, self.int8_scheme = "int8", scheme
         self.int8_scheme_chosen_by = chosen_by
-        self._int8_size = tuple(self.input_size)
+        self._int8_size = self.input_size
         self._session = None
         return self.quantization
 
@@ -300,7 +306,8 @@ class NetworkSegmenter(Segmenter):
             raise EvsmapError(f"{self.name}: int8 needs calibrating first (segmenter."
                               f"calibrate(frames); the CLI calibrates on "
                               f"--calibration-frames frames)")
-        if tuple(self.input_size) != self._int8_size:
+        if self.input_size != self._int8_size:
+            assert self._int8_size is not None  # set with self.quantization
             h, w = self._int8_size
             raise EvsmapError(f"{self.name}: the int8 model was calibrated at {h}x{w}, not "
                               f"{self.input_size[0]}x{self.input_size[1]}: calibrate again")
@@ -343,6 +350,7 @@ class NetworkSegmenter(Segmenter):
         t1 = time.perf_counter()
         logits = self.logits(inputs)
         t2 = time.perf_counter()
+        assert frame.rgb is not None  # preprocess checked that it is an image frame
         observation = self.top_k(logits, frame.rgb.shape[:2], k)
         t3 = time.perf_counter()
         self.last_timings = {"preprocess": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3,

@@ -236,12 +236,12 @@ class OracleSegmenter(Segmenter):
         pick2 = np.minimum((u_second[..., None] >= cum).sum(axis=2), m - 1)
         second = np.take_along_axis(options, pick2[..., None], axis=2)[..., 0]
         true_second = rng.random(labels.shape) < TRUE_SECOND
-        cand = [top1,
-                np.where(void, random_cls[1], np.where(true_second, true, top1)),
-                np.where(void, random_cls[2], second)]
-        cand += [np.where(void, top1, options[..., j]) for j in range(m)]
-        cand += [(top1 + j) % c for j in range(1, k)]
-        cand = np.stack(cand, axis=2).astype(np.int32)
+        ranked = [top1,
+                  np.where(void, random_cls[1], np.where(true_second, true, top1)),
+                  np.where(void, random_cls[2], second)]
+        ranked += [np.where(void, top1, options[..., j]) for j in range(m)]
+        ranked += [(top1 + j) % c for j in range(1, k)]
+        cand = np.stack(ranked, axis=2).astype(np.int32)
         fresh = np.ones(cand.shape, dtype=bool)
         for i in range(1, cand.shape[2]):
             fresh[..., i] = ~np.any(cand[..., i:i + 1] == cand[..., :i], axis=2)

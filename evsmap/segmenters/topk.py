@@ -17,13 +17,23 @@ Labels are those of the softmax (softmax is monotonic in the logits); probabilit
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 import torch
 
-try:
-    from numba import njit
-except ImportError:  # pragma: no cover
-    njit = None
+
+def _numba_njit() -> Callable[..., Any] | None:
+    """numba's ``njit``, or None where numba cannot be imported."""
+    try:
+        from numba import njit
+    except ImportError:  # pragma: no cover
+        return None
+    return njit
+
+
+njit = _numba_njit()
 
 
 def _sweep(x, k):

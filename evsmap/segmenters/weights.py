@@ -44,12 +44,14 @@ _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 def numpy_allowlist() -> list:
     """The numpy objects admitted by ``torch.load(weights_only=True)``: what a pickled
     ``numpy.float64`` refers to, under both spellings of numpy's core module."""
+    import importlib
+
     import numpy as np
 
     try:
-        from numpy._core.multiarray import scalar
+        scalar = importlib.import_module("numpy._core.multiarray").scalar
     except ImportError:  # numpy < 2
-        from numpy.core.multiarray import scalar  # type: ignore[no-redef]
+        scalar = importlib.import_module("numpy.core.multiarray").scalar
     allowed: list = [np.dtype,
                      (scalar, "numpy.core.multiarray.scalar"),
                      (scalar, "numpy._core.multiarray.scalar")]

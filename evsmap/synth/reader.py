@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from evsmap.errors import EvsmapError
 from evsmap.registry import READERS
 from evsmap.synth.scene import DEFAULT_SCENE
@@ -17,8 +19,8 @@ def open_synthetic(*, scene: str = DEFAULT_SCENE, seed: int = 0, frames: int = 6
     ``render=cached`` renders it once into the cache and reads the frames back like a recorded
     sequence (bit-identical; what ``evsmap map`` and Table IV time). ``laps``: times the camera
     goes round the room (the long run with revisits: ``-r laps=4 -r frames=640``)."""
-    options = dict(scene=scene, seed=seed, frames=frames, width=width, height=height,
-                   noise=noise)
+    options: dict[str, Any] = dict(scene=scene, seed=seed, frames=frames, width=width,
+                                   height=height, noise=noise)
     if laps != 1:  # one lap: the options (and the cache key) of earlier versions
         options["laps"] = laps
     if render not in RENDERS:

@@ -11,7 +11,7 @@ Layout generators are registered by scene name in :data:`SCENES`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,6 +35,11 @@ ALBEDO: dict[str, tuple[float, float, float]] = {
     "otherstructure": (0.70, 0.70, 0.70), "otherfurniture": (0.50, 0.45, 0.40),
     "otherprop": (0.40, 0.50, 0.35),
 }
+
+
+def _xyz(values: Iterable[float]) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in values)
+    return x, y, z
 
 
 @dataclass(frozen=True)
@@ -112,8 +117,7 @@ class _Builder:
         tint = np.clip(base * (1.0 + self.rng.uniform(-jitter, jitter, 3)), 0.02, 1.0)
         self._instance += 1
         self.room.parts.append(Part(
-            NYU40[cls], tuple(float(v) for v in center), tuple(float(v) for v in size),
-            float(yaw), tuple(float(v) for v in tint), self._instance,
+            NYU40[cls], _xyz(center), _xyz(size), float(yaw), _xyz(tint), self._instance,
         ))
 
     def shell(self) -> None:

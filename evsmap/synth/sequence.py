@@ -37,6 +37,8 @@ class SyntheticSequence(Sequence):
             :func:`~evsmap.synth.trajectory.room_trajectory`).
     """
 
+    intrinsics: Intrinsics  # always set (default_intrinsics of the size)
+
     def __init__(self, *, scene: str = DEFAULT_SCENE, seed: int = 0, frames: int = 60,
                  width: int = 640, height: int = 480, noise: bool = False, laps: int = 1) -> None:
         for name, value, lo in (("frames", frames, 1), ("width", width, 8), ("height", height, 8),

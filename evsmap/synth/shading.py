@@ -16,12 +16,22 @@ segment and integrate (``evsmap map --pipeline``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
-try:
-    from numba import njit
-except ImportError:  # pragma: no cover - numba is a dependency
-    njit = None
+
+def _numba_njit() -> Callable[..., Any] | None:
+    """numba's ``njit``, or None where numba cannot be imported."""
+    try:
+        from numba import njit
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+    return njit
+
+
+njit = _numba_njit()
 
 COARSE_CELL = 0.15
 """Lattice of the coarse value noise, metres."""
@@ -70,8 +80,8 @@ def texture(pts: np.ndarray, part: np.ndarray) -> np.ndarray:
     """Brightness multiplier around 1: coarse blotches plus fine grain, per instance."""
     seed = np.maximum(part, 0)
     coarse = value_noise(pts, COARSE_CELL, seed)
-    fine = hash01(*np.moveaxis(np.floor(pts / FINE_CELL).astype(np.int64) + _KEY_BIAS, -1, 0),
-                  seed + 7)
+    fx, fy, fz = np.moveaxis(np.floor(pts / FINE_CELL).astype(np.int64) + _KEY_BIAS, -1, 0)
+    fine = hash01(fx, fy, fz, seed + 7)
     return 0.8 + 0.3 * coarse + 0.1 * fine
 
 

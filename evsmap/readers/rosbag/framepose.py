@@ -12,12 +12,12 @@ import numpy as np
 
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.geometry import pose_matrix
-from evsmap.readers.rosbag.index import _Plan
+from evsmap.readers.rosbag.index import _IndexMixin, _Plan
 from evsmap.readers.rosbag.messages import _fmt, _frame_name
 from evsmap.readers.rosbag.poses import BODY_TO_OPTICAL, _NoPose
 
 
-class _FramePoseMixin:
+class _FramePoseMixin(_IndexMixin):
     """Pose source, time source and per-frame poses for an indexed, planned sequence."""
 
     def _poses(self, pose_topic, use_tf, world_frame, sensor_frame, sensor_offset,
@@ -161,6 +161,7 @@ class _FramePoseMixin:
 
         frames = [p.time for p in self._plans_for["header"]]
         if self._pose_mode == "odom":
+            assert self._pose_samples is not None  # odom mode: the pose topic's samples
             poses = list(self._pose_samples.times)
         else:
             poses = [t for c in self._tf.dynamic_links(self._world, self._sensor)
@@ -191,6 +192,7 @@ class _FramePoseMixin:
         else:
             if index is not None:  # time_source "order": the index-th message, as recorded
                 samples = self._pose_samples  # (the track merges messages sharing a stamp)
+                assert samples is not None
                 pose = pose_matrix(np.asarray(samples.trans[index]),
                                    np.asarray(samples.quats[index]))
             else:

@@ -26,6 +26,7 @@ from evsmap.readers.rosbag.messages import (
     _stamp_ns,
 )
 from evsmap.readers.rosbag.poses import _check_quat, _check_translation, _Samples, _TfTree
+from evsmap.readers.rosbag.topics import _TopicsMixin
 from evsmap.readers.tum import associate
 
 
@@ -54,7 +55,7 @@ class _Plan:
     no_pose: str = ""
 
 
-class _IndexMixin:
+class _IndexMixin(_TopicsMixin):
     """Indexing and frame planning for a sequence holding an open ``rosbags`` reader."""
 
     def _index(self, frame_topics: list[str], pose_topic: str | None,
@@ -159,7 +160,7 @@ class _IndexMixin:
                 f"{self.intrinsics.width}x{self.intrinsics.height} but colour images on {rgb} "
                 f"are {first_rgb.width}x{first_rgb.height}")
 
-    def _intrinsics_from(self, info: Any, topic: str,
+    def _intrinsics_from(self, info: Any, topic: str | None,
                          image_size: tuple[int, int] | None) -> Intrinsics:
         k = np.asarray(getattr(info, "k", getattr(info, "K", None)), dtype=np.float64).reshape(-1)
         where = f"{self.label}: topic {topic}"

@@ -15,7 +15,7 @@ from evsmap.data import Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError, InvalidDataError
 from evsmap.readers.rosbag.checks import check_bag_folder, check_storage_files
 from evsmap.readers.rosbag.framepose import _FramePoseMixin
-from evsmap.readers.rosbag.index import _IndexMixin, _Msg
+from evsmap.readers.rosbag.index import _Msg
 from evsmap.readers.rosbag.messages import (
     _COLOR_EXPECTED,
     _DEPTH_EXPECTED,
@@ -32,7 +32,7 @@ from evsmap.readers.rosbag.messages import (
     decode_compressed_depth,
     decode_depth_image,
 )
-from evsmap.readers.rosbag.topics import PRESETS, TIME_SOURCES, _TopicsMixin
+from evsmap.readers.rosbag.topics import PRESETS, TIME_SOURCES
 from evsmap.registry import READERS
 
 
@@ -63,7 +63,7 @@ def is_rosbag(path: Path) -> bool:
     return False
 
 
-class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
+class RosbagSequence(_FramePoseMixin, Sequence):
     """Frames of a ROS 1 or ROS 2 bag: RGB-D images or point clouds, with poses.
 
     Args: see :func:`open_rosbag`.
@@ -154,8 +154,8 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
                     f"or point clouds (sensor_msgs/PointCloud2); it has {self._listing()}")
             if has_images and has_cloud:
                 # images win when both colour and depth can be found; else the cloud
-                color, depth, _ = self._classify_images()
-                wants_images = bool(color) and bool(depth)
+                color_found, depth_found, _ = self._classify_images()
+                wants_images = bool(color_found) and bool(depth_found)
                 wants_cloud = not wants_images
             else:
                 wants_cloud = has_cloud
@@ -258,7 +258,7 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
             raise DataFormatError(f"{self.label}: message on {', '.join(missing)} at bag time "
                                   f"{_fmt(start)} not found again (bag changed since opening?)")
         self._cursor = (gen, keys, last, counts)
-        return out  # type: ignore[return-value]
+        return [raw for raw in out if raw is not None]  # all of them: found == len(msgs)
 
     def _drop_cursor(self) -> None:
         cur, self._cursor = getattr(self, "_cursor", None), None
@@ -290,6 +290,7 @@ class RosbagSequence(_TopicsMixin, _IndexMixin, _FramePoseMixin, Sequence):
             except InvalidDataError as exc:
                 raise DataFormatError(f"{where}: {_one_line(exc)}") from None
         intr = self.intrinsics
+        assert intr is not None  # an rgbd bag's are set up with its topics
         size = (intr.width, intr.height)
         (m_rgb, w_rgb, rgb_msg), (m_depth, w_depth, depth_msg) = decoded
         rgb = decode_color_image(rgb_msg, w_rgb) if self._type_of(m_rgb.topic) == IMAGE else \

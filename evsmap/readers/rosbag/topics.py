@@ -6,9 +6,10 @@ pose source (a pose topic or ``/tf``)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
-from typing import Any
+from collections.abc import Generator, Iterable
+from typing import Any, Literal, overload
 
+from evsmap.data import Intrinsics
 from evsmap.errors import DataFormatError
 from evsmap.readers.rosbag.messages import (
     COLOR_ENCODINGS,
@@ -69,7 +70,19 @@ TIME_SOURCES = ("auto", "header", "bag", "order")
 
 class _TopicsMixin:
     """Topic lookup and selection for a sequence holding an open ``rosbags`` reader
-    (``self._reader``), its ``label`` and ``meta``."""
+    (``self._reader``), its ``label`` and ``meta``.
+
+    The root of :class:`~evsmap.readers.rosbag.sequence.RosbagSequence`'s mixins: the attributes
+    the sequence sets for all of them are declared here (annotations only)."""
+
+    _reader: Any  # rosbags' AnyReader
+    label: str
+    meta: dict[str, Any]
+    kind: str
+    camera_axes: str
+    max_time_difference: float
+    max_pose_gap: float
+    intrinsics: Intrinsics | None
 
     def _topics_of(self, types: Iterable[str]) -> list[str]:
         types = set(types)
@@ -83,7 +96,8 @@ class _TopicsMixin:
         types = {c.msgtype for c in self._conns(topic)}
         return types.pop() if len(types) == 1 else ""
 
-    def _messages(self, where: str, **selection: Any) -> Iterator[tuple[Any, int, bytes]]:
+    def _messages(self, where: str,
+                  **selection: Any) -> Generator[tuple[Any, int, bytes], None, None]:
         """The reader's messages; a failure of the bag's storage (a corrupt chunk, index or
         record, a failed decompression: rosbags' errors, OSError, RuntimeError, ...) raises a
         one-line DataFormatError naming ``where``."""
@@ -121,6 +135,13 @@ class _TopicsMixin:
         except Exception as exc:
             raise DataFormatError(f"{where}: cannot decode the {conn.msgtype} message "
                                   f"({_one_line(exc)})") from None
+
+    @overload
+    def _pick(self, role: str, option: str, given: Any, preset: dict, types: tuple[str, ...],
+              candidates: list[str] | None = ..., required: Literal[True] = ...) -> str: ...
+    @overload
+    def _pick(self, role: str, option: str, given: Any, preset: dict, types: tuple[str, ...],
+              candidates: list[str] | None = ..., required: bool = ...) -> str | None: ...
 
     def _pick(self, role: str, option: str, given: Any, preset: dict, types: tuple[str, ...],
               candidates: list[str] | None = None, required: bool = True) -> str | None:
