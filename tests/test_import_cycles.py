@@ -16,13 +16,6 @@ grimp = pytest.importorskip("grimp", reason="grimp comes with import-linter (the
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Cycles that another change of issue 37 removes; while one of them is all that is left, the
-# test is an expected failure. Delete an entry once its cycle is gone.
-PENDING = {
-    frozenset({"evsmap.train.loop", "evsmap.train.evaluate"}),  # the training loop's rewrite
-}
-
-
 def strongly_connected(graph: Mapping[str, Iterable[str]]) -> list[list[str]]:
     """The strongly connected components of ``graph`` (node -> nodes it imports) with more than
     one node, each sorted, in sorted order (Tarjan's algorithm, without recursion)."""
@@ -95,13 +88,9 @@ def test_finder_sees_cycles_of_any_length():
     assert strongly_connected({"a": ["b"], "b": ["c"], "c": []}) == []
 
 
-def test_no_import_cycles(request):
+def test_no_import_cycles():
     graph = _evsmap_graph()
     imports = {m: graph.find_modules_directly_imported_by(m) for m in graph.modules}
     cycles = strongly_connected(imports)
-    if cycles and all(frozenset(c) in PENDING for c in cycles):
-        request.applymarker(pytest.mark.xfail(
-            reason="only cycles that another change removes: "
-                   + "; ".join(" <-> ".join(c) for c in cycles), strict=False))
     assert not cycles, "import cycles (imports in functions and under TYPE_CHECKING count):\n" \
         + "\n".join(_describe(graph, c) for c in cycles)
