@@ -3,7 +3,7 @@
 
 :class:`MappingRecord` is the one record of a mapping run: ``evsmap map --json`` prints it and
 the runner's ``extra/mapping/...`` records store its :meth:`MappingRecord.values`
-(docs/measurement.md, "Quantities of a mapping run")."""
+(docs/measurement.md, "Quantities")."""
 
 from __future__ import annotations
 

@@ -34,7 +34,7 @@ EXTRA_VALUES = ("update_hz", "segment_update_hz", "map_bytes", "map_bytes_full",
                 "map_bytes_colour", "octomap_memory_bytes", "map_nbytes", "rss_added_bytes",
                 "peak_rss_bytes", "nodes", "leaves", "pruned_share", "precision", "recall",
                 "semantic_accuracy", "semantic_accuracy_all", "map_miou", "frames", "miou")
-"""Value keys of the ``extra`` records (docs/measurement.md, "Quantities of a mapping run";
+"""Value keys of the ``extra`` records (docs/measurement.md, "Quantities";
 ``miou``: the synthrooms proxy networks')."""
 
 PROXY_SECTION = "Synthetic proxy (evsmap's synthrooms, not the paper's datasets)"

@@ -3,7 +3,7 @@
 Every record of a mapping run (``evsmap map --json``, the runner's ``extra/mapping/...`` records,
 the report's tables and figures, the benchmarks) names its rates ``update_hz``,
 ``segment_update_hz`` and ``wall_hz`` (:class:`evsmap.measure.mapping.MappingRecord`; the table
-of quantities is in docs/measurement.md, "Quantities of a mapping run"). A stored run from before
+of quantities is in docs/measurement.md, "Quantities"). A stored run from before
 is read through :data:`OLD_KEYS`, so ``evsmap report`` rebuilds it with the same tables.
 """
 
