@@ -448,7 +448,7 @@ class Sequence(abc.ABC):
 class FrameList(Sequence):
     """A sequence held in memory (tests, generated data)."""
 
-    def __init__(self, name: str, intrinsics: Intrinsics, frames: list[Frame],
+    def __init__(self, name: str, intrinsics: Intrinsics | None, frames: list[Frame],
                  meta: dict | None = None) -> None:
         super().__init__(name, intrinsics, meta)
         for f in frames:

@@ -19,7 +19,10 @@ OctoMap sees e.g. the resolution ``0.05f`` = 0.05000000074505806 and the hit log
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 
 from evsmap.data import Frame
 from evsmap.errors import InvalidDataError
@@ -51,7 +54,8 @@ def voc_colormap(n: int) -> np.ndarray:
 def pack_rgb(rgb: np.ndarray) -> np.ndarray:
     """``uint32`` ``0x00RRGGBB`` of (..., 3) ``uint8`` colours (the cloud's bgr0 bytes)."""
     rgb = np.asarray(rgb).astype(np.uint32)
-    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+    packed: npt.NDArray[np.uint32] = (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+    return packed
 
 
 def unpack_rgb(packed: np.ndarray) -> np.ndarray:
@@ -91,8 +95,10 @@ def camera_points(frame: Frame, updater: str) -> tuple[np.ndarray, np.ndarray]:
                                f"(use -o front_end=direct)")
     from evsmap.geometry import backproject
 
-    valid = np.isfinite(frame.depth) & (frame.depth > 0)
-    return (backproject(frame.depth, frame.intrinsics, mask=valid).astype(np.float32),
+    depth, intrinsics = frame.depth, frame.intrinsics
+    assert depth is not None and intrinsics is not None  # an image frame (Frame's invariant)
+    valid = np.isfinite(depth) & (depth > 0)
+    return (backproject(depth, intrinsics, mask=valid).astype(np.float32),
             np.flatnonzero(valid))
 
 
@@ -110,4 +116,6 @@ def to_world(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarr
 def sensor_distance(world: np.ndarray, origin: np.ndarray) -> np.ndarray:
     """``sqrt`` of the ``float`` sum of squared differences, as both nodes compute ``dist``."""
     d = world - origin
-    return np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2])
+    dist: npt.NDArray[np.floating[Any]] = np.sqrt((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+                                                  + d[:, 2] * d[:, 2])
+    return dist

@@ -31,6 +31,7 @@ sets and is the reference the tests compare this kernel with.
 from __future__ import annotations
 
 import math
+from types import ModuleType
 from typing import Literal
 
 import numpy as np
@@ -38,12 +39,12 @@ import numpy as np
 from evsmap.errors import InvalidDataError
 from evsmap.mapping import threads  # noqa: F401 - chooses numba's threading layer first
 
+numba: ModuleType | None
 try:
     import numba
-    from numba import prange
 except ImportError:  # pragma: no cover - numba is a dependency; the numpy path still works
     numba = None
-    prange = range
+prange = numba.prange if numba is not None else range
 
 Kernels = Literal["compiled", "reference"]
 """Which code runs the map-update loops: ``"compiled"`` - the numba kernels of this module and
@@ -70,7 +71,7 @@ _BLOCK = 1 << 16
 """Cells (or rows) per block of the block-numbered passes."""
 
 
-def blocks(n, size):
+def blocks(n: int, size: int) -> int:
     """Number of blocks of ``size`` covering ``n`` items."""
     return (n + size - 1) // size
 

@@ -14,6 +14,7 @@ OctoMap's child order (child index bit 0 = x, bit 1 = y, bit 2 = z).
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 TREE_DEPTH = 16
 KEY_OFFSET = 1 << 15
@@ -57,4 +58,5 @@ def morton(keys: np.ndarray) -> np.ndarray:
     child index = x bit + 2 * y bit + 4 * z bit), most significant level first."""
     k = np.asarray(keys)
     y, z = _spread(k[:, 1]) << np.uint64(1), _spread(k[:, 2]) << np.uint64(2)
-    return _spread(k[:, 0]) | y | z
+    codes: npt.NDArray[np.uint64] = _spread(k[:, 0]) | y | z
+    return codes

@@ -14,17 +14,18 @@ the caller falls back to numpy beyond it.
 from __future__ import annotations
 
 import math
+from types import ModuleType
 
 import numpy as np
 
 from evsmap.mapping.kernels import blocks
 
+numba: ModuleType | None
 try:
     import numba
-    from numba import prange
 except ImportError:  # pragma: no cover
     numba = None
-    prange = range
+prange = numba.prange if numba is not None else range
 
 _VOXEL_BLOCK = 128
 """Local voxels per parallel block (each block allocates its scratch buffers once)."""

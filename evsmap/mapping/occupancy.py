@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from evsmap.data import Frame
 from evsmap.interfaces import FREE, OCCUPIED, UNKNOWN, PointQuery
@@ -56,12 +57,14 @@ class ScanUpdate:
     @property
     def occupied_new(self) -> np.ndarray:
         """``bool`` aligned with :attr:`occupied_index`: the leaf was created by this scan."""
-        return self.new_mask[self.occupied_index]
+        new: npt.NDArray[np.bool_] = self.new_mask[self.occupied_index]
+        return new
 
     @property
     def free_new(self) -> np.ndarray:
         """``bool`` aligned with :attr:`free_index`: the leaf was created by this scan."""
-        return self.new_mask[self.free_index]
+        new: npt.NDArray[np.bool_] = self.new_mask[self.free_index]
+        return new
 
 
 class OccupancyMap:
@@ -198,7 +201,7 @@ class OccupancyMap:
                 old = np.ones(total, dtype=bool)
                 old[created] = False
 
-            def grow(arr: np.ndarray, fill) -> np.ndarray:
+            def grow(arr: np.ndarray, fill: npt.ArrayLike) -> np.ndarray:
                 out = np.empty((total, *arr.shape[1:]), dtype=arr.dtype)
                 if old is None:
                     width = int(np.prod(arr.shape[1:], dtype=np.int64))

@@ -42,8 +42,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from evsmap.data import Frame
+from evsmap.errors import InvalidDataError
 from evsmap.geometry import backproject
 from evsmap.mapping.kernels import Kernels, grid_codes, trace
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
@@ -76,7 +78,7 @@ def octomap_keys(points: np.ndarray, resolution: float) -> tuple[np.ndarray, np.
     keys = scaled.astype(np.int64)
     keys += KEY_OFFSET
     bad = (keys < 0) | (keys > KEY_MAX)
-    ok = ~bad.any(axis=1)
+    ok: npt.NDArray[np.bool_] = ~np.any(bad, axis=1)
     if not ok.all():
         keys[~ok] = 0
     return keys, ok
@@ -85,7 +87,8 @@ def octomap_keys(points: np.ndarray, resolution: float) -> tuple[np.ndarray, np.
 def _norm(d: np.ndarray) -> np.ndarray:
     """OctoMap's ``Vector3::norm``: float sum of squares, double square root."""
     sq = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2]
-    return np.sqrt(sq.astype(np.float64))
+    norm: npt.NDArray[np.float64] = np.sqrt(sq.astype(np.float64))
+    return norm
 
 
 def scan_keys(points: np.ndarray, origin: np.ndarray, resolution: float, *,
@@ -144,8 +147,9 @@ class _Space(NamedTuple):
     strides: np.ndarray
     size: int  # 0: the box is the whole key space and indices are packed codes
 
-    def index(self, keys: np.ndarray) -> np.ndarray:
-        return (keys - self.base) @ self.strides
+    def linear(self, keys: np.ndarray) -> npt.NDArray[np.int64]:
+        index: npt.NDArray[np.int64] = (keys - self.base) @ self.strides
+        return index
 
     def codes(self, index: np.ndarray) -> np.ndarray:
         if not self.size:
@@ -200,8 +204,8 @@ def _ray_keys(org: np.ndarray, ends: np.ndarray, resolution: float,
     lo = np.minimum(ke.min(axis=0), ko)
     hi = np.maximum(ke.max(axis=0), ko)
     space = _space(lo, hi)
-    origin_index = space.index(ko)
-    end_index = space.index(ke)
+    origin_index = space.linear(ko)
+    end_index = space.linear(ke)
     increments = step * space.strides  # index change of one step along each axis
 
     walk = _walk_compiled if kernels == "compiled" and trace is not None else _walk_reference
@@ -290,7 +294,7 @@ def _clear_occupied(grid: np.ndarray, space: _Space, occupied: np.ndarray) -> No
     box)."""
     keys = unpack(occupied)
     inside = np.all((keys >= space.base) & (keys < space.base + space.shape), axis=1)
-    grid[space.index(keys[inside])] = False
+    grid[space.linear(keys[inside])] = False
 
 
 def _grid_codes(grid: np.ndarray, space: _Space, compiled: bool,
@@ -298,8 +302,9 @@ def _grid_codes(grid: np.ndarray, space: _Space, compiled: bool,
     """Sorted codes of the set cells of a dense grid, converted a block at a time (by the
     compiled :func:`~evsmap.mapping.kernels.grid_codes` when ``compiled``)."""
     if compiled and grid_codes is not None:
-        return grid_codes(grid, *(int(b) for b in space.base), int(space.shape[1]),
-                          int(space.shape[2]))
+        codes: npt.NDArray[np.int64] = grid_codes(grid, *(int(b) for b in space.base),
+                                                  int(space.shape[1]), int(space.shape[2]))
+        return codes
     out = np.empty(np.count_nonzero(grid), dtype=np.int64)
     pos = 0
     for start in range(0, grid.size, block):
@@ -355,7 +360,8 @@ def _chunk(tmax: np.ndarray, tdelta: np.ndarray, counts: np.ndarray, length: np.
     del at_end
     first = np.minimum(first, end_step)
     keep = np.arange(width)[None, :] < first[:, None]
-    return index[keep]
+    entered: npt.NDArray[np.int64] = index[keep]
+    return entered
 
 
 def frame_points(frame: Frame, *, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -363,11 +369,15 @@ def frame_points(frame: Frame, *, stride: int = 1) -> tuple[np.ndarray, np.ndarr
     column) and the camera centre (the pose's translation), the ray origin."""
     if stride < 1:
         raise ValueError(f"stride must be a positive integer, got {stride}")
+    depth, intrinsics = frame.depth, frame.intrinsics
+    if depth is None or intrinsics is None:
+        raise InvalidDataError(f"frame_points needs an image frame; frame {frame.name!r} is a "
+                               f"point cloud")
     mask = None
     if stride > 1:
-        mask = np.zeros(frame.depth.shape, dtype=bool)
+        mask = np.zeros(depth.shape, dtype=bool)
         mask[::stride, ::stride] = True
-    cam = backproject(frame.depth, frame.intrinsics, mask=mask)
+    cam = backproject(depth, intrinsics, mask=mask)
     # camera -> world without a BLAS (N, 3) @ (3, 3) product: on a busy 2-core machine
     # OpenBLAS's threads made that take ~130 ms per 640x480 frame instead of ~2 ms
     rot, origin = frame.pose[:3, :3], frame.pose[:3, 3].copy()

@@ -26,10 +26,13 @@ pipeline's other thread) the spinning slowed the update about 5x in our measurem
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 import threading
 from collections.abc import Iterator
+from types import ModuleType
 
+numba: ModuleType | None
 try:
     import numba
 except ImportError:  # pragma: no cover - numba is a dependency; the numpy paths need no threads
@@ -44,7 +47,7 @@ _threads: int | None = None  # None: the default (ENV, else all)
 
 def _has_omp() -> bool:
     try:
-        from numba.np.ufunc import omppool  # noqa: F401
+        importlib.import_module("numba.np.ufunc.omppool")  # loads libgomp when numba has it
     except ImportError:
         return False
     return True

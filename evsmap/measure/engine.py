@@ -25,7 +25,7 @@ the timed spans.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -106,7 +106,8 @@ def _indices(sequence: Sequence, indices: Iterable[int] | None, frames: int | No
 
 def _timed_frames(sequence: Sequence, indices: list[int], times: StageTimes, *,
                   skip_bad: bool, skipped: SkippedFrames,
-                  progress: Callable[[Any], Any] | None):
+                  progress: Callable[[Any], Any] | None
+                  ) -> Iterator[tuple[int, int, Frame]]:
     """``(position, index, frame)`` for each frame read, the read timed (``read``)."""
     order = indices if progress is None else progress(indices)
     frames = iter(read_frames(sequence, order, skip_bad=skip_bad, skipped=skipped))
@@ -311,7 +312,8 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
                                f"{len(order)} frames")
     evaluators = list(evaluators)
     _check_names(evaluators)
-    times, update_times, skipped, done = StageTimes(), StageTimes(), SkippedFrames(), []
+    times, update_times, skipped = StageTimes(), StageTimes(), SkippedFrames()
+    done: list[int] = []
     memory = PeakMemory() if measure_memory else None
     not_run = None
     if memory is not None:

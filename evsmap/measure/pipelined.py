@@ -62,7 +62,7 @@ class _Stage(threading.Thread):
     :class:`_End` (carrying the exception when ``body`` raised)."""
 
     def __init__(self, name: str, body: Callable[[Callable[[Any], bool]], None],
-                 out: queue.Queue, stop: threading.Event) -> None:
+                 out: queue.Queue[Any], stop: threading.Event) -> None:
         super().__init__(name=name, daemon=True)
         self._body, self._out, self._halt = body, out, stop
 
@@ -85,7 +85,7 @@ class _Stage(threading.Thread):
         self.put(end)
 
 
-def _get(q: queue.Queue, stop: threading.Event) -> Any:
+def _get(q: queue.Queue[Any], stop: threading.Event) -> Any:
     while True:
         try:
             return q.get(timeout=_POLL_S)
@@ -119,16 +119,16 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
         depth: frames each queue holds.
     """
     stop = threading.Event()
-    read_q: queue.Queue = queue.Queue(maxsize=depth)
-    seg_q: queue.Queue = queue.Queue(maxsize=depth)
+    read_q: queue.Queue[Any] = queue.Queue(maxsize=depth)
+    seg_q: queue.Queue[Any] = queue.Queue(maxsize=depth)
 
-    def read(put) -> None:
+    def read(put: Callable[[Any], bool]) -> None:
         for _, index, frame in timed_frames(sequence, order, read_times, skip_bad=skip_bad,
                                             skipped=skipped, progress=progress):
             if not put((index, frame)):
                 return
 
-    def segment(put) -> None:
+    def segment(put: Callable[[Any], bool]) -> None:
         while True:
             item = _get(read_q, stop)
             if isinstance(item, _End):
@@ -214,7 +214,7 @@ class StageThreads:
             if self.update is not None:
                 update_threads_mod.set_update_threads(old_update)
 
-    def _record(self, runtime: dict) -> dict[str, Any]:
+    def _record(self, runtime: dict[str, Any]) -> dict[str, Any]:
         import torch
 
         return {"read": 1, "segment": {"torch": torch.get_num_threads(), **runtime},
@@ -254,7 +254,10 @@ def stage_threads_option(pairs: list[tuple[str, Any]], *, pipeline: bool) -> Sta
         if n < 1 or str(n) != str(value).strip():
             raise InvalidDataError(f"--stage-threads {key}={value}: a positive integer, please")
         changes[key] = n
-    return replace(PIPELINED if pipeline else SEQUENTIAL, **changes)
+    base = PIPELINED if pipeline else SEQUENTIAL
+    return replace(base, segment=changes.get("segment", base.segment),
+                   torch=changes.get("torch", base.torch),
+                   update=changes.get("update", base.update), blas=changes.get("blas", base.blas))
 
 
 def _update_record() -> dict[str, Any]:

@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from evsmap.data import Frame
 
@@ -50,9 +51,12 @@ class RangeSurvey:
 def ray_lengths(frame: Frame) -> np.ndarray:
     """``float64`` sensor-to-point distance of every valid measurement of ``frame``."""
     if frame.is_cloud:
-        return np.linalg.norm(np.asarray(frame.points, dtype=np.float64), axis=1)
+        norms: npt.NDArray[np.float64] = np.linalg.norm(
+            np.asarray(frame.points, dtype=np.float64), axis=1)
+        return norms
     depth = frame.depth
     intr = frame.intrinsics
+    assert depth is not None and intr is not None  # an image frame (Frame's invariant)
     v, u = np.nonzero(depth > 0)
     x = (u - intr.cx) / intr.fx
     y = (v - intr.cy) / intr.fy

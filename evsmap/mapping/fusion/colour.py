@@ -13,13 +13,15 @@
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 WHITE = 255
 
 
 def color_is_set(rgb: np.ndarray) -> np.ndarray:
     """OctoMap's ``isColorSet``: any channel differs from 255 (pure white means "no colour")."""
-    return np.any(np.asarray(rgb) != WHITE, axis=-1)
+    is_set: npt.NDArray[np.bool_] = np.any(np.asarray(rgb) != WHITE, axis=-1)
+    return is_set
 
 
 def integrate_color(prev_rgb: np.ndarray, prev_set: np.ndarray, occupancy: np.ndarray,

@@ -15,6 +15,7 @@ most once per scan.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from evsmap.mapping.fusion.mcb import MAX_LOGODDS, MIN_LOGODDS, PROB_MIN, PSI, MCBState
 from evsmap.mapping.fusion.slots import EMPTY, SLOTS
@@ -59,7 +60,7 @@ def build_local(voxel_index: np.ndarray, classes: np.ndarray, probs: np.ndarray,
     if span > 0 and n_voxels * span <= DENSE_LIMIT:
         # dense (voxel, class) sums, one slot at a time: no sort, O(points) - the common case
         # (tens of classes); entries with class -1 or probability 0 add nothing
-        sums = np.zeros(n_voxels * span)
+        sums: npt.NDArray[np.float64] = np.zeros(n_voxels * span)
         base = vi * span
         for j in range(k):
             c, w = cl[:, j], pr[:, j]

@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from evsmap.mapping.fusion.slots import EMPTY, SLOTS, logsumexp_masked, pad_slots, top_slots
 
@@ -94,7 +95,8 @@ class MCBState:
     @property
     def has_semantics(self) -> np.ndarray:
         """(M,) bool: voxels with at least one class."""
-        return self.valid.any(axis=1)
+        has: npt.NDArray[np.bool_] = np.any(self.valid, axis=1)
+        return has
 
     @classmethod
     def empty(cls, m: int, others: float = 0.0) -> MCBState:
@@ -108,9 +110,10 @@ class MCBState:
 
     def equals(self, other: MCBState) -> np.ndarray:
         """(M,) bool: exactly equal classes, log-odds and others (pruning test)."""
-        return (np.all(self.classes == other.classes, axis=1)
-                & np.all(self.logodds == other.logodds, axis=1)
-                & (self.others == other.others))
+        same: npt.NDArray[np.bool_] = (np.all(self.classes == other.classes, axis=1)
+                                       & np.all(self.logodds == other.logodds, axis=1)
+                                       & (self.others == other.others))
+        return same
 
 
 def state_from_candidates(cls: np.ndarray, lo: np.ndarray, valid: np.ndarray,

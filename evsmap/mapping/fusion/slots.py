@@ -8,7 +8,10 @@ semantic_slam's rules in ``baselines``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 
 EMPTY = -1
 """Class id of an empty semantic slot."""
@@ -19,7 +22,9 @@ SLOTS = 3
 
 def match_slots(a: np.ndarray, av: np.ndarray, b: np.ndarray, bv: np.ndarray) -> np.ndarray:
     """(M, na, nb) bool: slot i of a holds the same (valid) class as slot j of b."""
-    return (a[:, :, None] == b[:, None, :]) & av[:, :, None] & bv[:, None, :]
+    same: npt.NDArray[np.bool_] = ((a[:, :, None] == b[:, None, :])
+                                   & av[:, :, None] & bv[:, None, :])
+    return same
 
 
 def top_slots(values: np.ndarray, valid: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -47,5 +52,6 @@ def logsumexp_masked(values: np.ndarray, mask: np.ndarray, axis: int) -> np.ndar
     safe = np.where(np.isfinite(top), top, 0.0)
     with np.errstate(divide="ignore"):
         out = np.log(np.sum(np.exp(v - safe), axis=axis, keepdims=True)) + safe
-    return np.squeeze(out, axis=axis)
+    total: npt.NDArray[np.floating[Any]] = np.squeeze(out, axis=axis)
+    return total
 
