@@ -46,7 +46,10 @@ def frames():
 
 
 def test_builtin_types_are_registered_by_their_ot_id():
-    UPDATERS.get("multiclass-bayes")  # loads the plug-ins, which register their types
+    # an updater's module registers its node type when it is imported, which creating it does
+    for name in ("multiclass-bayes", "classic-semantic", "classic-semantic-max"):
+        for front_end in ("generator", "direct"):
+            UPDATERS.create(name, front_end=front_end)
     assert NODE_TYPES.get("OcTree") is OCTREE and NODE_TYPES.get("ColorOcTree") is COLOR_OCTREE
     assert {"MultiClassBayesOcTree", "MultiClassBayesGeneratorOcTree", "SemanticOcTreeBayes",
             "SemanticOcTreeMax", "SemanticSlamOcTreeBayes",
