@@ -212,7 +212,7 @@ class RunContext:
         ``error`` and ``card`` (:func:`card_summary`, None without a card)."""
         if not self.weights_dir:
             return []
-        cached = getattr(self, "_weights_index", None)
+        cached: tuple[str, list[dict[str, Any]]] | None = getattr(self, "_weights_index", None)
         if cached is not None and cached[0] == self.weights_dir:
             return cached[1]
         out = Path(self.out)
@@ -366,7 +366,8 @@ def card_summary(card: Mapping[str, Any]) -> dict[str, Any]:
     out = {k: card.get(k) for k in _SUMMARY_KEYS}
     out.update(dataset=card_dataset(card), val_miou=card_miou(card, "val"),
                test_miou=card_miou(card, "test"))
-    return json.loads(json.dumps(out, default=str))
+    plain: dict[str, Any] = json.loads(json.dumps(out, default=str))
+    return plain
 
 
 def _timestamp(entry: Mapping[str, Any]) -> float:
@@ -379,7 +380,7 @@ def _timestamp(entry: Mapping[str, Any]) -> float:
     return float(entry.get("mtime_ns") or 0) / 1e9
 
 
-def _rank(entry: Mapping[str, Any]) -> tuple:
+def _rank(entry: Mapping[str, Any]) -> tuple[float, float, bool, str]:
     val = entry["card"].get("val_miou")
     val = val if isinstance(val, (int, float)) and math.isfinite(val) else -math.inf
     return (-val, -_timestamp(entry), bool(entry.get("checkpoint")), entry["file"])

@@ -20,6 +20,8 @@ import os
 from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import dataclass
+from multiprocessing.process import BaseProcess
+from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -71,7 +73,8 @@ class TerminatingPool(ProcessPoolExecutor):
                          max_tasks_per_child=max_tasks_per_child)
         self.grace_s = grace_s
 
-    def __exit__(self, exc_type, exc, tb) -> bool:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> bool | None:
         if exc_type is None:
             return super().__exit__(exc_type, exc, tb)
         self.terminate_workers()
@@ -84,7 +87,7 @@ class TerminatingPool(ProcessPoolExecutor):
         terminate_processes(processes, self.grace_s)
 
 
-def terminate_processes(processes: list, grace_s: float = 1.0) -> None:
+def terminate_processes(processes: list[BaseProcess], grace_s: float = 1.0) -> None:
     """SIGTERM to every live process of ``processes``, SIGKILL to those still alive after
     ``grace_s`` seconds in all; each is reaped."""
     import time

@@ -25,14 +25,20 @@ from __future__ import annotations
 
 import time
 import traceback
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 from evsmap.errors import EvsmapError
 from evsmap.interrupt import reraise_interruption
 from evsmap.runner.cell_base import now
 from evsmap.runner.context import RunContext
+from evsmap.runner.network_cells import cell_network
 from evsmap.runner.records import CellRecord, RecordStore
 from evsmap.tables.plan import CellSpec
+
+if TYPE_CHECKING:
+    from evsmap.data import Frame
+    from evsmap.synth.sequence import SyntheticSequence
 
 SCHEME = "auto"
 CALIBRATION_FRAMES = 16
@@ -41,12 +47,13 @@ HELD_OUT_FRAMES = 6
 
 def int8_key(spec: CellSpec) -> str:
     size = f"@{spec.input_size[1]}x{spec.input_size[0]}" if spec.input_size else ""
-    return f"extra/int8/{spec.segmenter.spec}{size}"
+    return f"extra/int8/{cell_network(spec).spec}{size}"
 
 
 def network_specs(specs: list[CellSpec]) -> list[CellSpec]:
     """One speed cell per network and input size, in plan order."""
-    seen, out = set(), []
+    seen: set[str] = set()
+    out: list[CellSpec] = []
     for s in specs:
         if s.kind != "speed" or s.segmenter is None or not s.runnable:
             continue
@@ -57,7 +64,7 @@ def network_specs(specs: list[CellSpec]) -> list[CellSpec]:
     return out
 
 
-def _synthetic(ctx: RunContext, *, scene: str, seed: int, frames: int):
+def _synthetic(ctx: RunContext, *, scene: str, seed: int, frames: int) -> SyntheticSequence:
     from evsmap.synth.sequence import SyntheticSequence
 
     size = ctx.synthetic.get("width", 640), ctx.synthetic.get("height", 480)
@@ -65,19 +72,21 @@ def _synthetic(ctx: RunContext, *, scene: str, seed: int, frames: int):
                              height=size[1])
 
 
-def _pair(spec: CellSpec, calibration, source: str, weights: str | None = None):
+def _pair(spec: CellSpec, calibration: Sequence[Frame], source: str,
+          weights: str | None = None) -> tuple[Any, Any]:
     """fp32 and int8 (:data:`SCHEME`) segmenters of ``spec``'s network, the same weights."""
     from evsmap.measure.int8 import int8_pair
     from evsmap.runner.network_cells import build_segmenter
 
+    network = cell_network(spec)
     fp32, int8 = int8_pair(
-        lambda: build_segmenter(spec.segmenter, input_size=spec.input_size,
+        lambda: build_segmenter(network, input_size=spec.input_size,
                                 backend="onnxruntime", weights=weights),
         calibration, schemes=(SCHEME,), source=source, untrained=weights is None)
     return fp32, int8[SCHEME]
 
 
-def _speed(fp32, int8, frame, runs: int) -> dict[str, Any]:
+def _speed(fp32: Any, int8: Any, frame: Frame, runs: int) -> dict[str, Any]:
     from evsmap.measure.int8 import alternating_ms, spread
 
     ms = alternating_ms({"fp32": fp32, "int8": int8}, frame, runs)
@@ -90,7 +99,7 @@ def _speed(fp32, int8, frame, runs: int) -> dict[str, Any]:
 
 def _accuracy_specs(specs: list[CellSpec], speed: CellSpec) -> list[CellSpec]:
     return [s for s in specs if s.kind == "accuracy" and s.runnable and s.segmenter is not None
-            and s.segmenter.spec == speed.segmenter.spec]
+            and s.segmenter.spec == cell_network(speed).spec]
 
 
 def _miou_pair(ctx: RunContext, spec: CellSpec) -> dict[str, Any]:
@@ -101,16 +110,19 @@ def _miou_pair(ctx: RunContext, spec: CellSpec) -> dict[str, Any]:
     from evsmap.segmenters.quantize import evenly_spaced
 
     dataset = spec.datasets[0]
+    network = cell_network(spec)
     path = ctx.dataset_path(dataset)
-    choice = ctx.weights_choice(spec.segmenter.spec, dataset)
+    choice = ctx.weights_choice(network.spec, dataset)
+    if path is None or choice is None:  # _accuracy_specs keeps the runnable cells only
+        raise EvsmapError(f"{spec.key}: dataset or weights missing")
     split = spec.split or "test"
     train = READERS.create(dataset, path=str(path), split="train")
     calibration = [train.frame(i) for i in evenly_spaced(len(train), CALIBRATION_FRAMES)]
     fp32, int8 = _pair(spec, calibration, f"{dataset} train", weights=str(choice.path))
-    out = {"dataset": dataset, "split": split, "weights": choice.file}
+    out: dict[str, Any] = {"dataset": dataset, "split": split, "weights": choice.file}
     for name, seg in (("fp32", fp32), ("int8", int8)):
         result, _ = score_segmenter(seg, dataset, path, split, input_size=spec.input_size,
-                                    limit=10 if ctx.quick else None, what=spec.segmenter.spec)
+                                    limit=10 if ctx.quick else None, what=network.spec)
         out[f"miou_{name}"] = float(result.miou)
     return out
 
@@ -120,11 +132,11 @@ def int8_record(ctx: RunContext, spec: CellSpec, specs: list[CellSpec]) -> CellR
     from evsmap.segmenters.quantize import evenly_spaced, top1_agreement
 
     started, t0 = now(), time.perf_counter()
-    base = dict(key=int8_key(spec), table="extra", row=spec.row, label=spec.label,
-                kind="speed", metrics=[], inputs={"segmenter": spec.segmenter.spec,
-                                                  "input_size": spec.input_size,
-                                                  "table": spec.table, "scheme": SCHEME},
-                started=started)
+    base: dict[str, Any] = dict(
+        key=int8_key(spec), table="extra", row=spec.row, label=spec.label, kind="speed",
+        metrics=[], inputs={"segmenter": cell_network(spec).spec, "input_size": spec.input_size,
+                            "table": spec.table, "scheme": SCHEME},
+        started=started)
     try:
         room = _synthetic(ctx, scene="living_room", seed=0, frames=60)
         calibration = [room.frame(i) for i in evenly_spaced(len(room), CALIBRATION_FRAMES)]
@@ -160,11 +172,12 @@ def int8_record(ctx: RunContext, spec: CellSpec, specs: list[CellSpec]) -> CellR
 
 
 def run_int8(ctx: RunContext, specs: list[CellSpec], *, resume: bool = False,
-             force: bool = False, say=print) -> list[CellRecord]:
+             force: bool = False, say: Callable[[str], object] = print
+             ) -> list[CellRecord]:
     """One int8 record per network of ``specs`` (the planned cells), written to the run's
     record store; with ``resume``, records already there are kept."""
     store = RecordStore(ctx.out)
-    records = []
+    records: list[CellRecord] = []
     todo = network_specs(specs)
     if todo:
         say(f"int8 beside fp32: {len(todo)} networks (quantise, time, compare)")

@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from evsmap.errors import EvsmapError
+from evsmap.errors import EvsmapError, InvalidDataError
+from evsmap.interfaces import Segmenter
 from evsmap.runner.cell_base import (
     RETRY_PAUSE_S,
     STRICT_PAUSE_S,
@@ -21,9 +23,26 @@ from evsmap.runner.context import RunContext
 from evsmap.runner.records import CellRecord
 from evsmap.tables.schema import CellSpec, Component
 
+if TYPE_CHECKING:
+    import torch
 
-def build_segmenter(component: Component, *, input_size=None, backend: str | None = None,
-                    weights: str | None = None):
+    from evsmap.measure.speed import SpeedRecord
+    from evsmap.metrics import SegmentationResult
+
+
+def cell_network(spec: CellSpec) -> Component:
+    """The network a complexity, speed or accuracy cell measures.
+
+    Raises:
+        EvsmapError: the cell names no segmenter (the tables give every such cell one).
+    """
+    if spec.segmenter is None:
+        raise EvsmapError(f"{spec.key}: the cell names no segmenter")
+    return spec.segmenter
+
+
+def build_segmenter(component: Component, *, input_size: Sequence[int] | None = None,
+                    backend: str | None = None, weights: str | None = None) -> Segmenter:
     """The segmenter of ``component`` (an untrained network's random weights drawn from
     :data:`~evsmap.segmenters.create.RANDOM_INIT_SEED`: the same every run, so ONNX exports are
     reused)."""
@@ -38,27 +57,47 @@ def build_segmenter(component: Component, *, input_size=None, backend: str | Non
         config["backend"] = backend
     if weights is not None:
         config["weights"] = weights
-    return create_segmenter(component.name, init_seed=RANDOM_INIT_SEED, **config)
+    segmenter: Segmenter = create_segmenter(component.name, init_seed=RANDOM_INIT_SEED, **config)
+    return segmenter
 
 
-def _size(spec: CellSpec, segmenter) -> tuple[int, int]:
-    return tuple(spec.input_size) if spec.input_size else tuple(segmenter.default_size)
+def _network(segmenter: Segmenter) -> torch.nn.Module:
+    """The torch module of a network segmenter.
+
+    Raises:
+        InvalidDataError: the segmenter is not a network.
+    """
+    module = segmenter.module
+    if module is None:
+        raise InvalidDataError(f"{type(segmenter).__name__} is not a network: it has nothing to "
+                               f"measure")
+    return module
+
+
+def _size(spec: CellSpec, segmenter: Segmenter) -> tuple[int, int]:
+    size = spec.input_size or segmenter.default_size
+    if size is None:
+        raise InvalidDataError(f"{spec.key}: no input size (the cell names none and "
+                               f"{type(segmenter).__name__} has no default)")
+    h, w = size
+    return h, w
 
 
 def run_complexity(spec: CellSpec, ctx: RunContext) -> CellRecord:
     from evsmap.measure.complexity import cached_complexity, count_parameters
 
-    segmenter = build_segmenter(spec.segmenter)
+    segmenter = build_segmenter(cell_network(spec))
+    module = _network(segmenter)
     quantities = column_quantities(spec)
     if set(quantities.values()) == {"params"}:  # no input size in a parameter count
-        params = count_parameters(segmenter.module)
+        params = count_parameters(module)
         return CellRecord(**base_fields(spec), status="ok",
                           values={col: float(params) for col in quantities},
                           notes=["every parameter of the network, training-only heads included "
                                  "where it has them; the count does not depend on the input "
                                  "size"], details={"params": params})
     h, w = _size(spec, segmenter)
-    rec = cached_complexity(segmenter.module, segmenter.example_inputs(h, w))
+    rec = cached_complexity(module, segmenter.example_inputs(h, w))
     values = {col: float(rec.params if q == "params" else rec.flops)
               for col, q in quantities.items()}
     notes = [f"fvcore at {w}x{h} (1 MAC = 1 FLOP, as fvcore and the paper's lineage count)"]
@@ -102,17 +141,18 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
     from evsmap.measure.contention import CalibrationLog, machine_log_path, severity
     from evsmap.measure.speed import measure_speed
 
-    segmenter = build_segmenter(spec.segmenter, input_size=spec.input_size)
+    network = cell_network(spec)
+    segmenter = build_segmenter(network, input_size=spec.input_size)
     h, w = _size(spec, segmenter)
     inputs = segmenter.example_inputs(h, w)
-    macs = cached_complexity(segmenter.module, inputs).flops
+    module = _network(segmenter)
+    macs = cached_complexity(module, inputs).flops
     export = None
     if ctx.speed_backend == "onnxruntime":
         # one size-free export per network, cached across runs (evsmap.models.speed_export)
         from evsmap.models.speed_export import speed_export
 
-        export = speed_export(segmenter.module, inputs, segmenter.input_names,
-                              key=spec.segmenter.spec)
+        export = speed_export(module, inputs, segmenter.input_names, key=network.spec)
     log = CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
                          machine_path=machine_log_path())
     policy = ctx.timing_policy()
@@ -125,10 +165,10 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
         gc.collect()
         trim_heap()
 
-    def measure():
-        return measure_speed(segmenter.module, inputs, backend=ctx.speed_backend,
+    def measure() -> SpeedRecord:
+        return measure_speed(module, inputs, backend=ctx.speed_backend,
                              threads=ctx.threads, macs=macs, input_names=segmenter.input_names,
-                             key=spec.segmenter.spec, calibration_log=log, policy=policy,
+                             key=network.spec, calibration_log=log, policy=policy,
                              roofline=roofline,
                              onnx_path=export.path if export else None,
                              free_dimensions=export.free_dimensions(h, w) if export else None)
@@ -186,11 +226,12 @@ def precision_text(details: dict[str, Any]) -> str:
 def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
     dataset = spec.datasets[0]
     path = ctx.dataset_path(dataset)
-    choice = ctx.weights_choice(spec.segmenter.spec, dataset)
+    network = cell_network(spec)
+    choice = ctx.weights_choice(network.spec, dataset)
     if path is None or choice is None:  # guarded by the caller's needs check
         raise EvsmapError(f"{spec.key}: dataset or weights missing")
     split = spec.split or "test"
-    result, frames = dataset_miou(spec.segmenter, dataset, path, split, choice.path,
+    result, frames = dataset_miou(network, dataset, path, split, choice.path,
                                   input_size=spec.input_size, backend=ctx.speed_backend,
                                   limit=10 if ctx.quick else None)
     values = {col: float(result.miou) for col in spec.metrics}
@@ -200,8 +241,9 @@ def run_accuracy(spec: CellSpec, ctx: RunContext) -> CellRecord:
 
 
 def dataset_miou(component: Component, dataset: str, path: str | os.PathLike[str], split: str,
-                 weights: str | os.PathLike[str], *, input_size=None,
-                 backend: str | None = None, limit: int | None = None):
+                 weights: str | os.PathLike[str], *, input_size: Sequence[int] | None = None,
+                 backend: str | None = None, limit: int | None = None
+                 ) -> tuple[SegmentationResult, int]:
     """``(result, frames)``: one dataset-level confusion matrix of ``component`` with
     ``weights`` over ``dataset``'s ``split`` (:class:`~evsmap.metrics.ConfusionMatrix`'s
     result; its ``miou`` over the classes present in ground truth or prediction)."""
@@ -211,8 +253,10 @@ def dataset_miou(component: Component, dataset: str, path: str | os.PathLike[str
                            limit=limit, what=component.spec)
 
 
-def score_segmenter(segmenter, dataset: str, path: str | os.PathLike[str], split: str, *,
-                    input_size=None, limit: int | None = None, what: str | None = None):
+def score_segmenter(segmenter: Segmenter, dataset: str, path: str | os.PathLike[str],
+                    split: str, *, input_size: Sequence[int] | None = None,
+                    limit: int | None = None, what: str | None = None
+                    ) -> tuple[SegmentationResult, int]:
     """:func:`dataset_miou` for a segmenter already built (e.g. calibrated to int8)."""
     from evsmap.datasets.lookup import dataset_classes
     from evsmap.measure.engine import run_segmentation
@@ -227,9 +271,10 @@ def score_segmenter(segmenter, dataset: str, path: str | os.PathLike[str], split
     sequence = READERS.create(dataset, **config)
     n_data, names = dataset_classes(sequence)
     if n_data is not None and n_data != segmenter.num_classes:
-        raise EvsmapError(f"{what or segmenter.name} predicts {segmenter.num_classes} classes, "
-                          f"{dataset} has {n_data}")
+        raise EvsmapError(f"{what or type(segmenter).__name__} predicts "
+                          f"{segmenter.num_classes} classes, {dataset} has {n_data}")
     scored = run_segmentation(sequence, segmenter, evaluators=[
         ConfusionEvaluator(num_classes=segmenter.num_classes, class_names=names,
                            source=sequence.name)])
-    return scored.results["confusion"], scored.frames
+    result: SegmentationResult = scored.results["confusion"]
+    return result, scored.frames

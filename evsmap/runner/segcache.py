@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from evsmap.data import SemanticObservation, Sequence
+from evsmap.interfaces import Segmenter
 from evsmap.measure.engine import run_segmentation
 from evsmap.measure.evaluators import KeepObservations
 from evsmap.measure.timing_policy import TimingPolicy, time_until_precise
@@ -52,8 +53,8 @@ class SegmentationCache:
         except OSError:  # another process published the same entry first
             shutil.rmtree(tmp, ignore_errors=True)
 
-    def observations(self, segmenter, sequence: Sequence, indices: list[int], *,
-                     key: dict[str, Any], progress: Callable | None = None
+    def observations(self, segmenter: Segmenter, sequence: Sequence, indices: list[int], *,
+                     key: dict[str, Any], progress: Callable[[Any], Any] | None = None
                      ) -> tuple[list[SemanticObservation], list[float], bool]:
         """The observations of ``segmenter`` on ``sequence``'s frames ``indices`` (computed and
         stored on the first call), the time of each prediction in ms when computed, and whether
@@ -85,7 +86,7 @@ class SegmentationCache:
         self._publish(tmp, entry)
         return obs, times, False
 
-    def timings(self, segmenter, sequence: Sequence, indices: list[int], *,
+    def timings(self, segmenter: Segmenter, sequence: Sequence, indices: list[int], *,
                 key: dict[str, Any], policy: TimingPolicy) -> tuple[dict[str, Any], bool]:
         """ms per ``predict`` of ``segmenter`` on ``sequence``'s frames ``indices`` in order
         (cycling when the policy wants more passes than frames), timed under ``policy``

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import re
 import tomllib
+from collections.abc import Set
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -109,7 +110,7 @@ def _where(loc: tuple[Any, ...]) -> str:
 
 
 def parse_systems(data: dict[str, Any], *, source: str,
-                  taken: set[str] = frozenset()) -> list[ExtraSystem]:
+                  taken: Set[str] = frozenset()) -> list[ExtraSystem]:
     """The systems of a parsed file ``data`` (``source`` names it in messages); ``taken`` are
     row ids already in use (Table IV's)."""
     try:
@@ -153,7 +154,7 @@ def parse_systems(data: dict[str, Any], *, source: str,
     return systems
 
 
-def load_systems(path: str | PathLike[str], *, taken: set[str] = frozenset()
+def load_systems(path: str | PathLike[str], *, taken: Set[str] = frozenset()
                  ) -> list[ExtraSystem]:
     """The systems of TOML file ``path`` (see the module notes)."""
     path = Path(path)
