@@ -14,7 +14,6 @@ point names a module (or a callable) that registers its plug-ins when imported (
 
 from __future__ import annotations
 
-import difflib
 import importlib
 import inspect
 from collections.abc import Callable, Iterator
@@ -22,7 +21,7 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from evsmap.errors import DuplicateNameError, EvsmapError, UnknownNameError
+from evsmap.errors import DuplicateNameError, EvsmapError, unknown_name
 
 if TYPE_CHECKING:  # the interfaces pull in numpy: naming the plug-ins must not
     from evsmap.data import Sequence
@@ -134,11 +133,7 @@ class Registry(Generic[T]):
             return self._entries[name]
         except KeyError:
             pass
-        known = sorted(self._entries)
-        close = difflib.get_close_matches(name, known, n=1, cutoff=0.4)
-        hint = f"; did you mean {close[0]!r}?" if close else ""
-        listed = ", ".join(known) if known else "none registered"
-        raise UnknownNameError(f"unknown {self.kind} {name!r}{hint} (known: {listed})") from None
+        raise unknown_name(self.kind, name, self._entries) from None
 
     def create(self, name: str, **config: Any) -> T:
         """Build the plug-in ``name`` with ``config``; unknown options are named in the error."""

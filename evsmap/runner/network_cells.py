@@ -113,10 +113,9 @@ def run_roofline(ctx: RunContext) -> float:
     machine fact per run, not re-measured per cell)."""
     import json
 
-    import torch
-
     from evsmap.fileio import atomic_write_text
     from evsmap.measure.speed import roofline_gmacs
+    from evsmap.models.module_utils import torch_threads
 
     path = Path(ctx.out) / "cache" / "roofline.json"
     try:
@@ -125,12 +124,8 @@ def run_roofline(ctx: RunContext) -> float:
         known = {}
     if str(ctx.threads) in known:
         return float(known[str(ctx.threads)])
-    previous = torch.get_num_threads()
-    try:
-        torch.set_num_threads(ctx.threads)
+    with torch_threads(ctx.threads):
         value = roofline_gmacs()
-    finally:
-        torch.set_num_threads(previous)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, json.dumps({**known, str(ctx.threads): value}))
     return value

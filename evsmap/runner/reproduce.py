@@ -197,16 +197,11 @@ def describe_sequence(ctx: RunContext, name: str) -> dict[str, Any]:
 def _estimator(ctx: RunContext) -> Estimator:
     """This machine's estimator (:mod:`evsmap.runner.estimate`), scaled by a calibration
     taken now with the run's threads."""
-    import torch
-
     from evsmap.measure.contention import calibration_gmacs
+    from evsmap.models.module_utils import torch_threads
 
-    previous = torch.get_num_threads()
-    try:
-        torch.set_num_threads(ctx.threads)
+    with torch_threads(ctx.threads):
         gmacs = calibration_gmacs()
-    finally:
-        torch.set_num_threads(previous)
     return Estimator.load(threads=ctx.threads, calibration_gmacs=gmacs, quick=ctx.quick)
 
 

@@ -24,13 +24,12 @@ lookup loads them as the segmenter registry loads its plug-ins.
 
 from __future__ import annotations
 
-import difflib
 import re
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from evsmap.errors import DuplicateNameError, UnknownNameError
+from evsmap.errors import DuplicateNameError, unknown_name
 
 if TYPE_CHECKING:
     from evsmap.segmenters.normalization import Normalization
@@ -194,11 +193,7 @@ class CardRegistry:
             return self._cards[name]
         except KeyError:
             pass
-        known = sorted(self._cards)
-        close = difflib.get_close_matches(name, known, n=1, cutoff=0.4)
-        hint = f"; did you mean {close[0]!r}?" if close else ""
-        raise UnknownNameError(f"unknown model card {name!r}{hint} (known: "
-                               f"{', '.join(known) or 'none registered'})") from None
+        raise unknown_name("model card", name, self._cards) from None
 
     def for_dataset(self, name: str, dataset: str | None) -> ModelCard:
         """Card ``name``, or its segmenter's card for ``dataset``'s label set when ``name``'s
