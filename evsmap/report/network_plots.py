@@ -13,14 +13,21 @@ import pandas as pd
 
 from evsmap.report.figure_base import empty_panel, new_figure, save_figure
 from evsmap.runner.records import CellRecord
+from evsmap.tables.schema import PaperTable, load_tables
 
 # ------------------------------------------------------------------------------- networks
-# (table, fps column, legend, marker)
-_SPEED_SERIES = (
-    ("table1", "fps", "Table I (640x480)", "o"),
-    ("table2", "fps_1024", "Table II (1024x512)", "s"),
-    ("table2", "fps_2048", "Table II (2048x1024)", "^"),
-)
+_MARKERS = ("o", "s", "^", "D", "v", "P")
+
+
+def speed_series(tables: Mapping[str, PaperTable] | None = None) -> list[tuple[str, str, str, str]]:
+    """``(table, fps column, legend, marker)`` of every FPS column of the networks' tables
+    (``role = "networks"``, default: the package's), in the tables' order."""
+    chosen = load_tables() if tables is None else tables
+    columns = [(tid, t.number, c) for tid, t in chosen.items() if t.role == "networks"
+               for c in t.columns if c.quantity == "fps"]
+    return [(tid, c.id, f"Table {number}" + (f" ({c.input_size[1]}x{c.input_size[0]})"
+                                             if c.input_size else ""),
+             _MARKERS[i % len(_MARKERS)]) for i, (tid, number, c) in enumerate(columns)]
 
 
 def _value(cells: Mapping[str, Mapping[str, Any]], col: str, which: str) -> float | None:
@@ -30,8 +37,8 @@ def _value(cells: Mapping[str, Mapping[str, Any]], col: str, which: str) -> floa
     return float(line[which])
 
 
-def network_points(frames: Mapping[str, pd.DataFrame],
-                   records: Iterable[CellRecord] = ()) -> list[dict[str, Any]]:
+def network_points(frames: Mapping[str, pd.DataFrame], records: Iterable[CellRecord] = (),
+                   tables: Mapping[str, PaperTable] | None = None) -> list[dict[str, Any]]:
     """Rows of Tables I/II with a measured FPS: the measured and printed FPS, the timing's
     calibration and the FLOPs (G) for each speed column (``frames``:
     :func:`~evsmap.report.tables.table_frame` by table id). ``flops`` is the speed record's
@@ -44,7 +51,7 @@ def network_points(frames: Mapping[str, pd.DataFrame],
             for col in rec.metrics:
                 timed_macs[(rec.table, rec.row, col)] = float(macs) / 1e9
     points = []
-    for tid, fps_col, legend, marker in _SPEED_SERIES:
+    for tid, fps_col, legend, marker in speed_series(tables):
         frame = frames.get(tid)
         if frame is None or frame.empty:
             continue
