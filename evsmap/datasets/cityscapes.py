@@ -38,9 +38,9 @@ from evsmap.datasets.common import (
     apply_limit,
     check_limit,
     check_shape,
-    check_split,
     make_manifest,
     manifest_name,
+    open_prepared,
     read_id_list,
     read_json,
     read_label_png,
@@ -165,11 +165,7 @@ class CityscapesSequence(SegmentationSequence):
 
     def __init__(self, *, path: str | Path, split: str = "all", limit: int | None = None,
                  resolution: str = DEFAULT_RESOLUTION) -> None:
-        root = Path(path)
-        if not root.is_dir():
-            raise DataFormatError(f"{root}: not a folder")
-        check_split(split, SPLITS, NAME)
-        check_limit(limit)
+        root = open_prepared(path, split, limit, SPLITS, NAME)
         self.size = check_resolution(resolution)
         manifest = read_manifest(root)
         if manifest is not None and manifest.get("name") != NAME:

@@ -60,6 +60,18 @@ def check_limit(limit: int | None) -> int | None:
     return int(limit)
 
 
+def open_prepared(path: str | Path, split: str, limit: int | None, splits: Iterable[str],
+                  dataset: str) -> Path:
+    """A prepared dataset's folder, with its reader's ``split`` and ``limit`` checked; one-line
+    errors."""
+    root = Path(path)
+    if not root.is_dir():
+        raise DataFormatError(f"{root}: not a folder")
+    check_split(split, splits, dataset)
+    check_limit(limit)
+    return root
+
+
 def apply_limit(items: list[T], limit: int | None) -> list[T]:
     """The first ``limit`` items (all of them for ``None``)."""
     limit = check_limit(limit)

@@ -36,10 +36,10 @@ from evsmap.datasets.common import (
     apply_limit,
     check_limit,
     check_shape,
-    check_split,
     is_hdf5,
     load_mat,
     make_manifest,
+    open_prepared,
     read_id_list,
     read_label_png,
     read_manifest,
@@ -88,11 +88,7 @@ class NYUv2Sequence(SegmentationSequence):
     """
 
     def __init__(self, *, path: str | Path, split: str = "all", limit: int | None = None) -> None:
-        root = Path(path)
-        if not root.is_dir():
-            raise DataFormatError(f"{root}: not a folder")
-        check_split(split, SPLITS, NAME)
-        check_limit(limit)
+        root = open_prepared(path, split, limit, SPLITS, NAME)
         for sub in (RGB_DIR, DEPTH_DIR, LABEL_DIR):
             require_dir(root / sub, f"NYUv2 {sub}")
         manifest = read_manifest(root)

@@ -42,12 +42,12 @@ from evsmap.datasets.common import (
     check_frame_id,
     check_limit,
     check_shape,
-    check_split,
     is_hdf5,
     load_mat,
     loadmat_checked,
     make_manifest,
     mat_strings,
+    open_prepared,
     read_h5_array,
     read_label_png,
     read_manifest,
@@ -119,11 +119,7 @@ class SUNRGBDSequence(SegmentationSequence):
     """
 
     def __init__(self, *, path: str | Path, split: str = "all", limit: int | None = None) -> None:
-        root = Path(path)
-        if not root.is_dir():
-            raise DataFormatError(f"{root}: not a folder")
-        check_split(split, SPLITS, NAME)
-        check_limit(limit)
+        root = open_prepared(path, split, limit, SPLITS, NAME)
         manifest = read_manifest(root)
         if manifest is not None and manifest.get("name") != NAME:
             raise DataFormatError(f"{root}: the manifest says dataset {manifest.get('name')!r}, "
