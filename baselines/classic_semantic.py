@@ -107,6 +107,7 @@ def _publish(updater: ClassicSemanticMap, tree: Tree):
     ``getSemanticColor``: white, 255/255/255, for a node without semantics), 8 bytes a node
     with the child mask; any OctoMap tool opens it. Inner nodes show the top class of their
     semantics here (the strongest child's; semantic_slam fuses the children)."""
+    assert tree.payload is not None  # a tree of this node type has its payload
     top = np.asarray(tree.payload["classes"])[:, 0].astype(np.int64)
     colours = np.full((len(top), 3), 255, dtype=np.uint8)
     known = top >= 0

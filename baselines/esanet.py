@@ -270,6 +270,7 @@ class LearnedUpsample2x(nn.Module):
         kernel = torch.outer(taps, taps) / 16.0
         with torch.no_grad():
             self.conv.weight.copy_(kernel.expand_as(self.conv.weight))
+            assert self.conv.bias is not None  # Conv2d's default bias=True
             self.conv.bias.zero_()
 
     def forward(self, x: Tensor) -> Tensor:

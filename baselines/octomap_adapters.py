@@ -55,7 +55,7 @@ class OctoMapAdapter(MapUpdater):
 
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
         if not self.color:  # only the points: OctoMap does all the rest itself
-            if frame.is_cloud:
+            if frame.points is not None:  # a point-cloud frame
                 cloud = transform_points(frame.points, frame.pose)
                 origin = frame.pose[:3, 3].copy()
             else:

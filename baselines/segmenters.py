@@ -70,7 +70,7 @@ def _esanet_card(dataset: str) -> ModelCard:
 
 def _fchardnet_card(dataset: str) -> ModelCard:
     size, classes, class_set = _DATASETS[dataset]
-    weights = ()
+    weights: tuple[WeightFile, ...] = ()
     if dataset == "cityscapes":
         weights = (WeightFile(
             name="hardnet70_cityscapes_model.pkl", dataset=dataset, layout=FCHARDNET,
@@ -92,8 +92,8 @@ CARDS: tuple[ModelCard, ...] = (*(_esanet_card(d) for d in _DATASETS),
                                 *(_fchardnet_card(d) for d in _DATASETS))
 """The baselines' model cards (registered in :data:`MODEL_CARDS`)."""
 
-for _card in CARDS:
-    MODEL_CARDS.add(_card)
+for _each in CARDS:
+    MODEL_CARDS.add(_each)
 
 _ESANET_DEPTH = {c.dataset: c.normalization for c in CARDS if c.segmenter == "esanet-r34-nbt1d"}
 """ESANet's normalisation per training set, from its cards (depth in the units of the files it

@@ -156,7 +156,13 @@ class MapUpdater(abc.ABC):
     """
 
     resolution: float
-    uses_semantics: ClassVar[bool] = False
+
+    @property
+    def uses_semantics(self) -> bool:
+        """Whether :meth:`integrate` reads the observation (False by default; a subclass sets
+        it as a class attribute, or as a property where its instances differ)."""
+        return False
+
     has_leaf_map: ClassVar[bool] = False
     """Whether :meth:`occupied_labels` can list the map's occupied leaves (evsmap's octree
     updaters); the map-quality metrics need it."""

@@ -209,7 +209,7 @@ def extract_tum(sample: Sample, archives: Mapping[str, Path], out: Path, work: P
     images: dict[str, tarfile.TarInfo] = {}
     try:
         with gzip.open(path, "rb") as gz, \
-                tarfile.open(fileobj=_BoundedReads(gz), mode="r:") as tf:  # type: ignore[call-overload]
+                tarfile.open(fileobj=_BoundedReads(gz), mode="r:") as tf:
             for member in tf:
                 check_member_name(path, member.name)
                 if not member.name.startswith(prefix):

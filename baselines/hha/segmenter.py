@@ -64,6 +64,8 @@ class HHASegmenter(NetworkSegmenter):
         """Normalised RGB and HHA (batch 1, float32) at the network's input size: HHA computed
         from ``frame.depth`` and ``frame.intrinsics`` (:func:`baselines.hha.encode_hha`)."""
         frame.require_images(f"segmenter {self.name!r}")
+        assert frame.rgb is not None and frame.depth is not None and \
+            frame.intrinsics is not None  # an image frame
         (rgb,) = network_inputs(frame.rgb, None, self.normalization, self.input_size)
         hha = encode_hha(frame.depth, frame.intrinsics)
         return rgb, hha_input(hha, self.input_size)

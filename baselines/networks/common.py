@@ -82,10 +82,11 @@ def _card(name: str, description: str, citation: str, dataset: str, setting: Dat
           depth: str | None, note: str) -> ModelCard:
     class_set, classes = _CLASSES[dataset]
     norm = setting.normalization or (RGB_ONLY if depth is None else INDOOR)
+    height, width = setting.input_size
     return ModelCard(
         name=f"{name}.{dataset}", segmenter=name, description=f"{description}; {dataset} "
         f"{setting.num_classes or classes} classes", citation=citation, dataset=dataset,
-        input_size=tuple(setting.input_size), num_classes=setting.num_classes or classes,
+        input_size=(height, width), num_classes=setting.num_classes or classes,
         class_set=class_set, uses_depth=depth is not None, normalization=norm,
         options=(("dataset", dataset),),
         published=tuple(PaperFigure(quantity=q, cell=c) for q, c in setting.published),

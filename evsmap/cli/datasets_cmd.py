@@ -234,7 +234,7 @@ def _describe(folder: Path) -> dict | None:
 
     if (folder / MANIFEST).is_file():
         try:
-            record = read_manifest(folder)
+            record = read_manifest(folder) or {}  # the file is there: not None
         except DataFormatError as exc:
             return {"path": str(folder), "name": None, "error": str(exc)}
         name, splits = record.get("name"), record.get("splits")

@@ -151,9 +151,9 @@ def choose_comparison(args: argparse.Namespace, data: dict[str, Any] | None,
         if root is None:
             raise EvsmapError(f"--against {args.against}: neither {args.baseline} nor evsmap is "
                               "in a git checkout, so there is no commit to measure")
-        commit = resolve_commit(root, args.against)
-        return Comparison("paired", f"--against {args.against}: commit {commit[:12]} measured "
-                                    "beside this tree", commit=commit, root=root)
+        resolved = resolve_commit(root, args.against)
+        return Comparison("paired", f"--against {args.against}: commit {resolved[:12]} measured "
+                                    "beside this tree", commit=resolved, root=root)
     if entry is not None:
         return Comparison("stored", f"the baseline has figures of this machine kind ({this}), "
                                     f"recorded {entry.get('updated', '?')} at commit "

@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     precision = {} if segmenter is None else apply_precision(
         args, segmenter, sequence, count=args.frames, what="map")
     count = len(sequence) if args.frames is None else min(args.frames, len(sequence))
-    if segmenter is not None:
+    if seg_name is not None:  # a segmenter runs
         announce_weights(args, seg_name, weights_record, command="evsmap map",
                          depends=updater.uses_semantics, noise=_NOISE)
     survey = _survey(sequence, count, args.max_range, skip_bad=args.skip_bad)

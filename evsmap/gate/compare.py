@@ -109,7 +109,7 @@ def compare(baseline: dict[str, dict[str, Any]], measured: dict[str, dict[str, A
     for name in sorted(set(baseline) | set(measured)):
         base, rec = baseline.get(name), measured.get(name)
         if rec is None or "error" in rec or "skipped" in rec:
-            why = ("not measured" if rec is None else rec.get("error") or rec.get("skipped"))
+            why = "not measured" if rec is None else _not_measured(rec)
             if base is None:  # neither baselined nor measurable here: say so, do not fail
                 rows.append(Row(name, "-", None, None, None, "skipped", why))
             else:
@@ -135,6 +135,11 @@ def compare(baseline: dict[str, dict[str, Any]], measured: dict[str, dict[str, A
             rows.append(row)
         rows += _count_rows(name, base, now, same_machine=same_machine)
     return rows
+
+
+def _not_measured(record: dict[str, Any]) -> str:
+    """Why a worker record holds no figures: its error, else why it was skipped."""
+    return record.get("error") or record.get("skipped") or ""
 
 
 def _count_rows(name: str, base: dict[str, Any], now: dict[str, Any], *,
@@ -177,8 +182,7 @@ def compare_paired(pairs: dict[str, list[tuple[dict[str, Any], dict[str, Any]]]]
         refs, nows = [p[0] for p in pairs[name]], [p[1] for p in pairs[name]]
         ref, now = combine(refs), combine(nows)
         if "error" in now or "skipped" in now:  # the reference has it: like a baselined one
-            rows.append(Row(name, "-", "measured", None, None, "FAIL",
-                            now.get("error") or now.get("skipped")))
+            rows.append(Row(name, "-", "measured", None, None, "FAIL", _not_measured(now)))
         elif "error" in ref or "skipped" in ref:
             rows.append(Row(name, "-", None, "measured", None, "not compared",
                             "the reference could not measure it: "

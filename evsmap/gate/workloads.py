@@ -32,11 +32,16 @@ import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
 from evsmap.errors import EvsmapError
+
+if TYPE_CHECKING:  # torch is heavy to import; only type checkers need it here
+    import torch
+
+    from evsmap.interfaces import MapUpdater
 
 NETWORK_SIZE = (480, 640)
 RESOLUTIONS = {"5cm": 0.05, "2cm": 0.02}
@@ -157,13 +162,23 @@ class Job(abc.ABC):
         return {}
 
 
+_T = TypeVar("_T")
+
+
+def last_run(value: _T | None) -> _T:
+    """What :meth:`Job.run` left (its output, its map); refuses a job that has not run."""
+    if value is None:
+        raise EvsmapError("a job's counts were asked for before it ran")
+    return value
+
+
 # -- networks -------------------------------------------------------------------------------
 
 
 class TorchForward(Job):
     def __init__(self, name: str, context: dict[str, Any]) -> None:
         self.name = name
-        self.output = None
+        self.output: torch.Tensor | None = None
 
     def build(self) -> None:
         import torch
@@ -172,6 +187,8 @@ class TorchForward(Job):
 
         torch.manual_seed(0)
         self.segmenter = SEGMENTERS.create(self.name)
+        if self.segmenter.module is None:
+            raise EvsmapError(f"segmenter {self.name!r} is not a network")
         self.module = self.segmenter.module.eval()
         self.inputs = self.segmenter.example_inputs(*NETWORK_SIZE)
 
@@ -185,7 +202,7 @@ class TorchForward(Job):
         from evsmap.measure.complexity import count_parameters, measure_complexity
 
         flops = measure_complexity(self.module, self.inputs).flops
-        labels = self.output[0].argmax(0).numpy().astype(np.int16)
+        labels = last_run(self.output)[0].argmax(0).numpy().astype(np.int16)
         return {"params": count_parameters(self.module), "flops": int(flops),
                 "output_sha256": digest(labels)}
 
@@ -198,7 +215,7 @@ class OnnxForward(Job):
         self.path = Path(info["onnx"])
         self.uses_depth = bool(info["uses_depth"])
         self.threads = int(context.get("threads", 1))
-        self.output = None
+        self.output: np.ndarray | None = None
 
     def build(self) -> None:
         import onnxruntime as ort
@@ -220,7 +237,7 @@ class OnnxForward(Job):
 
     def counts(self) -> dict[str, Any]:
         return {"onnx_bytes": self.path.stat().st_size,
-                "output_sha256": digest(self.output[0].argmax(0).astype(np.int16))}
+                "output_sha256": digest(last_run(self.output)[0].argmax(0).astype(np.int16))}
 
 
 # -- map updaters and the map command -----------------------------------------------------------
@@ -251,7 +268,7 @@ class Integrate(Job):
         self.sequence = in_memory(self.frames, "tum-fr1-xyz (gate frames)")
         self.name = name
         self.resolution = resolution
-        self.updater = None
+        self.updater: MapUpdater | None = None
 
     def warm(self) -> None:
         from evsmap.registry import UPDATERS
@@ -275,10 +292,11 @@ class Integrate(Job):
     def counts(self) -> dict[str, Any]:
         from evsmap.measure.mapping import write_map
 
-        stats = self.updater.stats()
+        updater = last_run(self.updater)
+        stats = updater.stats()
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "map.ot"
-            file_bytes = write_map(self.updater, path, "published")
+            file_bytes = write_map(updater, path, "published")
             file_sha = digest(path.read_bytes())
         return {"nodes": int(stats.nodes), "leaves": int(stats.leaves),
                 "file_bytes": int(file_bytes), "file_sha256": file_sha}

@@ -87,12 +87,12 @@ def check(claim: Claim, frame: pd.DataFrame) -> dict:
     pa, pb = _paper(a), _paper(b)
     paper = pa / pb if pa is not None and pb else None
     ma, mb = _measured(a), _measured(b)
-    if ma is None or not mb:
+    ratio, raw = measured_ratio(a, b)
+    if ratio is None:  # ma is None or not mb
         missing = ([_why(a, claim.row)] if ma is None else []) + \
             ([_why(b, claim.base)] if not mb else [])
         return {"claim": claim.text, "measured": None, "raw": None, "paper": paper,
                 "verdict": "cannot be checked here", "why": "; ".join(missing)}
-    ratio, raw = measured_ratio(a, b)
     if claim.mode == "higher":
         holds = ratio > 1.0
     elif claim.mode == "lower":

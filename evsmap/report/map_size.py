@@ -33,8 +33,13 @@ def paper_ratios(seq_column: str = "size_seq1") -> dict[str, float]:
     from evsmap.tables.schema import mapping_table
 
     table = mapping_table()
-    return {name: table.cell(a, seq_column).value / table.cell(b, seq_column).value
-            for name, (a, b) in PAIRS.items()}
+
+    def size(row: str) -> float:
+        value = table.cell(row, seq_column).value
+        assert value is not None, f"Table IV prints a size for {row}"  # the pairs' rows do
+        return value
+
+    return {name: size(a) / size(b) for name, (a, b) in PAIRS.items()}
 
 
 def _runs(extras: Iterable[CellRecord]) -> dict[tuple[str, float], dict[str, CellRecord]]:

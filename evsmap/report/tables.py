@@ -230,8 +230,8 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                         if col.timing:
                             calibration = record_calibration(rec)
                             precision = _number((rec.details or {}).get("rel_ci"))
-            ratio = (measured / paper if measured is not None and paper not in (None, 0.0)
-                     else None)
+            ratio = (measured / paper if measured is not None and paper is not None
+                     and paper != 0.0 else None)
             lines.append({"table": table.id, "row": system.id, "label": system.label,
                           "column": col.id, "header": col.header, "unit": col.unit,
                           "measured": measured, "paper": paper,
@@ -460,7 +460,8 @@ def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
             title += f", voxel size {voxel:g} m"
         out += [title, ""]
         notes = Footnotes()
-        frames = {_number(r.values.get("frames")) for r in recs if r.status == "ok"} - {None}
+        frames = {n for n in (_number(r.values.get("frames")) for r in recs if r.status == "ok")
+                  if n is not None}
         if len(frames) == 1:
             out += [f"{int(frames.pop())} frames.", ""]
         headers = ["System"] + [h for _, h, _, _ in _EXTRA_PRINT]
@@ -472,8 +473,8 @@ def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
             if note:
                 label += f" {notes.ref(note)}"
             cells = [label]
-            for key, _, div, dec in _EXTRA_PRINT:
-                value = _number(rec.values.get(key)) if rec.status == "ok" else None
+            for value_key, _, div, dec in _EXTRA_PRINT:
+                value = _number(rec.values.get(value_key)) if rec.status == "ok" else None
                 if rec.status == "na":
                     cells.append("n/a")
                 elif rec.status == "error":

@@ -10,6 +10,7 @@ before the Table III row fit)."""
 
 from __future__ import annotations
 
+import functools
 from os import PathLike
 from typing import TYPE_CHECKING
 
@@ -42,29 +43,29 @@ def _figures(row: str, *columns: tuple[str, str], table: str = "table1",
 
 
 def _rgbd(name: str, label: str, init: str, row: str) -> tuple[ModelCard, ...]:
-    common = dict(segmenter=name, citation=PAPER, input_size=(480, 640), uses_depth=True,
-                  normalization=INDOOR)
+    card = functools.partial(ModelCard, segmenter=name, citation=PAPER, input_size=(480, 640),
+                             uses_depth=True, normalization=INDOOR)
     text = ("Section IV-C1: 'both versions of our FEAGNet reached 4.5M, with computational "
             "costs of 1.9 GFLOPs and 7.8 GFLOPs'")
     return (
-        ModelCard(name=name, description=f"{label} (EVSMaP): RGB-D{init}; NYUv2 40 classes",
-                  dataset="nyuv2", num_classes=40, class_set="nyuv2-40",
-                  published=_figures(row, ("miou", "miou_nyuv2"), ("params", "params"),
-                                     ("flops", "flops"), ("fps", "fps"), note=text),
-                  note=f"{_TABLE_I} {_NO_WEIGHTS}", **common),
-        ModelCard(name=f"{name}.sunrgbd",
-                  description=f"{label} (EVSMaP): RGB-D{init}; SUN RGB-D 37 classes",
-                  dataset="sunrgbd", num_classes=37, class_set="sunrgbd-37",
-                  options=(("num_classes", 37),),
-                  published=_figures(row, ("miou", "miou_sunrgbd")),
-                  note=f"{_TABLE_I} {_NO_WEIGHTS}", **common),
-        ModelCard(name=f"{name}.cityscapes",
-                  description=f"{label} (EVSMaP): RGB-D{init}; Cityscapes 19 classes",
-                  dataset="cityscapes", num_classes=19, class_set="cityscapes-19",
-                  options=(("num_classes", 19),),
-                  published=_figures(row, ("miou", "miou_1024"), ("params", "params"),
-                                     table="table2"),
-                  note=f"{_TABLE_II} {_NO_WEIGHTS}", **common),
+        card(name=name, description=f"{label} (EVSMaP): RGB-D{init}; NYUv2 40 classes",
+             dataset="nyuv2", num_classes=40, class_set="nyuv2-40",
+             published=_figures(row, ("miou", "miou_nyuv2"), ("params", "params"),
+                                ("flops", "flops"), ("fps", "fps"), note=text),
+             note=f"{_TABLE_I} {_NO_WEIGHTS}"),
+        card(name=f"{name}.sunrgbd",
+             description=f"{label} (EVSMaP): RGB-D{init}; SUN RGB-D 37 classes",
+             dataset="sunrgbd", num_classes=37, class_set="sunrgbd-37",
+             options=(("num_classes", 37),),
+             published=_figures(row, ("miou", "miou_sunrgbd")),
+             note=f"{_TABLE_I} {_NO_WEIGHTS}"),
+        card(name=f"{name}.cityscapes",
+             description=f"{label} (EVSMaP): RGB-D{init}; Cityscapes 19 classes",
+             dataset="cityscapes", num_classes=19, class_set="cityscapes-19",
+             options=(("num_classes", 19),),
+             published=_figures(row, ("miou", "miou_1024"), ("params", "params"),
+                                table="table2"),
+             note=f"{_TABLE_II} {_NO_WEIGHTS}"),
     )
 
 

@@ -14,6 +14,7 @@ validator (:mod:`evsmap.tables.models`) prefixes with the cell's place.
 
 from __future__ import annotations
 
+import functools
 import re
 
 from evsmap.tables.records import BLANK, CHECK, MARKS, Cell, Column
@@ -27,7 +28,8 @@ def not_a_number(printed: str) -> str:
 
 def split_marks(printed: str) -> tuple[str, tuple[str, ...]]:
     """``"7.9†"`` -> ``("7.9", ("†",))``: the text without its trailing marks, and the marks."""
-    text, marks = printed, []
+    text = printed
+    marks: list[str] = []
     while text and any(text.endswith(m) for m in MARKS):
         mark = next(m for m in MARKS if text.endswith(m))
         marks.insert(0, mark)
@@ -43,14 +45,15 @@ def make_cell(table: str, row: str, column: Column, printed: str, *, bold: bool 
         ValueError: a flag column holds something other than a check mark or nothing, or a
             number column something that is not a number in its unit.
     """
-    base = dict(table=table, row=row, column=column.id, printed=printed, unit=column.unit,
-                bold=bold, hardware=hardware, note=note)
+    cell = functools.partial(Cell, table=table, row=row, column=column.id, unit=column.unit,
+                             bold=bold, hardware=hardware, note=note)
     if column.quantity == "flag":
         if printed not in (CHECK, ""):
             raise ValueError(f"a flag cell is {CHECK!r} or '', got {printed!r}")
-        return Cell(value=1.0 if printed == CHECK else 0.0, number=None, decimals=None, **base)
+        return cell(value=1.0 if printed == CHECK else 0.0, number=None, decimals=None,
+                    printed=printed)
     if printed == BLANK:
-        return Cell(value=None, number=None, decimals=None, **base)
+        return cell(value=None, number=None, decimals=None, printed=printed)
     text, marks = split_marks(printed)
     if column.unit and text.endswith(column.unit) and column.unit != "%":
         text = text[: -len(column.unit)]  # "4.5M" written with its unit
@@ -58,6 +61,5 @@ def make_cell(table: str, row: str, column: Column, printed: str, *, bold: bool 
     if not match:
         raise ValueError(not_a_number(printed))
     number = float(text)
-    base["printed"] = text + "".join(marks)
-    return Cell(value=number * column.scale, number=number, decimals=len(match.group(2) or ""),
-                marks=marks, **base)
+    return cell(value=number * column.scale, number=number, decimals=len(match.group(2) or ""),
+                marks=marks, printed=text + "".join(marks))

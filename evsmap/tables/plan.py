@@ -159,6 +159,7 @@ def expand(table: PaperTable, *, available: Iterable[str] | None = None,
             size = next((c.input_size for c in cols if c.input_size is not None), None)
             voxel = first.voxel_size
             timing = first.timing
+            weights_ds: str | None
             if kind == "mapping":
                 weights_ds = mapping_weights
             else:

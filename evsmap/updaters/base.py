@@ -17,26 +17,26 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import replace
 from os import PathLike
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, Self
 
 import numpy as np
 
-from evsmap.data import Frame, SemanticObservation
+from evsmap.data import Frame, Intrinsics, SemanticObservation
 from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.geometry import backproject, transform_points
 from evsmap.interfaces import FILE_FORMATS, MapStats, MapUpdater, PointQuery
 from evsmap.mapping.kernels import Kernels, check_kernels, depth_points, group_points
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
-from evsmap.mapping.node_type import OCTREE, NodeType
+from evsmap.mapping.node_type import OCTREE, InnerRule, NodeType
 from evsmap.mapping.occupancy import OccupancyMap, OccupancyParams
 from evsmap.mapping.raycast import scan_keys
 from evsmap.mapping.sensor_model import OCTOMAP
 from evsmap.mapping.threads import kernel_threads
-from evsmap.mapping.tree import Tree
+from evsmap.mapping.tree import Aggregator, Tree
 
 OCTOMAP_BASE_BYTES = 320
 """``sizeof(OcTreeBaseImpl)`` that OctoMap's ``memoryUsage`` adds once per tree (x86-64)."""
@@ -70,17 +70,18 @@ class FramePoints:
         self._frame = frame
         self._points: np.ndarray | None = None
         compiled = kernels == "compiled"
-        if frame.is_cloud:
+        if frame.points is not None:  # a point-cloud frame
             self.pixels = np.arange(len(frame.points))
             self._points = transform_points(frame.points, frame.pose)
             pts = self._points.astype(np.float32)
         elif compiled and depth_points is not None:
-            i = frame.intrinsics
-            self.pixels, pts = depth_points(frame.depth, i.fx, i.fy, i.cx, i.cy, frame.pose)
+            depth, i = _image(frame)
+            self.pixels, pts = depth_points(depth, i.fx, i.fy, i.cx, i.cy, frame.pose)
         else:
-            valid = frame.depth > 0
+            depth, i = _image(frame)
+            valid = depth > 0
             self.pixels = np.flatnonzero(valid)
-            self._points = backproject(frame.depth, frame.intrinsics, frame.pose, mask=valid)
+            self._points = backproject(depth, i, frame.pose, mask=valid)
             # the same float32 arithmetic as the ray casting (OctoMap's point3d)
             pts = self._points.astype(np.float32)
         self.origin = frame.pose[:3, 3].astype(np.float64)
@@ -110,9 +111,15 @@ class FramePoints:
     def points(self) -> np.ndarray:
         """(N, 3) float64 world coordinates of the points (computed on first use)."""
         if self._points is None:
-            f = self._frame
-            self._points = backproject(f.depth, f.intrinsics, f.pose, mask=f.depth > 0)
+            depth, intrinsics = _image(self._frame)
+            self._points = backproject(depth, intrinsics, self._frame.pose, mask=depth > 0)
         return self._points
+
+
+def _image(frame: Frame) -> tuple[np.ndarray, Intrinsics]:
+    """The depth image and camera of an image frame (a frame without ``points``)."""
+    assert frame.depth is not None and frame.intrinsics is not None  # an image frame
+    return frame.depth, frame.intrinsics
 
 
 _DENSE_BOX = 1 << 24
@@ -151,10 +158,12 @@ def check_observation(frame: Frame, observation: SemanticObservation | None,
         raise InvalidDataError(
             f"updater {updater!r} fuses semantics: give it a segmenter's observation "
             f"(e.g. --segmenter oracle)")
-    if observation.shape != frame.depth.shape:
+    frame.require_images(f"updater {updater!r}")
+    depth, _ = _image(frame)
+    if observation.shape != depth.shape:
         raise InvalidDataError(
             f"frame {frame.name!r}: observation is {observation.shape}, depth is "
-            f"{frame.depth.shape}")
+            f"{depth.shape}")
     return observation
 
 
@@ -184,8 +193,8 @@ class OctreeUpdater(MapUpdater):
             (:data:`~evsmap.mapping.kernels.Kernels`); the same map either way.
     """
 
-    name: ClassVar[str] = ""
-    node_type: ClassVar[NodeType] = OCTREE
+    name: str = ""
+    node_type: NodeType = OCTREE
     has_leaf_map: ClassVar[bool] = True
     front_end: ClassVar[str | None] = "direct"
 
@@ -231,7 +240,7 @@ class OctreeUpdater(MapUpdater):
         return self.node_type.tree_id
 
     @property
-    def uses_semantics(self) -> bool:  # type: ignore[override]
+    def uses_semantics(self) -> bool:
         return self.node_type.uses_semantics
 
     # -- the node type's parts, on this map ------------------------------------------------
@@ -258,7 +267,7 @@ class OctreeUpdater(MapUpdater):
         """Arrays that must be identical for 8 children to be pruned."""
         return [self.map.logodds] + [self.map.payload(n) for n in self.node_type.prune_on]
 
-    def _bound(self, rule):
+    def _bound(self, rule: InnerRule | None) -> Aggregator | None:
         return None if rule is None else functools.partial(rule, self)
 
     # -- MapUpdater ------------------------------------------------------------------------
@@ -293,7 +302,7 @@ class OctreeUpdater(MapUpdater):
                       or self.node_type.label is not None or self.node_type.colour is not None)
         return FILE_FORMATS if has_colour else ("full", "published")
 
-    def colour_only(self, tree: Tree) -> tuple[str, Tree, None]:
+    def colour_only(self, tree: Tree) -> tuple[str, Tree, np.dtype | None]:
         """The map as a ``ColorOcTree``: the node type's rule, else the VOC colour of each node's
         most likely class (white without one) for a semantic type, else its colour column."""
         from evsmap.mapping.generator import pack_rgb, unpack_rgb, voc_colormap
@@ -310,6 +319,7 @@ class OctreeUpdater(MapUpdater):
             packed = np.where(labels >= 0, table[np.maximum(labels, 0)], 0xFFFFFF)
             colours = unpack_rgb(packed)
         else:
+            assert nt.colour is not None  # file_formats() offers "colour" only then
             colours = np.asarray(columns[nt.colour], dtype=np.uint8)
         return "ColorOcTree", replace(tree, payload=colours), None
 
@@ -348,7 +358,8 @@ class OctreeUpdater(MapUpdater):
         from evsmap.mapping.tree import build_tree
 
         nt = self.node_type
-        pruned = nt.pruned if nt.pruned == "first" else self._bound(nt.pruned)
+        pruned: str | Aggregator = (nt.pruned if isinstance(nt.pruned, str)  # "first"
+                                    else functools.partial(nt.pruned, self))
         return build_tree(self.map.codes, np.asarray(self.map.logodds),
                           payload=self._payload_record(), equal_columns=self._equal_columns(),
                           inner_payload=self._bound(nt.inner), prune_payload=pruned)
@@ -414,7 +425,7 @@ class OctreeUpdater(MapUpdater):
         from evsmap.mapping.octree_io import ot_bytes
 
         tree = self.tree()
-        sizes = {}
+        sizes: dict[str, int | None] = {}
         for fmt in ("published", "colour"):
             if fmt in self.file_formats():
                 tree_id, t, rec = self._file_tree(tree, fmt)
@@ -427,7 +438,7 @@ class OctreeUpdater(MapUpdater):
                 "memory_bytes": int(tree.memory_bytes(node_bytes=self.node_type.node_bytes,
                                                       base_bytes=OCTOMAP_BASE_BYTES))}
 
-    def restore(self, path: str | PathLike[str]) -> OctreeUpdater:
+    def restore(self, path: str | PathLike[str]) -> Self:
         """Replace this map by the one saved in ``path`` (an ``.ot`` this updater wrote), so
         mapping continues from it; returns ``self``.
 
@@ -451,8 +462,8 @@ class OctreeUpdater(MapUpdater):
         from evsmap.mapping.octree_io import read_ot
 
         fmt = self.node_type.record
-        tree_id, resolution, tree = read_ot(path, payload_format=None if fmt is None
-                                            else {self.tree_id: fmt})
+        formats: Mapping[str, np.dtype] | None = None if fmt is None else {self.tree_id: fmt}
+        tree_id, resolution, tree = read_ot(path, payload_format=formats)
         if tree_id != self.tree_id:
             raise DataFormatError(f"{path}: a {tree_id} file, not a {self.tree_id} map")
         # OctoMap writes "res" with 6 digits: a float resolution (0.05f) comes back as 0.05

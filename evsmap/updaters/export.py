@@ -146,7 +146,12 @@ def export_ply(updater, path: str | os.PathLike[str], *, color_by: str | None = 
     """
     color_by = check_color_by(updater, color_by)
     centres, rgb, labels = occupied_points(updater)
-    colors = rgb if color_by == "rgb" else class_colors(labels)
+    if color_by == "rgb":
+        assert rgb is not None  # check_color_by: the map stores colours
+        colors = rgb
+    else:
+        assert labels is not None  # check_color_by: the map stores classes
+        colors = class_colors(labels)
     if not len(centres):
         raise InvalidDataError(f"{path}: the map has no occupied voxels, nothing to export")
     _write_point_cloud(Path(path), centres, colors)

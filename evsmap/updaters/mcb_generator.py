@@ -175,10 +175,17 @@ def _pruned(updater: GeneratorMultiClassBayesMap, child: np.ndarray, group: np.n
     return out
 
 
-def _publish(updater: GeneratorMultiClassBayesMap, tree: Tree):
+def _payload(tree: Tree) -> np.ndarray:
+    """The tree's payload records (every tree of this node type has them)."""
+    assert tree.payload is not None, "a tree of the generator's node type has a payload"
+    return tree.payload
+
+
+def _publish(updater: GeneratorMultiClassBayesMap, tree: Tree
+             ) -> tuple[str, Tree, np.dtype | None]:
     """SSMI's ``writeData`` (semantic colour and semantics) under ``getTreeType()``'s id."""
     rec = np.zeros(tree.num_nodes, dtype=PUBLISHED)
-    pay = tree.payload
+    pay = _payload(tree)
     rec["color"] = unpack_rgb(pay["colors"][:, 0])
     rec["slots"]["color"] = unpack_rgb(pay["colors"])
     rec["slots"]["logodds"] = pay["logodds"]
@@ -186,9 +193,10 @@ def _publish(updater: GeneratorMultiClassBayesMap, tree: Tree):
     return "ColorOcTree", replace(tree, payload=rec), PUBLISHED
 
 
-def _colour_only(updater: GeneratorMultiClassBayesMap, tree: Tree):
+def _colour_only(updater: GeneratorMultiClassBayesMap, tree: Tree
+                 ) -> tuple[str, Tree, np.dtype | None]:
     """``writeData`` with ``write_semantics`` off: value and the top semantic colour."""
-    colours = unpack_rgb(tree.payload["colors"][:, 0])
+    colours = unpack_rgb(_payload(tree)["colors"][:, 0])
     return "ColorOcTree", replace(tree, payload=colours), None
 
 
@@ -306,7 +314,7 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
         tree = super()._build_tree()
         if tree.num_nodes:
             inner = np.flatnonzero(tree.child_mask != 0)
-            pay = tree.payload[inner]
+            pay = _payload(tree)[inner]
             value = tree.value.copy()
             value[inner] = occupancies(np.ascontiguousarray(pay["colors"], np.uint32),
                                        np.ascontiguousarray(pay["logodds"], np.float32),

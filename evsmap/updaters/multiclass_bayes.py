@@ -239,7 +239,8 @@ def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBaye
     from evsmap.mapping.keys import TREE_DEPTH
     from evsmap.mapping.octree_io import read_ot
 
-    saved = read_ot(path, payload_format={TREE_ID: PAYLOAD_FORMAT})
+    formats: dict[str, np.dtype] = {TREE_ID: PAYLOAD_FORMAT}
+    saved = read_ot(path, payload_format=formats)
     resolution, tree = saved.resolution, saved.tree
     depth = tree.leaves()[0].astype(np.float64)
     voxels = float(np.sum(8.0 ** (TREE_DEPTH - depth)))
