@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 from runner_fixtures import Inline
 
+import evsmap.runner.mapping_cells as mapping_cells
 import evsmap.runner.matrix as matrix
 from evsmap.cli.main import main
 from evsmap.runner.records import CellRecord
@@ -36,7 +37,7 @@ def fake_cells(monkeypatch):
     monkeypatch.setattr(matrix, "execute_mapping", execute_mapping)
     monkeypatch.setattr(matrix, "_spawn_pool", Inline)
     monkeypatch.setattr(matrix, "_fresh_executor", Inline)
-    monkeypatch.setattr(matrix, "_unlabelled", lambda *a: False)
+    monkeypatch.setattr(mapping_cells, "_unlabelled", lambda *a: False)
 
 
 def _records(out):
