@@ -42,6 +42,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from evsmap.fileio import renamed_keys
 from evsmap.gitinfo import head_commit
 
 VECTOR_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512_vnni",
@@ -182,12 +183,7 @@ def read_environment(stored: Mapping[str, Any]) -> dict[str, Any]:
     """A stored record of machine facts with :func:`collect_environment`'s keys: the
     :data:`LEGACY_KEYS` renamed (the new key wins where both are present) and top-level library
     versions moved into ``versions``. Other keys are kept as they are."""
-    out: dict[str, Any] = {}
-    for key, value in stored.items():
-        new = LEGACY_KEYS.get(key, key)
-        if new != key and new in stored:
-            continue
-        out[new] = value
+    out = renamed_keys(stored, LEGACY_KEYS)
     versions = dict(out.get("versions") or {})
     for name in (*LIBRARIES, *OTHER_DISTRIBUTIONS):
         if name in out:

@@ -19,7 +19,7 @@ import errno
 import os
 import secrets
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -212,3 +212,16 @@ def read_json_object(path: str | os.PathLike[str]) -> dict:
     except (OSError, ValueError):
         return {}
     return data if isinstance(data, dict) else {}
+
+
+def renamed_keys(data: Mapping[str, Any], old_keys: Mapping[str, str]) -> dict[str, Any]:
+    """A stored record ``data`` with the keys it was written under renamed by ``old_keys``
+    (old -> current; a key already present under its current name wins); the order is kept.
+    The one rule by which evsmap reads files written before a key was renamed."""
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        new = old_keys.get(key, key)
+        if new != key and new in data:
+            continue
+        out[new] = value
+    return out

@@ -12,6 +12,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, Final
 
+from evsmap import fileio
+
 OLD_KEYS: Final[Mapping[str, str]] = {
     "hz_median": "update_hz",
     "hz_segment_update": "segment_update_hz",
@@ -26,12 +28,6 @@ record is read (:meth:`evsmap.runner.records.CellRecord.from_json`)."""
 
 
 def renamed_keys(data: Mapping[str, Any]) -> dict[str, Any]:
-    """``data`` with each key of :data:`OLD_KEYS` renamed (a key already under its new name
-    wins); the order of the keys is kept."""
-    out: dict[str, Any] = {}
-    for key, value in data.items():
-        new = OLD_KEYS.get(key, key)
-        if new != key and new in data:
-            continue
-        out[new] = value
-    return out
+    """``data`` with each key of :data:`OLD_KEYS` renamed
+    (:func:`evsmap.fileio.renamed_keys`: a key already under its new name wins, order kept)."""
+    return fileio.renamed_keys(data, OLD_KEYS)
