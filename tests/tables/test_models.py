@@ -100,3 +100,19 @@ def test_the_file_loads_without_the_registries():
             "for m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+# the tables' rules (role, baseline, claims) are validated like the rest of the file
+def _second_mapping(d):
+    d["tables"]["table2"]["role"] = "mapping"
+
+
+def test_rules_that_name_nothing_are_one_line(raw):
+    assert "baseline 'nope' is not a row" in _error(
+        raw, lambda d: d["tables"]["table1"].update(baseline="nope"))
+    assert "no such column 'fast'" in _error(
+        raw, lambda d: d["tables"]["table1"]["claims"][0].update(column="fast"))
+    assert "a claim needs the table's baseline" in _error(
+        raw, lambda d: d["tables"]["table1"].pop("baseline"))
+    assert "only one table may have role 'mapping'" in _error(raw, _second_mapping)
+    assert "role" in _error(raw, lambda d: d["tables"]["table1"].update(role="maps"))

@@ -3,28 +3,16 @@ code asks the loaded tables, and a rule that names no row of its table is one li
 
 from __future__ import annotations
 
-import copy
-import tomllib
-
 import pytest
 
 from evsmap.tables.claims import BASELINES, CLAIMS, OWN_TABLES, claims_first
 from evsmap.tables.schema import (
-    TableSchemaError,
-    default_path,
     load_tables,
     mapping_table,
     mapping_table_id,
-    parse_tables,
     table_ids,
     table_numbers,
 )
-
-
-@pytest.fixture(scope="module")
-def raw():
-    with open(default_path(), "rb") as f:
-        return tomllib.load(f)
 
 
 def test_the_tables_say_what_they_are():
@@ -59,28 +47,3 @@ def test_mapping_table_among_given_tables():
     with pytest.raises(KeyError):
         mapping_table(networks)
     assert mapping_table_id(tables) == mapping_table().id
-
-
-def _error(raw, edit) -> str:
-    data = copy.deepcopy(raw)
-    edit(data)
-    with pytest.raises(TableSchemaError) as info:
-        parse_tables(data, source="paper_tables.toml")
-    message = str(info.value)
-    assert "\n" not in message and message.startswith("paper_tables.toml: ")
-    return message
-
-
-def _second_mapping(d):
-    d["tables"]["table2"]["role"] = "mapping"
-
-
-def test_rules_that_name_nothing_are_one_line(raw):
-    assert "baseline 'nope' is not a row" in _error(
-        raw, lambda d: d["tables"]["table1"].update(baseline="nope"))
-    assert "no such column 'fast'" in _error(
-        raw, lambda d: d["tables"]["table1"]["claims"][0].update(column="fast"))
-    assert "a claim needs the table's baseline" in _error(
-        raw, lambda d: d["tables"]["table1"].pop("baseline"))
-    assert "only one table may have role 'mapping'" in _error(raw, _second_mapping)
-    assert "role" in _error(raw, lambda d: d["tables"]["table1"].update(role="maps"))
