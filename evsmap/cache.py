@@ -18,6 +18,9 @@ tables, plots and small artifacts:
 * ``gate/`` - what ``evsmap gate --against REF`` keeps per reference commit (its ONNX exports
   and other caches, ``gate/reference/<commit>``) and the virtual environments of references
   whose lock differs from this tree's (``gate/envs/<lock digest>``);
+* ``explore/`` - the paired baseline maps of ``evsmap explore``'s trials (sizes and 3D quality,
+  exact), keyed by the baseline, the shared settings, the observations and the code's digests
+  (:mod:`evsmap.explore.bench`);
 * ``calibration.json`` - the best calibration each machine has shown
   (:mod:`evsmap.measure.contention`).
 
@@ -32,7 +35,7 @@ import shutil
 from pathlib import Path
 
 CACHE_ENV = "EVSMAP_CACHE_DIR"
-KINDS = ("onnx", "complexity", "segmentation", "sequences", "gate")
+KINDS = ("onnx", "complexity", "segmentation", "sequences", "gate", "explore")
 
 
 def cache_root() -> Path:

@@ -32,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
         complexity_cmd,
         datasets_cmd,
         eval_cmd,
+        explore_cmd,
         gate_cmd,
         info_cmd,
         list_cmd,
@@ -54,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd,
                    map_cmd, datasets_cmd, eval_cmd, report_cmd, weights_cmd,
-                   predict_cmd, train_cmd, cache_cmd, gate_cmd):
+                   predict_cmd, train_cmd, cache_cmd, gate_cmd, explore_cmd):
         module.add_parser(sub)
     return parser
 
