@@ -80,6 +80,15 @@ def reproduce(session: nox.Session) -> None:
 
 
 @nox.session
+def explore(session: nox.Session) -> None:
+    """`evsmap explore`: the design-space study of EVSMaP's map (docs/explore.md); extra
+    arguments are passed on (default: `--out reports/explore`, 40 trials on the synthetic room)."""
+    _install(session, extras="test")
+    args = list(session.posargs) or ["--out", "reports/explore"]
+    session.run("evsmap", "explore", *args)
+
+
+@nox.session
 def fetch(session: nox.Session) -> None:
     """`evsmap datasets fetch`: real sample data (`nox -s fetch -- tum-fr1-xyz`; alone: a list)."""
     _install(session)

@@ -165,34 +165,53 @@ def _request(args: argparse.Namespace) -> Any:
                    space=space, inputs=inputs, inputs_given=given)
 
 
+def _listed(options: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v}" for k, v in sorted(options.items()))
+
+
 def _header(opened: Any, request: Any, elapsed: str) -> dict[str, str]:
+    """The study's facts, printed first in its index.md."""
     from evsmap.environment import collect_environment
 
-    config, space = opened.config, opened.space
-    inputs = config.inputs
-    seq = inputs["sequence"] + (f" ({', '.join(f'{k}={v}' for k, v in sorted(inputs['reader_options'].items()))})"  # noqa: E501
-                                if inputs["reader_options"] else "")
-    seg = inputs["segmenter"] + (f" ({', '.join(f'{k}={v}' for k, v in sorted(inputs['segmenter_options'].items()))})"  # noqa: E501
-                                 if inputs["segmenter_options"] else " (its defaults)")
+    space, inputs = opened.space, opened.config.inputs
+    sequence = inputs["sequence"]
+    if inputs["reader_options"]:
+        sequence += f" ({_listed(inputs['reader_options'])})"
+    if inputs.get("frames"):
+        sequence += f", first {inputs['frames']} frames"
+    options = _options(inputs["segmenter"], inputs["segmenter_options"])
+    segmenter = f"{inputs['segmenter']} ({options})"
     if inputs.get("weights"):
-        seg += f", weights {inputs['weights']}"
+        segmenter += f", weights {inputs['weights']}"
+    sampler = f"{space.sampler} (seed {space.seed}; " + (
+        f"population {space.population})" if space.sampler == "nsga2"
+        else f"{space.startup_trials} random trials first)")
     env = collect_environment()
-    sampler = (f"{space.sampler} (seed {space.seed}; "
-               + (f"population {space.population}" if space.sampler == "nsga2"
-                  else f"{space.startup_trials} random trials first") + ")")
-    return {"space": f"{space.path} (explored: {space.updater}; baseline: {space.baseline or 'none'};"
-                     f" reference: {space.reference})",
-            "sequence": seq + (f", first {inputs['frames']} frames" if inputs.get("frames")
-                               else ""),
-            "segmenter": seg,
-            "objectives the sampler steers by": ", ".join(f"{o.name} ({o.direction})"
-                                                          for o in space.objectives),
-            "sampler": sampler,
-            "target": f"{config.trials} complete trials",
-            "storage": request.storage + f", study {request.study!r}",
+    return {"space": f"{space.path} (explored: {space.updater}; baseline: "
+                     f"{space.baseline or 'none'}; reference: {space.reference})",
+            "sequence": sequence, "segmenter": segmenter,
+            "objectives the sampler steers by": ", ".join(
+                f"{o.name} ({o.direction})" for o in space.objectives),
+            "sampler": sampler, "target": f"{opened.config.trials} complete trials",
+            "storage": f"{request.storage}, study {request.study!r}",
             "machine": f"{env['cpu']}, {env['instruction_set']}, {env['cpus']} CPUs "
-                       f"(timings are ratios to OctoMap C++ in the same process)",
+                       f"(the rates are ratios to OctoMap C++ timed in the same process)",
             "this command": elapsed}
+
+
+def _options(segmenter: str, given: dict[str, Any]) -> str:
+    """The segmenter's options as it ran: those given, then its defaults (the oracle's accuracy
+    is stated this way)."""
+    import inspect
+
+    from evsmap.registry import SEGMENTERS
+
+    params = SEGMENTERS.get(segmenter).parameters() if segmenter in SEGMENTERS else {}
+    values = {k: p.default for k, p in params.items()
+              if p.default is not inspect.Parameter.empty and k not in ("weights", "backend")
+              and isinstance(p.default, (int, float, str, bool))}
+    values.update(given)
+    return ", ".join(f"{k}={v}" for k, v in values.items()) or "no options"
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -207,8 +226,10 @@ def run_command(args: argparse.Namespace) -> int:
         from evsmap.runner.ray_executor import import_ray
 
         import_ray()  # a missing Ray is a usage error, before the study is made
-    args.out.mkdir(parents=True, exist_ok=True)
+    if args.storage is None:  # the study's SQLite file goes in the folder
+        args.out.mkdir(parents=True, exist_ok=True)
     opened = open_study(request)
+    args.out.mkdir(parents=True, exist_ok=True)
     again = f"evsmap explore --out {args.out} --resume" + (
         f" --storage {args.storage}" if args.storage else "") + (
         f" --study {args.study}" if args.study else "")
@@ -235,4 +256,10 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def _say(line: str) -> None:
-    print(line, file=sys.stderr if sys.stderr.isatty() else sys.stdout, flush=True)
+    """A line of progress: on a terminal above the progress bar, else on stdout."""
+    if sys.stderr.isatty():
+        from tqdm import tqdm
+
+        tqdm.write(line, file=sys.stderr)
+    else:
+        print(line, flush=True)

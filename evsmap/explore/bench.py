@@ -142,11 +142,16 @@ class Bench:
         return self._observations
 
     def has_truth(self) -> bool:
+        """The sequence has ground-truth voxels (the synthetic scenes, a synthrooms room)."""
         return callable(getattr(self.sequence, "ground_truth", None))
 
     def truth(self, resolution: float) -> Any:
+        """The ground-truth voxels at ``resolution`` (made once per resolution)."""
         if resolution not in self._truth:
-            self._truth[resolution] = getattr(self.sequence, "ground_truth")(resolution)
+            make = getattr(self.sequence, "ground_truth", None)
+            if make is None:
+                raise EvsmapError(f"{self.inputs.sequence}: no ground-truth voxels")
+            self._truth[resolution] = make(resolution)
         return self._truth[resolution]
 
     # ---- one trial

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from evsmap.explore.bench import Bench, Inputs
 from evsmap.explore.space import Space
 from evsmap.explore.study import (
+    ATTR,
     StudyConfig,
     StudyError,
     Worker,
@@ -33,6 +34,12 @@ from evsmap.explore.study import (
 
 if TYPE_CHECKING:
     import optuna
+
+
+INPUT_OPTIONS = {"sequence": "--sequence", "reader": "--reader", "reader_options": "-r",
+                 "frames": "--frames", "segmenter": "--segmenter", "segmenter_options": "-s",
+                 "weights": "--weights"}
+"""The command-line option of each :class:`~evsmap.explore.bench.Inputs` field."""
 
 
 @dataclass(frozen=True)
@@ -62,10 +69,14 @@ class Request:
 
 @dataclass
 class Opened:
+    """An open study: its storage, the study, its space and what it was made with; ``target``
+    the complete trials this command runs it to (0: none, the report only)."""
+
     storage: Any
     study: optuna.Study
     space: Space
     config: StudyConfig
+    target: int = 0
 
 
 def open_study(request: Request) -> Opened:
@@ -77,7 +88,7 @@ def open_study(request: Request) -> Opened:
         config = StudyConfig(request.space.text, request.space.path, request.inputs.as_dict(),
                              request.trials)
         study = create_study(storage, request.study, request.space, config)
-        return Opened(storage, study, request.space, config)
+        return Opened(storage, study, request.space, config, request.trials)
     study = load_study(storage, request.study)
     config = stored_config(study)
     space = space_of(config)
@@ -88,15 +99,16 @@ def open_study(request: Request) -> Opened:
     for name in request.inputs_given:
         given, stored = getattr(request.inputs, name), config.inputs.get(name)
         if given != stored:
-            raise StudyError(f"--{name.replace('_', '-')}: the study was made with "
+            raise StudyError(f"{INPUT_OPTIONS[name]}: the study was made with "
                              f"{stored!r}, not {given!r}; leave it out to resume")
-    if request.trials is not None and request.trials != config.trials:
+    if request.trials and request.trials != config.trials:  # 0: the report only
         config = StudyConfig(config.space_text, config.space_path, config.inputs,
                              request.trials)
-        study.set_user_attr("evsmap_explore", config.as_dict())
+        study.set_user_attr(ATTR, config.as_dict())
     fail_stale(study, storage)
     enqueue_defaults(study, space)
-    return Opened(storage, study, space, config)
+    return Opened(storage, study, space, config,
+                  config.trials if request.trials is None else request.trials)
 
 
 class Progress:
@@ -110,7 +122,7 @@ class Progress:
         self.started = time.monotonic()
         self.bar = tqdm(total=total, initial=done, desc="trials", unit="trial", leave=False,
                         disable=not sys.stderr.isatty(), file=sys.stderr,
-                        bar_format="{desc}: {n}/{total} |{bar}| {postfix}")
+                        bar_format="{desc}: {n}/{total} |{bar}| {elapsed}{postfix}")
 
     def update(self, study: optuna.Study) -> None:
         from evsmap.explore.results import answer, trial_rows
@@ -123,7 +135,8 @@ class Progress:
         elapsed = time.monotonic() - self.started
         new = done - self.start_done
         left = (self.total - done) * elapsed / new if new > 0 else math.nan
-        eta = f"~{left / 60:.0f} min left" if math.isfinite(left) else "time left: after a trial"
+        eta = (f"~{int(left) // 60}:{int(left) % 60:02d} left" if math.isfinite(left)
+               else "time left: after a trial")
         self.bar.n = done
         self.bar.set_postfix_str(f"{best}; {eta}" if best else eta, refresh=True)
 
@@ -135,22 +148,25 @@ def run_local(opened: Opened, *, say: Callable[[str], None], run: str) -> int:
     """The study's trials in this process until its target; the number completed here."""
     bench = Bench(opened.space, Inputs(**opened.config.inputs), say=say)
     n = counts(opened.study)
-    progress = Progress(opened.config.trials, n.get("COMPLETE", 0))
+    if n.get("COMPLETE", 0) >= opened.target:
+        return 0
+    progress = Progress(opened.target, n.get("COMPLETE", 0))
     try:
         progress.update(opened.study)
-        return work(opened.study, opened.storage, bench, trials=opened.config.trials,
+        return work(opened.study, opened.storage, bench, trials=opened.target,
                     worker=Worker.here(run), on_trial=lambda _: progress.update(opened.study))
     finally:
         progress.close()
 
 
-def remote_worker(url: str, name: str, run: str) -> dict[str, Any]:
-    """A Ray worker: open the study from its storage and run trials until its target."""
+def remote_worker(url: str, name: str, run: str, target: int) -> dict[str, Any]:
+    """A Ray worker: open the study from its storage and run trials until it holds
+    ``target`` complete ones."""
     opened_storage = open_storage(url)
     study = load_study(opened_storage, name)
     config = stored_config(study)
     bench = Bench(space_of(config), Inputs(**config.inputs))
-    done = work(study, opened_storage, bench, trials=config.trials, worker=Worker.here(run))
+    done = work(study, opened_storage, bench, trials=target, worker=Worker.here(run))
     return {"completed": done}
 
 
@@ -167,11 +183,13 @@ def run_ray(opened: Opened, *, address: str | None, out: Path, say: Callable[[st
         say(executor.summary())
         slots = executor.timing_slots()
         n = counts(opened.study)
-        progress = Progress(opened.config.trials, n.get("COMPLETE", 0), len(slots))
+        if n.get("COMPLETE", 0) >= opened.target:
+            return 0
+        progress = Progress(opened.target, n.get("COMPLETE", 0), len(slots))
         pools = [executor.fresh(slot) for slot in slots]
         try:
             futures = [pool.submit(remote_worker, opened.storage.url, opened.study.study_name,
-                                   run) for pool in pools]
+                                   run, opened.target) for pool in pools]
             while not all(f.done() for f in futures):
                 time.sleep(1.0)
                 progress.update(opened.study)

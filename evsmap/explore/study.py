@@ -21,17 +21,19 @@ import os
 import socket
 import threading
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import optuna
+from optuna.samplers import BaseSampler
+from optuna.trial import FrozenTrial, TrialState
 
 from evsmap.errors import EvsmapError
 from evsmap.explore.space import Space
 
 if TYPE_CHECKING:
-    import optuna
-
     from evsmap.explore.bench import Bench
 
 STUDY_FILE = "study.db"
@@ -55,9 +57,12 @@ def default_storage(out: str | os.PathLike[str]) -> str:
 
 def open_storage(url: str) -> optuna.storages.RDBStorage:
     """Optuna's RDB storage at ``url`` (heartbeats on), or :class:`StudyError`."""
-    import optuna
+    import warnings
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # heartbeats are used on purpose outside Study.optimize (the worker loop records them)
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used")
     kwargs: dict[str, Any] = {}
     if url.startswith("sqlite"):
         kwargs = {"connect_args": {"timeout": 60}}
@@ -117,8 +122,6 @@ def directions(space: Space) -> list[str]:
 def create_study(storage: optuna.storages.RDBStorage, name: str, space: Space,
                  config: StudyConfig) -> optuna.Study:
     """A new study holding ``config``, its first trial the space's defaults."""
-    import optuna
-
     try:
         study = optuna.create_study(storage=storage, study_name=name,
                                     directions=directions(space),
@@ -133,8 +136,6 @@ def create_study(storage: optuna.storages.RDBStorage, name: str, space: Space,
 
 def load_study(storage: optuna.storages.RDBStorage, name: str) -> optuna.Study:
     """The study ``name`` in ``storage``, with a fresh seeded sampler (its space's)."""
-    import optuna
-
     try:
         study = optuna.load_study(study_name=name, storage=storage)
     except KeyError:
@@ -146,8 +147,6 @@ def load_study(storage: optuna.storages.RDBStorage, name: str) -> optuna.Study:
 
 def enqueue_defaults(study: optuna.Study, space: Space) -> None:
     """Queue the paper's point unless a trial at it finished, runs or waits."""
-    from optuna.trial import TrialState
-
     for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.RUNNING,
                                                        TrialState.WAITING)):
         if t.user_attrs.get("role") == DEFAULT_ROLE:
@@ -159,8 +158,6 @@ def enqueue_defaults(study: optuna.Study, space: Space) -> None:
 def _slot(study: optuna.Study, number: int) -> int:
     """The trial's place in the study: the trials complete, or running and started before it
     (failed and surplus trials do not count, so a rerun takes the failed one's place)."""
-    from optuna.trial import TrialState
-
     slot = 0
     for t in study.get_trials(deepcopy=False):
         if t.state == TrialState.COMPLETE or (t.state == TrialState.RUNNING
@@ -171,21 +168,13 @@ def _slot(study: optuna.Study, number: int) -> int:
 
 def make_sampler(space: Space, seed: int) -> optuna.samplers.BaseSampler:
     """The space's sampler (TPE or NSGA-II) seeded with ``seed``."""
-    import optuna
-
     if space.sampler == "nsga2":
         return optuna.samplers.NSGAIISampler(seed=seed, population_size=space.population)
     return optuna.samplers.TPESampler(seed=seed, n_startup_trials=space.startup_trials,
                                       multivariate=True)
 
 
-def _base_sampler() -> type:
-    import optuna
-
-    return optuna.samplers.BaseSampler  # type: ignore[no-any-return]
-
-
-class DrawnPerTrial(_base_sampler()):  # type: ignore[misc]
+class DrawnPerTrial(BaseSampler):
     """Optuna's sampler made afresh for each trial, seeded from (the space's seed, the trial's
     slot): what it draws depends only on the seed and the stored trials, not on what this
     process drew before (a resumed study draws as a straight run does).
@@ -196,34 +185,35 @@ class DrawnPerTrial(_base_sampler()):  # type: ignore[misc]
 
     def __init__(self, space: Space) -> None:
         self.space = space
-        self._inner: dict[int, Any] = {}
+        self._inner: dict[int, BaseSampler] = {}
         self.slots: dict[int, int] = {}
         self._fallback = make_sampler(space, space.seed)
 
-    def _for(self, trial: Any) -> Any:
+    def _for(self, trial: FrozenTrial) -> BaseSampler:
         return self._inner.get(trial.number, self._fallback)
 
-    def before_trial(self, study: optuna.Study, trial: Any) -> None:
+    def before_trial(self, study: optuna.Study, trial: FrozenTrial) -> None:
         slot = _slot(study, trial.number)
         self.slots[trial.number] = slot
         inner = make_sampler(self.space, (self.space.seed * 1_000_003 + slot) % 2**32)
         self._inner[trial.number] = inner
         inner.before_trial(study, trial)
 
-    def infer_relative_search_space(self, study: optuna.Study, trial: Any) -> dict[str, Any]:
+    def infer_relative_search_space(self, study: optuna.Study,
+                                    trial: FrozenTrial) -> dict[str, Any]:
         return dict(self._for(trial).infer_relative_search_space(study, trial))
 
-    def sample_relative(self, study: optuna.Study, trial: Any,
+    def sample_relative(self, study: optuna.Study, trial: FrozenTrial,
                         search_space: dict[str, Any]) -> dict[str, Any]:
         return dict(self._for(trial).sample_relative(study, trial, search_space))
 
-    def sample_independent(self, study: optuna.Study, trial: Any, param_name: str,
+    def sample_independent(self, study: optuna.Study, trial: FrozenTrial, param_name: str,
                            param_distribution: Any) -> Any:
         return self._for(trial).sample_independent(study, trial, param_name,
                                                    param_distribution)
 
-    def after_trial(self, study: optuna.Study, trial: Any, state: Any,
-                    values: Any) -> None:
+    def after_trial(self, study: optuna.Study, trial: FrozenTrial, state: TrialState,
+                    values: Sequence[float] | None) -> None:
         inner = self._inner.pop(trial.number, None)
         if inner is not None:
             inner.after_trial(study, trial, state, values)
@@ -277,9 +267,6 @@ def _alive(pid: int) -> bool:
 def fail_trials(study: optuna.Study, storage: optuna.storages.RDBStorage,
                 dead: Callable[[dict[str, Any]], bool]) -> list[int]:
     """Mark failed the running trials whose worker ``dead`` says is gone; their numbers."""
-    import optuna
-    from optuna.trial import TrialState
-
     failed = []
     study_id = storage.get_study_id_from_name(study.study_name)
     for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
@@ -299,8 +286,6 @@ def fail_trials(study: optuna.Study, storage: optuna.storages.RDBStorage,
 def fail_stale(study: optuna.Study, storage: optuna.storages.RDBStorage) -> list[int]:
     """Fail the running trials of dead workers: on this host, those whose process is gone; on
     any host, those whose heartbeat stopped more than :data:`GRACE_S` ago."""
-    import optuna
-
     host = socket.gethostname()
     failed = fail_trials(study, storage, lambda w: w.get("host") == host
                          and not _alive(int(w.get("pid", -1))))
@@ -336,12 +321,10 @@ class _Heartbeat:
 
 def work(study: optuna.Study, storage: optuna.storages.RDBStorage, bench: Bench, *,
          trials: int, worker: Worker,
-         on_trial: Callable[[optuna.trial.FrozenTrial], None] | None = None) -> int:
+         on_trial: Callable[[FrozenTrial], None] | None = None) -> int:
     """Run trials until the study holds ``trials`` complete ones (counting those other workers
     run); the number this worker completed. An interruption marks the running trial failed
     (it runs again on resume) and propagates."""
-    from optuna.trial import TrialState
-
     space = bench.space
     sampler = study.sampler
     done = 0

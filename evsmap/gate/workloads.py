@@ -397,7 +397,7 @@ class BuildReport(Job):
     def run(self) -> None:
         from evsmap.report.build import build_report
 
-        self.written = build_report(self.run_dir)
+        self.written = build_report(self.run_dir, study=None)  # not the cache's study
 
     def counts(self) -> dict[str, Any]:
         names = sorted(p.name for p in self.written)

@@ -23,6 +23,7 @@ from evsmap.errors import DataFormatError
 from evsmap.fileio import atomic_write_text
 from evsmap.report import plots
 from evsmap.report.claims import claims_markdown, relative_markdown
+from evsmap.report.explore import study_markdown
 from evsmap.report.int8 import PREFIX as INT8_PREFIX
 from evsmap.report.int8 import int8_frame, int8_markdown, int8_records
 from evsmap.report.tables import (
@@ -107,9 +108,14 @@ def _check_record(rec: CellRecord, path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------- building
-def build_report(run_dir: str | Path) -> list[Path]:
+def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool = True
+                 ) -> list[Path]:
     """Write the report files of ``run_dir`` from its stored records; returns the files written
     (index.md last).
+
+    ``study``: the design-space study linked from Table IV's section (``evsmap explore``'s
+    :func:`~evsmap.explore.latest.latest_study` record); ``True``: the latest one, if any;
+    ``None`` or ``False``: none (the gate's build, whose bytes must not depend on the cache).
 
     Raises:
         DataFormatError: ``run.json`` or a record is missing or corrupt (the message names the
@@ -146,6 +152,10 @@ def build_report(run_dir: str | Path) -> list[Path]:
             proxy = proxy_accuracy_markdown(extras)
             if proxy:
                 md = md + "\n" + "\n".join(proxy).rstrip() + "\n"
+        if table.role == "mapping":  # where the claims hold: the latest `evsmap explore`
+            linked = study_markdown(_study(study), run_dir)
+            if linked:
+                md = md + "\n" + "\n".join(linked).rstrip() + "\n"
         int8 = int8_markdown(records, tid)  # reproduce --precision int8, beside the table
         if int8:
             md = md + "\n" + "\n".join(int8).rstrip() + "\n"
@@ -195,6 +205,14 @@ def _write(path: Path, text: str) -> Path:
 
 def _write_csv(path: Path, frame: pd.DataFrame) -> Path:
     return _write(path, frame.to_csv(index=False))
+
+
+def _study(study: Mapping[str, Any] | None | bool) -> Mapping[str, Any] | None:
+    if study is True:
+        from evsmap.explore.latest import latest_study
+
+        return latest_study()
+    return study or None
 
 
 def _map_labels(tables: Mapping[str, PaperTable], records: list[CellRecord]) -> dict[str, str]:

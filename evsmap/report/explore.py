@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -95,7 +96,11 @@ def plot_front(rows: list[dict[str, Any]], which: str, path: Path, *, space: Spa
             ax.scatter([bx * xf], [by * yf], marker="D", s=70, color="tab:green",
                        label=f"{space.baseline} (baseline) at the same settings", zorder=4)
     if x == "map_size":
+        from matplotlib.ticker import FormatStrFormatter
+
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(FormatStrFormatter("%g"))
     ax.set_xlabel(xl + (" - lower is better" if x_lower else " - higher is better"))
     ax.set_ylabel(yl + " - higher is better")
     ax.set_title(title, fontsize=9)
@@ -181,6 +186,27 @@ def _answer_section(found: Answer, space: Space) -> list[str]:
                   f"{b['size_ratio']:.2f}x at a 3D mIoU loss of {_signed(b.get('miou_loss'))} "
                   f"pt; parameters: {_params(b, space)}.", ""]
     return lines
+
+
+def study_markdown(study: Mapping[str, Any] | None, run_dir: Path) -> list[str]:
+    """Table IV's link to a design-space study (``evsmap explore``'s latest record): where it
+    is, relative to the run folder, and its answer; nothing without one."""
+    if not study:
+        return []
+    import os
+    from datetime import UTC, datetime
+
+    index = str(study["index"])
+    try:
+        link = os.path.relpath(index, run_dir)
+    except ValueError:  # another drive
+        link = index
+    when = datetime.fromtimestamp(float(study.get("written", 0)), UTC).strftime("%Y-%m-%d %H:%M")
+    return ["## Where the map-size claim holds: the latest design-space study", "",
+            f"`evsmap explore` ({when} UTC, [{link}]({link})): {study.get('summary', '')}. "
+            f"Each of its trials maps one sequence at other settings of the updater's options "
+            f"and of the shared front end, beside the baseline's map at the same settings "
+            f"(docs/explore.md).", ""]
 
 
 def write_report(study_dir: Path, rows: list[dict[str, Any]], space: Space, *,
