@@ -31,7 +31,7 @@ from evsmap.errors import EvsmapError
 from evsmap.explore.space import Space
 from evsmap.interfaces import MapUpdater
 
-MAPS_VERSION = 1
+MAPS_VERSION = 2
 """Bumped when what a cached baseline record holds changes."""
 
 
@@ -82,7 +82,7 @@ def open_inputs(inputs: Inputs) -> FrameSequence:
 
 
 def _quality_names() -> tuple[str, ...]:
-    return ("precision", "recall", "semantic_accuracy", "map_miou")
+    return ("precision", "recall", "semantic_accuracy", "map_miou", "scene_miou")
 
 
 class Bench:
@@ -273,14 +273,15 @@ def trial_record(trial: dict[str, Any], *, reference: dict[str, Any],
     baseline's records beside them.
 
     ``rate_ratio`` = ``update_hz`` / the reference's (timed in this process); ``size_ratio`` =
-    the baseline's ``map_size`` / this map's; ``miou_loss`` = (the baseline's 3D mIoU - this
-    map's) in points (positive: this map is worse)."""
+    the baseline's ``map_size`` / this map's; ``miou_loss`` = (the baseline's scene mIoU - this
+    map's) in points (positive: this map is worse; the scene mIoU counts the ground-truth
+    voxels a map dropped, :func:`evsmap.metrics.mapping.scene_miou`)."""
     record = dict(trial)
     record["rate_ratio"] = trial["update_hz"] / reference["update_hz"]
     if baseline is not None:
         record["size_ratio"] = baseline["map_size"] / trial["map_size"]
-        if baseline.get("map_miou") is not None and trial.get("map_miou") is not None:
-            record["miou_loss"] = 100.0 * (baseline["map_miou"] - trial["map_miou"])
+        if baseline.get("scene_miou") is not None and trial.get("scene_miou") is not None:
+            record["miou_loss"] = 100.0 * (baseline["scene_miou"] - trial["scene_miou"])
     record.update(params=dict(params), shared=dict(shared), reference=reference,
                   baseline=baseline, threads=threads, wall_s=wall_s, pid=os.getpid())
     return record

@@ -40,7 +40,8 @@ DIRECTIONS = ("minimize", "maximize")
 
 OBJECTIVES: dict[str, tuple[str, str]] = {
     "map_size": ("minimize", "the map's size in Table IV's reading (bytes)"),
-    "map_miou": ("maximize", "3D mIoU of the map's occupied leaves against ground truth"),
+    "scene_miou": ("maximize", "3D mIoU over the observed scene (a dropped voxel is a miss)"),
+    "map_miou": ("maximize", "3D mIoU of the leaves the map kept, against ground truth"),
     "semantic_accuracy": ("maximize", "3D semantic accuracy of the matched leaves"),
     "rate_ratio": ("maximize", "update_hz over OctoMap C++'s, timed in the same process"),
     "size_ratio": ("maximize", "the paired baseline's map size over this map's"),
@@ -262,7 +263,8 @@ def _parameter(raw: Any, where: str) -> Parameter:
     if raw.get("type", "float") not in ("int", "float"):
         raise SpaceError(f"{where}: type must be int or float (or give choices)")
     if not (math.isfinite(low) and math.isfinite(high) and low < high):
-        raise SpaceError(f"{where}: the range [{low}, {high}] is empty (low must be below high)")
+        raise SpaceError(f"{where}: the range [{low:g}, {high:g}] is empty (low must be below "
+                         f"high)")
     log = bool(raw.get("log", False))
     if log and low <= 0:
         raise SpaceError(f"{where}: a log range needs low > 0, got {low}")
@@ -273,7 +275,7 @@ def _parameter(raw: Any, where: str) -> Parameter:
     default = raw["default"]
     if isinstance(default, bool) or not isinstance(default, (int, float)) \
             or not low <= default <= high:
-        raise SpaceError(f"{where}: the default {default!r} is outside [{low}, {high}]")
+        raise SpaceError(f"{where}: the default {default!r} is outside [{low:g}, {high:g}]")
     return Parameter(**common, low=float(low), high=float(high), log=log,
                      step=None if step is None else float(step), integer=integer)
 

@@ -45,6 +45,10 @@ HEARTBEAT_S = 10
 GRACE_S = 60
 """A running trial whose heartbeat is older than this is failed (another host's worker died)."""
 DEFAULT_ROLE = "paper default"
+COUNTED = "failed_in_measurement"
+"""The user attribute of a trial whose measurement failed (it keeps its slot)."""
+FAILURES_IN_A_ROW = 3
+"""Measurements failing one after the other that stop a worker (the space is likely wrong)."""
 
 
 class StudyError(EvsmapError):
@@ -156,12 +160,15 @@ def enqueue_defaults(study: optuna.Study, space: Space) -> None:
 
 # ---- the sampler
 def _slot(study: optuna.Study, number: int) -> int:
-    """The trial's place in the study: the trials complete, or running and started before it
-    (failed and surplus trials do not count, so a rerun takes the failed one's place)."""
+    """The trial's place in the study: the trials complete, running and started before it, or
+    failed in their measurement (a point the updater cannot map: the next draw moves on).
+    Interrupted trials and those of dead workers do not count, so a rerun takes their place and
+    draws their parameters again; surplus trials do not count either."""
     slot = 0
     for t in study.get_trials(deepcopy=False):
         if t.state == TrialState.COMPLETE or (t.state == TrialState.RUNNING
-                                              and t.number < number):
+                                              and t.number < number) \
+                or (t.state == TrialState.FAIL and t.user_attrs.get(COUNTED)):
             slot += 1
     return slot
 
@@ -275,8 +282,8 @@ def fail_trials(study: optuna.Study, storage: optuna.storages.RDBStorage,
             continue
         trial_id = storage.get_trial_id_from_study_id_trial_number(study_id, t.number)
         try:
+            storage.set_trial_user_attr(trial_id, "failed_because", "its worker stopped")
             if storage.set_trial_state_values(trial_id, state=TrialState.FAIL):
-                storage.set_trial_user_attr(trial_id, "failed_because", "its worker stopped")
                 failed.append(t.number)
         except optuna.exceptions.UpdateFinishedTrialError:
             pass
@@ -327,7 +334,7 @@ def work(study: optuna.Study, storage: optuna.storages.RDBStorage, bench: Bench,
     (it runs again on resume) and propagates."""
     space = bench.space
     sampler = study.sampler
-    done = 0
+    done = failures = 0
     while True:
         fail_stale(study, storage)
         n = counts(study)
@@ -348,12 +355,19 @@ def work(study: optuna.Study, storage: optuna.storages.RDBStorage, bench: Bench,
         except BaseException as exc:
             heartbeat.stop()
             trial.set_user_attr("error", f"{type(exc).__name__}: {exc}"[:500])
+            measured = isinstance(exc, EvsmapError)
+            if measured:
+                trial.set_user_attr(COUNTED, True)
             study.tell(trial, state=TrialState.FAIL)
-            if isinstance(exc, (KeyboardInterrupt, SystemExit)) or \
-                    not isinstance(exc, EvsmapError):
+            if not measured:  # an interruption (or a bug): the trial's slot is drawn again
                 raise
+            failures += 1
+            if failures >= FAILURES_IN_A_ROW:
+                raise StudyError(f"{failures} trials in a row could not be measured, the last "
+                                 f"(trial {trial.number}): {exc}") from None
             continue
         heartbeat.stop()
+        failures = 0
         trial.set_user_attr("record", _jsonable(record))
         values = [record.get(o.name) for o in space.objectives]
         if any(v is None for v in values):

@@ -17,6 +17,12 @@ of Chebyshev distance:
   compared with that voxel's class in a :class:`~evsmap.metrics.segmentation.ConfusionMatrix`
   (semantic accuracy = its pixel accuracy, map mIoU = its mIoU). Matched leaves without a class
   are counted apart (``unlabelled``) and left out of the matrix.
+* scene mIoU (:func:`scene_miou`): the map's mIoU over the *observed scene*, where the map
+  mIoU above scores only the leaves the map kept: every observed ground-truth voxel takes the
+  class of the nearest occupied leaf within the slack, a voxel with none (or with a leaf without
+  a class) is a miss of its class, and an occupied leaf with no ground-truth voxel within the
+  slack is a false positive of its class. A map that drops most of the scene and keeps its sure
+  leaves has a high map mIoU and a low scene mIoU.
 
 Everything is vectorised over voxels: a neighbourhood lookup is one ``np.searchsorted`` of the
 packed codes per offset.
@@ -58,6 +64,8 @@ class MapQuality:
         map_miou: mIoU of the same matrix (``None`` without semantics).
         semantic_accuracy_all: matched leaves whose class is the ground truth's / all matched
             leaves, a leaf without a class counting as wrong (``None`` without semantics).
+        scene_miou: mIoU over the observed scene (:func:`scene_miou`; ``None`` without
+            semantics).
         semantics: the full :class:`SegmentationResult` of the matched leaves, or ``None``.
     """
 
@@ -74,13 +82,14 @@ class MapQuality:
     semantic_accuracy: float | None = None
     map_miou: float | None = None
     semantic_accuracy_all: float | None = None
+    scene_miou: float | None = None
     semantics: SegmentationResult | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict:
         out = {k: getattr(self, k) for k in (
             "resolution", "slack_voxels", "occupied", "ground_truth", "observed", "precision",
             "recall", "recall_total", "matched", "unlabelled", "semantic_accuracy", "map_miou",
-            "semantic_accuracy_all")}
+            "semantic_accuracy_all", "scene_miou")}
         for k, v in out.items():
             if isinstance(v, float) and np.isnan(v):
                 out[k] = None
@@ -211,7 +220,34 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
     cm = ConfusionMatrix(num_classes)
     cm.update(pred[labelled], truth[labelled])
     result = cm.result()
+    # the scene: each observed ground-truth voxel's nearest occupied leaf (sorted codes)
+    order = np.argsort(occ_codes, kind="stable")
+    near = nearest_within(gt_keys[known], occ_codes[order], slack)
+    scene_pred = np.where(near >= 0, occ_labels[order][np.maximum(near, 0)], -1)
+    scene = scene_miou(gt_labels[known], scene_pred, occ_labels[~matched], num_classes)
     return MapQuality(**quality, unlabelled=int(np.count_nonzero(~labelled)),
                       semantic_accuracy=result.pixel_accuracy, map_miou=result.miou,
                       semantic_accuracy_all=_ratio(np.count_nonzero(pred == truth), len(pred)),
-                      semantics=result)
+                      scene_miou=scene, semantics=result)
+
+
+def scene_miou(truth: np.ndarray, predicted: np.ndarray, false_leaves: np.ndarray,
+               num_classes: int) -> float:
+    """The mIoU over the observed scene: ``truth`` the classes of the observed ground-truth
+    voxels, ``predicted`` the class the map gives each (-1: none, a miss), ``false_leaves`` the
+    classes of the occupied leaves that match no ground-truth voxel (false positives; -1: a leaf
+    without a class, not counted). Per class c: TP = voxels of c predicted c, and IoU = TP /
+    (voxels of c + predictions of c - TP), predictions counting the voxels' and the false
+    leaves'; the mean over the classes present in either (NaN when none is)."""
+    truth = np.asarray(truth, dtype=np.int64)
+    predicted = np.asarray(predicted, dtype=np.int64)
+    false_leaves = np.asarray(false_leaves, dtype=np.int64)
+    k = int(num_classes)
+    hit = truth[(predicted == truth) & (truth >= 0)]
+    tp = np.bincount(hit[hit < k], minlength=k)[:k]
+    actual = np.bincount(truth[(truth >= 0) & (truth < k)], minlength=k)[:k]
+    said = np.concatenate([predicted, false_leaves])
+    claimed = np.bincount(said[(said >= 0) & (said < k)], minlength=k)[:k]
+    union = actual + claimed - tp
+    present = union > 0
+    return float(np.mean(tp[present] / union[present])) if present.any() else float("nan")

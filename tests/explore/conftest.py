@@ -23,7 +23,7 @@ startup_trials = 2
 name = "map_size"
 
 [[objectives]]
-name = "map_miou"
+name = "scene_miou"
 
 [[parameters]]
 name = "resolution"

@@ -9,7 +9,7 @@ from evsmap.explore.results import answer, pareto_front
 
 def _row(n: int, size: float, miou: float, ratio: float | None = None,
          loss: float | None = None, role: str = "", **params: float) -> dict:
-    return {"number": n, "state": "COMPLETE", "role": role, "map_size": size, "map_miou": miou,
+    return {"number": n, "state": "COMPLETE", "role": role, "map_size": size, "scene_miou": miou,
             "rate_ratio": 1.0, "size_ratio": ratio, "miou_loss": loss,
             **{f"param:{k}": v for k, v in params.items()}}
 
@@ -19,7 +19,7 @@ def test_pareto_front_keeps_the_undominated() -> None:
             _row(4, 20, 0.35), {**_row(5, 1, 0.9), "state": "FAIL"}]
     from evsmap.explore.results import complete
 
-    front = pareto_front(complete(rows), "map_size", "map_miou", x_lower=True, y_lower=False)
+    front = pareto_front(complete(rows), "map_size", "scene_miou", x_lower=True, y_lower=False)
     assert [r["number"] for r in front] == [3, 0, 4]
 
 
@@ -45,7 +45,7 @@ def test_report_files_and_table_iv_link(tmp_path: Path, small_space) -> None:
             _row(1, 5e6, 0.29, ratio=1.6, loss=0.5, resolution=0.2, raycast_range=1.0,
                  psi=0.5, theta=0.1)]
     for r in rows:
-        r.update(baseline_map_size=8e6, baseline_map_miou=0.3, baseline_rate_ratio=0.9)
+        r.update(baseline_map_size=8e6, baseline_scene_miou=0.3, baseline_rate_ratio=0.9)
     index, line = write_report(tmp_path / "study", rows, small_space, header={"x": "y"})
     text = index.read_text()
     assert line in text and "1.60x" in line and "not reached" in line

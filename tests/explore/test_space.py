@@ -27,7 +27,7 @@ def test_shipped_space_defaults_are_what_table_iv_runs_with() -> None:
     assert (defaults["clamp_min"], defaults["clamp_max"]) == (PROB_MIN, PROB_MAX)
     voxel = {c.voxel_size for c in mapping_table().columns}
     assert voxel == {defaults["resolution"]}
-    assert [o.name for o in space.objectives] == ["map_size", "map_miou"]
+    assert [o.name for o in space.objectives] == ["map_size", "scene_miou"]
     assert space.baseline == "tesamap"
 
 
@@ -49,7 +49,7 @@ def _write(tmp_path: Path, text: str) -> Path:
      "raycast_range = -1.0 is refused by multiclass-bayes"),
     (lambda t: t.split("[[parameters]]")[0], "the space is empty"),
     (lambda t: t.replace("default = 0.6", "default = 2.6"), "outside [0, 1.5]"),
-    (lambda t: t.replace('name = "map_miou"', 'name = "iou"'), "unknown objective 'iou'"),
+    (lambda t: t.replace('name = "scene_miou"', 'name = "iou"'), "unknown objective 'iou'"),
     (lambda t: t.replace("low = 0.0\nhigh = 1.5", "low = 1.5\nhigh = 1.5"), "is empty"),
     (lambda t: t.replace('updater = "multiclass-bayes"', 'updater = "nope"'),
      "updater 'nope' is not registered"),

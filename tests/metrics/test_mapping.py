@@ -169,3 +169,19 @@ def test_synthetic_semantics(sequence):
     assert noisy.semantic_accuracy < perfect.semantic_accuracy - 0.1
     assert noisy.map_miou < perfect.map_miou
     assert noisy.precision == pytest.approx(perfect.precision)  # geometry does not change
+
+
+def test_scene_miou_counts_what_the_map_dropped() -> None:
+    """A map that kept half of class 0's voxels (both right) and all of class 1's, with one false
+    leaf of class 1: IoU 2/4 and 2/3; the kept leaves alone would score 1.0."""
+    import numpy as np
+
+    from evsmap.metrics.mapping import scene_miou
+
+    truth = np.array([0, 0, 0, 0, 1, 1])
+    assert scene_miou(truth, np.array([0, 0, -1, -1, 1, 1]), np.array([1]), 2) == \
+        pytest.approx((2 / 4 + 2 / 3) / 2)
+    assert scene_miou(truth, truth, np.array([], dtype=int), 2) == 1.0
+    assert scene_miou(truth, np.full(6, -1), np.array([-1]), 2) == 0.0  # nothing kept
+    assert np.isnan(scene_miou(np.array([], dtype=int), np.array([], dtype=int),
+                               np.array([], dtype=int), 3))
