@@ -362,6 +362,10 @@ def _quality_lines(q: dict[str, Any] | None) -> list[str]:
         lines.append(f"semantics    accuracy {_pct(q['semantic_accuracy'])}, mIoU "
                      f"{_pct(q['map_miou'])} over {q['matched'] - q['unlabelled']:,} matched "
                      f"labelled leaves")
+        if q.get("scene_miou") is not None:
+            lines.append(f"             scene mIoU {_pct(q['scene_miou'])} over the "
+                         f"{q['observed']:,} observed ground-truth voxels (one the map dropped "
+                         f"is a miss)")
         if q.get("unlabelled"):
             lines.append(f"             {q['unlabelled']:,} matched leaves hold no class; "
                          f"counted as wrong the accuracy is "

@@ -84,6 +84,13 @@ def plot_front(rows: list[dict[str, Any]], which: str, path: Path, *, space: Spa
         return
     ax.scatter([r[x] * xf for r in done], [r[y] * yf for r in done], s=16, color="0.6",
                label=f"trials ({len(done)})", zorder=2)
+    paired = sorted({(r[f"baseline_{x}"], r[f"baseline_{y}"]) for r in done
+                     if r.get(f"baseline_{x}") is not None
+                     and r.get(f"baseline_{y}") is not None})
+    if paired:
+        ax.scatter([p[0] * xf for p in paired], [p[1] * yf for p in paired], s=18, marker="x",
+                   color="tab:green", alpha=0.6, zorder=2,
+                   label=f"{space.baseline} at each trial's shared settings ({len(paired)})")
     front = pareto_front(done, x, y, x_lower=x_lower, y_lower=y_lower)
     ax.plot([r[x] * xf for r in front], [r[y] * yf for r in front], "-o", color="tab:blue",
             ms=5, label=f"Pareto front ({len(front)})", zorder=3)
@@ -96,11 +103,11 @@ def plot_front(rows: list[dict[str, Any]], which: str, path: Path, *, space: Spa
             ax.scatter([bx * xf], [by * yf], marker="D", s=70, color="tab:green",
                        label=f"{space.baseline} (baseline) at the same settings", zorder=4)
     if x == "map_size":
-        from matplotlib.ticker import FormatStrFormatter
+        from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
         ax.set_xscale("log")
         ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
-        ax.xaxis.set_minor_formatter(FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel(xl + (" - lower is better" if x_lower else " - higher is better"))
     ax.set_ylabel(yl + " - higher is better")
     ax.set_title(title, fontsize=9)
