@@ -24,7 +24,7 @@ import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import optuna
 from optuna.samplers import BaseSampler
@@ -119,7 +119,7 @@ def space_of(config: StudyConfig) -> Space:
     return Space(**{**space.__dict__, "path": config.space_path})
 
 
-def directions(space: Space) -> list[str]:
+def directions(space: Space) -> list[Literal["minimize", "maximize"]]:
     return [o.direction for o in space.objectives]
 
 
@@ -377,7 +377,7 @@ def work(study: optuna.Study, storage: optuna.storages.RDBStorage, bench: Bench,
             study.tell(trial, state=TrialState.FAIL)
             raise StudyError(f"objective {missing[0]} cannot be measured on "
                              f"{bench.inputs.sequence} (no ground-truth voxels?)")
-        frozen = study.tell(trial, [float(v) for v in values])
+        frozen = study.tell(trial, [float(v) for v in values if v is not None])
         done += 1
         if on_trial is not None:
             on_trial(frozen)
