@@ -217,15 +217,20 @@ def _options(segmenter: str, given: dict[str, Any]) -> str:
 def run_command(args: argparse.Namespace) -> int:
     from evsmap.explore.results import trial_rows
     from evsmap.explore.run import open_study, run_local, run_ray
-    from evsmap.explore.study import Worker, counts
+    from evsmap.explore.workers import Worker, counts
     from evsmap.interrupt import set_resume_hint
     from evsmap.report.explore import write_report
 
     request = _request(args)
+    bench = None
     if args.executor == "ray":
         from evsmap.runner.ray_executor import import_ray
 
         import_ray()  # a missing Ray is a usage error, before the study is made
+    if not request.resume:  # the sequence, segmenter and objectives, before the study is made
+        from evsmap.explore.bench import Bench
+
+        bench = Bench(request.space, request.inputs, say=_say)
     if args.storage is None:  # the study's SQLite file goes in the folder
         args.out.mkdir(parents=True, exist_ok=True)
     opened = open_study(request)
@@ -243,7 +248,7 @@ def run_command(args: argparse.Namespace) -> int:
     if args.executor == "ray":
         done = run_ray(opened, address=args.address, out=args.out, say=say, run=run)
     else:
-        done = run_local(opened, say=say, run=run)
+        done = run_local(opened, say=say, run=run, bench=bench)
     elapsed = f"{done} trials in {(time.monotonic() - start) / 60:.1f} min"
     index, line = write_report(args.out, trial_rows(opened.study), opened.space,
                                header=_header(opened, request, elapsed))

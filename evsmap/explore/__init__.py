@@ -6,8 +6,11 @@
   sizes, its 3D accuracy and mIoU against ground truth, its update rate as a ratio to OctoMap
   C++ timed in the same process, and the paired baseline map at the same shared settings;
 * :mod:`~evsmap.explore.study` - the Optuna study: its RDB storage (an SQLite file in the study
-  folder by default), the seeded sampler whose draws depend only on the stored trials (so a
-  resumed study equals a straight one), the worker loop and its stale trials;
+  folder by default) and what it was made with;
+* :mod:`~evsmap.explore.sampler` - the seeded sampler whose draws depend only on the stored
+  trials (so a resumed study equals a straight one);
+* :mod:`~evsmap.explore.workers` - the worker loop, and the trials of workers that died;
+* :mod:`~evsmap.explore.run` - a study made or resumed and run here or on Ray, with progress;
 * :mod:`~evsmap.explore.results` - the trials as plain records, the Pareto fronts and the
   answer to "where is the map smaller than the baseline's at no more than 1 point of 3D mIoU
   lost";

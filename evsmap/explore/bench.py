@@ -31,6 +31,9 @@ from evsmap.errors import EvsmapError
 from evsmap.explore.space import Space
 from evsmap.interfaces import MapUpdater
 
+TRUTH_OBJECTIVES = ("scene_miou", "map_miou", "semantic_accuracy")
+"""The objectives that need the sequence's ground-truth voxels."""
+
 MAPS_VERSION = 2
 """Bumped when what a cached baseline record holds changes."""
 
@@ -103,6 +106,12 @@ class Bench:
         self.indices = list(range(n if inputs.frames is None else min(inputs.frames, n)))
         if not self.indices:
             raise EvsmapError(f"{inputs.sequence}: no frames to map")
+        needs = [o.name for o in space.objectives if o.name in TRUTH_OBJECTIVES]
+        if needs and not self.has_truth():
+            raise EvsmapError(f"objective {needs[0]} needs ground-truth voxels and "
+                              f"{inputs.sequence} has none (the synthetic scenes and synthrooms "
+                              f"rooms have them): steer by map_size or rate_ratio (the space's "
+                              f"[[objectives]])")
         self._observations: list[SemanticObservation] | None = None
         self._truth: dict[float, Any] = {}
 

@@ -19,18 +19,14 @@ from evsmap.explore.study import (
     ATTR,
     StudyConfig,
     StudyError,
-    Worker,
-    counts,
     create_study,
     enqueue_defaults,
-    fail_stale,
-    fail_trials,
     load_study,
     open_storage,
     space_of,
     stored_config,
-    work,
 )
+from evsmap.explore.workers import Worker, counts, fail_stale, fail_trials, work
 
 if TYPE_CHECKING:
     import optuna
@@ -144,9 +140,13 @@ class Progress:
         self.bar.close()
 
 
-def run_local(opened: Opened, *, say: Callable[[str], None], run: str) -> int:
-    """The study's trials in this process until its target; the number completed here."""
-    bench = Bench(opened.space, Inputs(**opened.config.inputs), say=say)
+def run_local(opened: Opened, *, say: Callable[[str], None], run: str,
+              bench: Bench | None = None) -> int:
+    """The study's trials in this process until its target; the number completed here.
+    ``bench``: the trials' bench when the caller made it already (to check the inputs before
+    the study was made)."""
+    if bench is None:
+        bench = Bench(opened.space, Inputs(**opened.config.inputs), say=say)
     n = counts(opened.study)
     if n.get("COMPLETE", 0) >= opened.target:
         return 0

@@ -148,5 +148,22 @@ def test_ctrl_c_keeps_finished_trials(tmp_path: Path, space_file: Path) -> None:
     err = proc.communicate(timeout=30)[1].decode()
     assert proc.returncode == 130, err
     assert "continue with `evsmap explore --out" in err
-    states = [t.state.name for t in _study(out).trials]
-    assert states.count("COMPLETE") >= 2 and "RUNNING" not in states
+    kept = [t.params for t in _study(out).trials if t.state.name == "COMPLETE"]
+    assert len(kept) >= 2
+    # resumed to one trial more: every finished trial kept, none left running, none twice
+    resumed = subprocess.run([sys.executable, "-m", "evsmap", "explore", "--out", str(out),
+                              "--resume", "--trials", str(len(kept) + 1)], env=_env(),
+                             capture_output=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr.decode()
+    trials = _study(out).trials
+    done = [t.params for t in trials if t.state.name == "COMPLETE"]
+    assert done[:len(kept)] == kept and len(done) == len(kept) + 1
+    assert "RUNNING" not in {t.state.name for t in trials}
+
+
+def test_objectives_without_ground_truth_are_refused_first(tmp_path: Path, tum_dir: Path,
+                                                          capsys) -> None:
+    out = tmp_path / "tum"
+    _fails(capsys, ["--out", str(out), "--sequence", str(tum_dir)],
+           "objective scene_miou needs ground-truth voxels")
+    assert not (out / "study.db").exists()  # checked before the study was made

@@ -16,7 +16,8 @@ ray = pytest.importorskip("ray")
 @pytest.mark.slow
 def test_ray_workers_run_the_trials(tmp_path: Path, small_space) -> None:
     from evsmap.explore.run import Request, open_study, run_ray
-    from evsmap.explore.study import counts, default_storage
+    from evsmap.explore.study import default_storage
+    from evsmap.explore.workers import counts
 
     started = not ray.is_initialized()
     if started:

@@ -13,14 +13,12 @@ from evsmap.explore.bench import Bench
 from evsmap.explore.study import (
     DEFAULT_ROLE,
     StudyConfig,
-    Worker,
-    counts,
     create_study,
-    fail_stale,
+    enqueue_defaults,
     load_study,
     open_storage,
-    work,
 )
+from evsmap.explore.workers import Worker, counts, fail_stale, work
 from tests.explore.conftest import SMALL_INPUTS
 
 pytestmark = pytest.mark.slow
@@ -92,8 +90,6 @@ def test_a_trial_whose_process_died_runs_again(tmp_path: Path, small_space) -> N
     assert counts(study) == {"RUNNING": 1}
     assert fail_stale(study, storage) == [trial.number]
     assert counts(study) == {"FAIL": 1}
-    from evsmap.explore.study import enqueue_defaults
-
     enqueue_defaults(study, small_space)  # as a resumed study does
     done = work(study, storage, Bench(small_space, SMALL_INPUTS), trials=2,
                 worker=Worker.here())
@@ -101,6 +97,20 @@ def test_a_trial_whose_process_died_runs_again(tmp_path: Path, small_space) -> N
     rerun = [t for t in study.trials if t.state.name == "COMPLETE"
              and t.user_attrs.get("role") == DEFAULT_ROLE]
     assert len(rerun) == 1 and rerun[0].params == small_space.defaults()
+
+
+def test_an_unclaimed_trial_is_failed_after_the_grace_period(tmp_path: Path, small_space,
+                                                              monkeypatch) -> None:
+    """A process stopped inside ``ask`` leaves a running trial without a worker: failed once
+    no worker claimed it for the grace period, not before."""
+    import evsmap.explore.workers as workers
+
+    storage, study = _new(tmp_path, "unclaimed", small_space)
+    trial = study.ask()
+    assert fail_stale(study, storage) == []
+    monkeypatch.setattr(workers, "GRACE_S", 0)
+    assert fail_stale(study, storage) == [trial.number]
+    assert study.trials[0].user_attrs["failed_because"] == "no worker claimed it"
 
 
 def test_a_live_trial_of_this_host_is_left_alone(tmp_path: Path, small_space) -> None:
