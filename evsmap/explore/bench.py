@@ -84,8 +84,8 @@ def open_inputs(inputs: Inputs) -> FrameSequence:
     return sequence
 
 
-def _quality_names() -> tuple[str, ...]:
-    return ("precision", "recall", "semantic_accuracy", "map_miou", "scene_miou")
+QUALITY = ("precision", "recall", "semantic_accuracy", "map_miou", "scene_miou")
+"""The map's 3D quality a trial records (:class:`~evsmap.metrics.mapping.MapQuality`)."""
 
 
 class Bench:
@@ -114,6 +114,7 @@ class Bench:
                               f"[[objectives]])")
         self._observations: list[SemanticObservation] | None = None
         self._truth: dict[float, Any] = {}
+        self._identity: dict[str, Any] | None = None
 
     # ---- what every trial shares
     def segmenter(self) -> Any:
@@ -189,13 +190,10 @@ class Bench:
         taken = UPDATERS.get(name).parameters()
         config = {k: v for k, v in options.items() if k in taken}
 
-        def make() -> MapUpdater:
-            return UPDATERS.create(name, **config)
-
-        probe = make()
-        observations = self.observations() if semantic and probe.uses_semantics else None
-        del probe
-        return run_mapping(self.sequence, make, observations=observations,
+        # made before the loop (no memory is measured here)
+        updater: MapUpdater = UPDATERS.create(name, **config)
+        observations = self.observations() if semantic and updater.uses_semantics else None
+        return run_mapping(self.sequence, updater, observations=observations,
                            indices=self.indices, evaluators=[MapStatistics(), MapFiles()],
                            measure_memory=False)
 
@@ -224,15 +222,25 @@ class Bench:
         return {**record, "cached": False}
 
     def _baseline_path(self, name: str, config: dict[str, Any], shared: dict[str, Any]) -> Path:
-        from evsmap.cache import cache_dir, source_digest
-        from evsmap.registry import UPDATERS
+        from evsmap.cache import cache_dir
         from evsmap.runner.segcache import cache_key
 
-        package = UPDATERS.get(name).factory.__module__.split(".")[0]
         key = cache_key(version=MAPS_VERSION, updater=name, config=config, shared=shared,
-                        observations=self.observations_key(), indices=len(self.indices),
-                        code=[source_digest("evsmap"), source_digest(package)])
+                        **self._baseline_identity(name))
         return cache_dir("explore") / f"baseline-{key}.json"
+
+    def _baseline_identity(self, name: str) -> dict[str, Any]:
+        """What every baseline map of this bench shares in its cache key: the observations,
+        the frames, the code's digests (hashed once per process, not once per trial)."""
+        if self._identity is None:
+            from evsmap.cache import source_digest
+            from evsmap.registry import UPDATERS
+
+            package = UPDATERS.get(name).factory.__module__.split(".")[0]
+            self._identity = {"observations": self.observations_key(),
+                              "indices": len(self.indices),
+                              "code": [source_digest("evsmap"), source_digest(package)]}
+        return self._identity
 
 
 def baseline_updater(row: str) -> Any:
@@ -272,7 +280,7 @@ def _quality(updater: MapUpdater, truth: Any) -> dict[str, Any]:
 
     quality = MapQualityEvaluator(truth).evaluate(updater)
     q = quality.as_dict() if quality is not None else {}
-    return {name: q.get(name) for name in _quality_names()}
+    return {name: q.get(name) for name in QUALITY}
 
 
 def trial_record(trial: dict[str, Any], *, reference: dict[str, Any],

@@ -161,11 +161,19 @@ def load_space(path: str | Path) -> Space:
     where = Path(path)
     try:
         text = where.read_text(encoding="utf-8")
-        data = tomllib.loads(text)
     except OSError as exc:
         raise SpaceError(f"--space {where}: cannot read ({exc.strerror or exc})") from None
     except UnicodeDecodeError:
         raise SpaceError(f"--space {where}: not UTF-8 text") from None
+    return space_from_text(text, where)
+
+
+def space_from_text(text: str, path: str | Path) -> Space:
+    """The space a file at ``path`` holding ``text`` gives (a study's stored space is read back
+    this way), checked whole against the registry (:class:`SpaceError`)."""
+    where = Path(path)
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpaceError(f"--space {where}: not valid TOML ({exc})") from None
     space = _parse(data, where, text)

@@ -90,15 +90,9 @@ def stored_config(study: optuna.Study) -> StudyConfig:
 
 def space_of(config: StudyConfig) -> Space:
     """The study's space, parsed from its stored text (and checked against the registry)."""
-    import tempfile
+    from evsmap.explore.space import space_from_text
 
-    from evsmap.explore.space import load_space
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / Path(config.space_path).name
-        path.write_text(config.space_text, encoding="utf-8")
-        space = load_space(path)
-    return Space(**{**space.__dict__, "path": config.space_path})
+    return space_from_text(config.space_text, config.space_path)
 
 
 def directions(space: Space) -> list[Literal["minimize", "maximize"]]:
