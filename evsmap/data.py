@@ -9,6 +9,8 @@
   images.
 * :class:`SemanticObservation` - a segmenter's per-pixel top-k class ids and probabilities.
 * :class:`Sequence` - a named, sized, iterable series of frames with one set of intrinsics.
+* :class:`VoxelLabels` - a scene's 3D ground truth: its occupied voxels and their classes, what
+  :meth:`Sequence.ground_truth` gives where a sequence has one.
 
 Constructors validate shapes, dtypes and finiteness and say exactly what is wrong.
 """
@@ -373,6 +375,25 @@ class SemanticObservation:
         )
 
 
+@dataclass(frozen=True)
+class VoxelLabels:
+    """A scene's occupied voxels at one edge length: integer keys (N x 3, ``int32``,
+    ``floor(coordinate / resolution)``, OctoMap's convention without its 2^15 offset), class ids
+    (N,, ``uint8``; :data:`VOID` for a surface voxel without a class, which the 3D scores count
+    for geometry only) and the edge length in metres."""
+
+    keys: np.ndarray
+    labels: np.ndarray
+    resolution: float
+
+    @property
+    def centers(self) -> np.ndarray:
+        return (self.keys.astype(np.float64) + 0.5) * self.resolution
+
+    def __len__(self) -> int:
+        return int(self.labels.shape[0])
+
+
 class Sequence(abc.ABC):
     """A named series of frames seen by one camera.
 
@@ -427,6 +448,23 @@ class Sequence(abc.ABC):
     @num_classes.setter
     def num_classes(self, count: int | None) -> None:
         self._num_classes = int(count) if count else None
+
+    @property
+    def has_ground_truth(self) -> bool:
+        """Whether :meth:`ground_truth` gives voxels for this sequence as opened (False by
+        default)."""
+        return False
+
+    def ground_truth(self, resolution: float) -> VoxelLabels | None:
+        """The scene's occupied voxels and their classes at ``resolution`` metres, in the frames'
+        world, for scoring a map (the synthetic rooms, a ScanNet scene's labelled mesh); None
+        for a sequence without 3D ground truth (the default).
+
+        Raises:
+            EvsmapError: the sequence has ground truth but cannot give it as opened (e.g. a
+                synthrooms split holding several rooms).
+        """
+        return None
 
     @property
     def has_poses(self) -> bool:

@@ -37,6 +37,7 @@ _BUILTIN_MODULES = (
     "evsmap.synth.reader",
     "evsmap.readers.rosbag",
     "evsmap.readers.sevenscenes",
+    "evsmap.readers.scannet.reader",
     "evsmap.datasets.nyuv2",
     "evsmap.datasets.sunrgbd",
     "evsmap.datasets.cityscapes",

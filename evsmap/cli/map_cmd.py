@@ -273,12 +273,11 @@ def empty_result_warnings(r: dict[str, Any], args: argparse.Namespace) -> list[s
 
 def _ground_truth(sequence, resolution: float):
     """The sequence's ground-truth voxels at ``resolution`` when it has them (the synthetic
-    scenes, one synthrooms room), else None."""
-    make = getattr(sequence, "ground_truth", None)
-    if make is None:
+    scenes, one synthrooms room, a ScanNet scene with its labelled mesh), else None."""
+    if not sequence.has_ground_truth:
         return None
     try:
-        return make(resolution)
+        return sequence.ground_truth(resolution)
     except EvsmapError:
         return None
 

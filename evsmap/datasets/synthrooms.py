@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from evsmap.classes import NYU40_CLASSES, palette
-from evsmap.data import VOID, Frame, Intrinsics
+from evsmap.data import VOID, Frame, Intrinsics, VoxelLabels
 from evsmap.datasets.common import (
     Progress,
     SegmentationSequence,
@@ -386,8 +386,13 @@ class SynthRoomsSequence(SegmentationSequence):
         labels = read_label_png(self.root / LABEL_DIR / f"{fid}.png", NUM_CLASSES, shape)
         return rgb, dequantize_depth(raw), self.intrinsics, labels
 
-    def ground_truth(self, resolution: float):
-        """The room's ground-truth voxels (:class:`~evsmap.synth.groundtruth.VoxelLabels`) at
+    @property
+    def has_ground_truth(self) -> bool:
+        """One room (``-r room=N``) has the room's ground truth; a split of several has none."""
+        return bool(self._by_room)
+
+    def ground_truth(self, resolution: float) -> VoxelLabels:
+        """The room's ground-truth voxels (:class:`~evsmap.data.VoxelLabels`) at
         ``resolution``, rebuilt from the manifest's scene and seed; only for one room
         (``-r room=N``), where the frames share its world."""
         from evsmap.synth.sequence import SyntheticSequence

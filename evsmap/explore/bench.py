@@ -153,15 +153,15 @@ class Bench:
 
     def has_truth(self) -> bool:
         """The sequence has ground-truth voxels (the synthetic scenes, a synthrooms room)."""
-        return callable(getattr(self.sequence, "ground_truth", None))
+        return self.sequence.has_ground_truth
 
     def truth(self, resolution: float) -> Any:
         """The ground-truth voxels at ``resolution`` (made once per resolution)."""
         if resolution not in self._truth:
-            make = getattr(self.sequence, "ground_truth", None)
-            if make is None:
+            truth = self.sequence.ground_truth(resolution)
+            if truth is None:
                 raise EvsmapError(f"{self.inputs.sequence}: no ground-truth voxels")
-            self._truth[resolution] = make(resolution)
+            self._truth[resolution] = truth
         return self._truth[resolution]
 
     # ---- one trial

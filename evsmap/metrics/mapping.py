@@ -1,7 +1,8 @@
-"""3D quality of a finished octree map against voxel ground truth (the synthetic scenes').
+"""3D quality of a finished octree map against voxel ground truth (the synthetic scenes', a ScanNet
+scene's labelled mesh).
 
 Voxels are compared by integer key at the map's resolution. The ground truth
-(:class:`evsmap.synth.groundtruth.VoxelLabels`) keys a voxel as ``floor(coordinate / resolution)``,
+(:class:`evsmap.data.VoxelLabels`) keys a voxel as ``floor(coordinate / resolution)``,
 the map as OctoMap does, ``floor(coordinate / resolution) + 2**15``; the offset is added to the
 ground truth before comparing. Surfaces lying exactly on voxel boundaries (the synthetic walls at
 x = 0, y = 0 and the floor at z = 0) may land on either side, so a match allows ``slack_voxels``
@@ -23,6 +24,10 @@ of Chebyshev distance:
   a class) is a miss of its class, and an occupied leaf with no ground-truth voxel within the
   slack is a false positive of its class. A map that drops most of the scene and keeps its sure
   leaves has a high map mIoU and a low scene mIoU.
+* a ground-truth voxel labelled void (:data:`~evsmap.data.VOID`: surface without a class, e.g.
+  ScanNet's unannotated mesh) counts for geometry (precision, recall) and for matching, never
+  for the semantic scores: a leaf matched to it is left out of the matrix (as a void pixel in
+  2D), and it is not a voxel of the scene mIoU.
 
 Everything is vectorised over voxels: a neighbourhood lookup is one ``np.searchsorted`` of the
 packed codes per offset.
@@ -35,6 +40,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from evsmap.data import VOID
 from evsmap.errors import InvalidDataError
 from evsmap.interfaces import MapUpdater
 from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack, unpack
@@ -155,7 +161,7 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
                  num_classes: int | None = None) -> MapQuality:
     """Score the occupied leaves of ``updater`` (an
     :class:`~evsmap.updaters.base.OctreeUpdater`) against ``ground_truth``
-    (:class:`~evsmap.synth.groundtruth.VoxelLabels` at the map's resolution).
+    (:class:`~evsmap.data.VoxelLabels` at the map's resolution).
 
     Args:
         slack_voxels: Chebyshev tolerance of a match, in voxels (1: the 27-neighbourhood).
@@ -213,18 +219,21 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
     pred = occ_labels[matched]
     truth = gt_labels[match[matched]]
     labelled = pred >= 0
+    classed = gt_labels != VOID  # a surface voxel without a class scores geometry only
     if num_classes is None:
-        top = max(int(truth.max()) if truth.size else -1, int(pred.max()) if pred.size else -1,
-                  int(gt_labels.max()) if gt_labels.size else -1)
+        top = max(int(truth[truth != VOID].max()) if np.any(truth != VOID) else -1,
+                  int(pred.max()) if pred.size else -1,
+                  int(gt_labels[classed].max()) if classed.any() else -1)
         num_classes = max(top + 1, 1)
-    cm = ConfusionMatrix(num_classes)
+    cm = ConfusionMatrix(num_classes, ignore_index=VOID)
     cm.update(pred[labelled], truth[labelled])
     result = cm.result()
     # the scene: each observed ground-truth voxel's nearest occupied leaf (sorted codes)
     order = np.argsort(occ_codes, kind="stable")
-    near = nearest_within(gt_keys[known], occ_codes[order], slack)
+    scored = known & classed
+    near = nearest_within(gt_keys[scored], occ_codes[order], slack)
     scene_pred = np.where(near >= 0, occ_labels[order][np.maximum(near, 0)], -1)
-    scene = scene_miou(gt_labels[known], scene_pred, occ_labels[~matched], num_classes)
+    scene = scene_miou(gt_labels[scored], scene_pred, occ_labels[~matched], num_classes)
     return MapQuality(**quality, unlabelled=int(np.count_nonzero(~labelled)),
                       semantic_accuracy=result.pixel_accuracy, map_miou=result.miou,
                       semantic_accuracy_all=_ratio(np.count_nonzero(pred == truth), len(pred)),

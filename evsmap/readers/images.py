@@ -75,7 +75,7 @@ def _open(path: Path) -> Image.Image:
         raise DataFormatError(f"{path}: cannot read ({_one_line(exc)})") from None
 
 
-def _decode(path: Path, fh) -> Image.Image:
+def _decode(path: Path | str, fh) -> Image.Image:
     try:
         with warnings.catch_warnings():  # sizes PIL only warns about are refused below
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
@@ -121,24 +121,44 @@ _BUFFER_REPR = re.compile(r"<_io\.\w+ object at 0x[0-9a-fA-F]+>")
 def read_rgb(path: Path) -> np.ndarray:
     """8-bit colour image as ``uint8`` HxWx3 (RGBA and palette images are converted; grey and
     16-bit images are refused)."""
-    with _open(path) as img:
+    return _as_rgb(_open(path), path)
+
+
+def decode_rgb(data: bytes, *, where: str) -> np.ndarray:
+    """:func:`read_rgb` of an encoded image held in memory (a JPEG inside a ScanNet ``.sens``);
+    errors start with ``where``."""
+    return _as_rgb(_decode(where, io.BytesIO(data)), where)
+
+
+def _as_rgb(image: Image.Image, where: Path | str) -> np.ndarray:
+    with image as img:
         if img.mode not in ("RGB", "RGBA", "P"):
-            raise DataFormatError(f"{path}: expected an 8-bit colour image, got mode {img.mode}")
+            raise DataFormatError(f"{where}: expected an 8-bit colour image, got mode {img.mode}")
         return np.asarray(img.convert("RGB"), dtype=np.uint8)
 
 
 def read_uint16(path: Path) -> np.ndarray:
     """16-bit single-channel image (depth) as ``uint16`` HxW."""
-    with _open(path) as img:
+    return _as_uint16(_open(path), path)
+
+
+def decode_uint16(data: bytes, *, where: str) -> np.ndarray:
+    """:func:`read_uint16` of an encoded image held in memory (a 16-bit label PNG inside a
+    zip); errors start with ``where``."""
+    return _as_uint16(_decode(where, io.BytesIO(data)), where)
+
+
+def _as_uint16(image: Image.Image, where: Path | str) -> np.ndarray:
+    with image as img:
         if img.mode not in ("I;16", "I;16B", "I;16L", "I"):
-            raise DataFormatError(f"{path}: expected a 16-bit single-channel depth image, "
+            raise DataFormatError(f"{where}: expected a 16-bit single-channel image, "
                                   f"got mode {img.mode}")
         arr = np.asarray(img)
     if arr.ndim != 2:
-        raise DataFormatError(f"{path}: expected a single-channel image, got shape {arr.shape}")
+        raise DataFormatError(f"{where}: expected a single-channel image, got shape {arr.shape}")
     if arr.dtype != np.uint16:
         if arr.min() < 0 or arr.max() > 65535:
-            raise DataFormatError(f"{path}: depth values outside the 16-bit range")
+            raise DataFormatError(f"{where}: values outside the 16-bit range")
         arr = arr.astype(np.uint16)
     return arr
 

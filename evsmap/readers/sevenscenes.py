@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evsmap.data import MAX_TRANSLATION_M, Frame, Intrinsics, Sequence
+from evsmap.data import Frame, Intrinsics, Sequence
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.readers.images import (
     check_rgbd_shapes,
@@ -47,6 +47,7 @@ from evsmap.readers.images import (
     read_rgb,
     read_uint16,
 )
+from evsmap.readers.poses import checked_pose
 from evsmap.registry import READERS
 
 LAYOUT = "sevenscenes"
@@ -183,27 +184,8 @@ def read_pose(path: Path) -> np.ndarray:
     most 0.07 mm per metre of range) and the translation is kept as written. Non-finite entries,
     a last row other than ``0 0 0 1`` and a block further from a rotation are refused.
     """
-    pose = read_matrix(path, 4, 4, "camera-to-world pose")
-    if not np.all(np.isfinite(pose)):
-        bad = int((~np.isfinite(pose)).sum())
-        raise DataFormatError(f"{path}: non-finite pose ({bad} of 16 entries are nan/inf)")
-    if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
-        raise DataFormatError(f"{path}: pose last row must be [0 0 0 1], got {pose[3].tolist()}")
-    if np.abs(pose[:3, 3]).max() > MAX_TRANSLATION_M:
-        raise DataFormatError(f"{path}: pose translation {pose[:3, 3].tolist()} is beyond "
-                              f"{MAX_TRANSLATION_M:.0e} m from the origin")
-    rot = pose[:3, :3]
-    with np.errstate(all="ignore"):  # huge entries overflow to inf: refused just below
-        err = float(np.abs(rot @ rot.T - np.eye(3)).max())
-        det = float(np.linalg.det(rot))
-    if not err <= ROTATION_TOLERANCE or not det > 0:
-        raise DataFormatError(
-            f"{path}: pose rotation block is not a rotation (|R R^T - I| = {err:.2e}, "
-            f"det {det:.4f}; tolerance {ROTATION_TOLERANCE:g})")
-    u, _, vt = np.linalg.svd(rot)
-    pose[:3, :3] = u @ vt  # det R > 0, so U V^T is a proper rotation
-    pose[3] = (0.0, 0.0, 0.0, 1.0)
-    return pose
+    return checked_pose(read_matrix(path, 4, 4, "camera-to-world pose"), str(path),
+                        tolerance=ROTATION_TOLERANCE)
 
 
 def _normalise_sequence(sequence: str | int) -> str:

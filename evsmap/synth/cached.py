@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from evsmap.data import Frame, Sequence
+from evsmap.data import Frame, Sequence, VoxelLabels
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.synth.sequence import SyntheticSequence
 
@@ -79,6 +79,10 @@ class CachedSynthetic(Sequence):
         return DataFormatError(f"{exc} (in evsmap's cached rendering of the synthetic sequence; "
                                f"delete {self.folder} to render it again)")
 
-    def ground_truth(self, resolution: float):
+    @property
+    def has_ground_truth(self) -> bool:
+        return True
+
+    def ground_truth(self, resolution: float) -> VoxelLabels:
         """Occupied voxels of the room with their labels (the live sequence's)."""
         return self.live.ground_truth(resolution)

@@ -9,27 +9,10 @@ the most samples in it. Voxel keys follow OctoMap's convention without the 2^15 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from evsmap.data import VoxelLabels
 from evsmap.synth.scene import Part, Room
-
-
-@dataclass(frozen=True)
-class VoxelLabels:
-    """Occupied voxels: integer keys (N x 3, int32), class ids (N,, uint8), edge length."""
-
-    keys: np.ndarray
-    labels: np.ndarray
-    resolution: float
-
-    @property
-    def centers(self) -> np.ndarray:
-        return (self.keys.astype(np.float64) + 0.5) * self.resolution
-
-    def __len__(self) -> int:
-        return int(self.labels.shape[0])
 
 
 def _face_samples(part: Part, spacing: float) -> list[np.ndarray]:
@@ -105,3 +88,6 @@ def ground_truth_voxels(room: Room, resolution: float, *, hidden_tol: float = 1e
     kx = vox // (span[2] * span[1])
     out = np.stack([kx, ky, kz], axis=1) + off
     return VoxelLabels(out.astype(np.int32), lab.astype(np.uint8), float(resolution))
+
+
+__all__ = ["VoxelLabels", "ground_truth_voxels"]

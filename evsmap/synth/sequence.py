@@ -88,6 +88,10 @@ class SyntheticSequence(Sequence):
                      timestamp=float(self.timestamps[index]), labels=view.labels,
                      name=f"{self.timestamps[index]:.6f}")
 
+    @property
+    def has_ground_truth(self) -> bool:
+        return True
+
     def ground_truth(self, resolution: float) -> VoxelLabels:
         """Occupied voxels of the room with their labels at ``resolution`` metres."""
         return ground_truth_voxels(self.room, resolution)
