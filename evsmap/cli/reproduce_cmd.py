@@ -98,6 +98,14 @@ def _add_what(p: argparse.ArgumentParser) -> None:
                         "readings' check), at 5 cm beside 2 cm, and the C++ OctoMap on the "
                         "synthetic room: 33 more mapping runs, 16 of them of 640 frames (not "
                         "timed as a whole; with --resume: as the run was made)")
+    p.add_argument("--scannet-scenes", type=_scenes, default=None, metavar="LIST",
+                   help="ScanNet scenes the semantic-detail section maps, e.g. "
+                        "scene0011_00,scene0015_00, from <data root>/scannet/scans/ (default: "
+                        "the first two of the validation split there; without ScanNet the "
+                        "section maps the synthetic room and says what is missing)")
+    p.add_argument("--scannet-step", type=positive_int, default=None, metavar="N",
+                   help="map every N-th frame of a ScanNet scene (default 10: 3 Hz of its "
+                        "30 Hz)")
     p.add_argument("--budget", type=positive_float, default=None, metavar="MINUTES",
                    help="fit the run into this many minutes: a cell whose estimated time no "
                         "longer fits is not started and is recorded as not measured, with the "
@@ -108,6 +116,17 @@ def _add_what(p: argparse.ArgumentParser) -> None:
                         "e.g. 'table1/feagnet-*/complexity*' (keys as in records/*.json; a "
                         "Table IV cell brings its mapping runs); default: every cell of "
                         "--tables (with --resume: the run's)")
+
+
+def _scenes(text: str) -> list[str]:
+    from evsmap.readers.scannet.labelmap import SCENE_ID
+
+    scenes = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [s for s in scenes if not SCENE_ID.match(s)]
+    if not scenes or bad:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated scene ids such as scene0011_00, got {text!r}")
+    return scenes
 
 
 def _add_where(p: argparse.ArgumentParser) -> None:

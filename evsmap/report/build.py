@@ -152,6 +152,12 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
             proxy = proxy_accuracy_markdown(extras)
             if proxy:
                 md = md + "\n" + "\n".join(proxy).rstrip() + "\n"
+        if table.role == "mapping":  # one network, Table IV's updates, 3D scores (ScanNet)
+            from evsmap.report.detail import detail_markdown
+
+            detail = detail_markdown(extras)
+            if detail:
+                md = md + "\n" + "\n".join(detail).rstrip() + "\n"
         if table.role == "mapping":  # where the claims hold: the latest `evsmap explore`
             linked = study_markdown(_study(study), run_dir)
             if linked:

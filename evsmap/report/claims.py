@@ -137,6 +137,9 @@ def claims_markdown(frames: Mapping[str, pd.DataFrame],
     from evsmap.report.map_size import verdict_rows
 
     out += verdict_rows(extras)
+    from evsmap.report.detail import verdict_rows as detail_rows
+
+    out += detail_rows(extras)
     out.append("")
     return out
 

@@ -68,6 +68,9 @@ class RunContext:
             section): OctoMap's customary 5 cm with ``--extended``, else none.
         reference_on_synthetic: the C++ OctoMap reference row also maps the built-in synthetic
             sequences (``--extended``; it maps the real ones always).
+        scannet_scenes: the ScanNet scenes the semantic-detail section maps (empty: the first
+            of the validation split found, :mod:`evsmap.runner.scannet`).
+        scannet_step: every how many frames of a ScanNet scene are mapped (30 Hz recordings).
     """
 
     out: str
@@ -88,6 +91,8 @@ class RunContext:
     voxel_sizes_beside: tuple[float, ...] = ()
     reference_on_synthetic: bool = False
     oracle: dict[str, Any] = field(default_factory=lambda: {"seed": 0})
+    scannet_scenes: tuple[str, ...] = ()
+    scannet_step: int = 10
 
     @classmethod
     def create(cls, out: str | Path, *, data_root: str | Path | None = None,

@@ -24,6 +24,7 @@ from evsmap.runner.cell_base import base_fields, column_quantities, now
 from evsmap.runner.context import RunContext
 from evsmap.runner.network_cells import build_segmenter
 from evsmap.runner.records import CellRecord, needs_text
+from evsmap.runner.scannet import SCANNET, is_scannet_sequence, open_scannet
 from evsmap.runner.systems import ExtraSystem
 from evsmap.tables.schema import CellSpec, Component, mapping_table
 
@@ -135,6 +136,8 @@ def open_mapping_sequence(ctx: RunContext, name: str) -> FrameSequence:
     from evsmap.registry import READERS
     from evsmap.runner.context import MAPPING_SEQUENCES
 
+    if is_scannet_sequence(name):
+        return open_scannet(ctx, name)
     if name in SYNTHETIC_SEQUENCES:
         # rendered once into the cache shared across runs (TUM layout, read back
         # bit-identical, keyed by the options and the renderer's source), so the mapping runs,
@@ -360,11 +363,13 @@ def run_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: Fram
 
 def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     """Map ``run.sequence`` with ``run``'s system; time each update, add the segmentation time
-    per frame, measure the map file and (on the synthetic sequence) its 3D quality."""
+    per frame, measure the map file and (where the sequence has 3D ground truth: the synthetic
+    room, a ScanNet scene) its 3D quality."""
     from evsmap.measure.contention import CalibrationLog, Probe, contention, machine_log_path
 
-    if run.sequence not in SYNTHETIC_SEQUENCES and ctx.dataset_path(run.sequence) is None:
-        need = f"dataset:{run.sequence}"
+    dataset = SCANNET if is_scannet_sequence(run.sequence) else run.sequence
+    if run.sequence not in SYNTHETIC_SEQUENCES and ctx.dataset_path(dataset) is None:
+        need = f"dataset:{dataset}"
         return CellRecord(**run.base_fields(), status="na", needs=[need],
                           reason=needs_text([need]), started=now())
     sequence = open_mapping_sequence(ctx, run.sequence)
@@ -388,8 +393,10 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         f"frames (update only; segmentation + update = the median segmentation time + the "
         f"median update time)"]
     _add_contention(machine, details, notes)
+    truth = _ground_truth(run, ctx, sequence) if mapped.updater.has_leaf_map else None
+    if truth is not None:
+        _add_quality(truth, mapped.updater, values, details)
     if run.sequence in SYNTHETIC_SEQUENCES and mapped.updater.has_leaf_map:
-        _add_quality(run, ctx, mapped.updater, values, details)
         _save_artifacts(run, ctx, mapped.updater, sequence, indices, labels)
     return CellRecord(**run.base_fields(), status="ok", values=values, notes=notes,
                       details=details)
@@ -447,20 +454,29 @@ def _add_contention(machine: dict[str, Any], details: dict[str, Any], notes: lis
         notes.append(f"timing flagged - {flag}")
 
 
-def _add_quality(run: MappingRun, ctx: RunContext, updater: MapUpdater, values: dict[str, float],
-                 details: dict[str, Any]) -> None:
-    """The map's 3D quality against the synthetic scene's ground truth (outside the memory
-    scope): in ``details["quality"]``, its finite fractions in ``values``."""
-    from evsmap.measure.evaluators import MapQualityEvaluator
-    from evsmap.synth.sequence import SyntheticSequence
+def _ground_truth(run: MappingRun, ctx: RunContext, sequence: FrameSequence) -> Any:
+    """The scene's voxels at the run's voxel size: the synthetic room's (rebuilt from its
+    options; the sequence mapped is its rendering read back), a ScanNet scene's labelled mesh;
+    None for a sequence without 3D ground truth."""
+    if run.sequence in SYNTHETIC_SEQUENCES:
+        from evsmap.synth.sequence import SyntheticSequence
 
-    truth = SyntheticSequence(**synthetic_options(ctx, run.sequence)).ground_truth(
-        run.voxel_size)
+        return SyntheticSequence(**synthetic_options(ctx, run.sequence)).ground_truth(
+            run.voxel_size)
+    return sequence.ground_truth(run.voxel_size) if sequence.has_ground_truth else None
+
+
+def _add_quality(truth: Any, updater: MapUpdater, values: dict[str, float],
+                 details: dict[str, Any]) -> None:
+    """The map's 3D quality against ``truth`` (outside the memory scope): in
+    ``details["quality"]``, its finite fractions in ``values``."""
+    from evsmap.measure.evaluators import MapQualityEvaluator
+
     quality = MapQualityEvaluator(truth).evaluate(updater)
     q = quality.as_dict() if quality is not None else {}
     details["quality"] = q
     for name in ("precision", "recall", "semantic_accuracy", "semantic_accuracy_all",
-                 "map_miou"):
+                 "map_miou", "scene_miou"):
         if q.get(name) is not None and np.isfinite(q[name]):
             values[name] = float(q[name])
 

@@ -123,6 +123,10 @@ def plan(ctx: RunContext, tables: Iterable[str] | None = None,
             if ctx.dataset_path(d) is not None]
     runs = mapping_runs(sequences, ctx.voxel_sizes(), systems,
                         reference_on_synthetic=ctx.reference_on_synthetic) if sequences else []
+    if sequences:  # the semantic-detail section: Table IV's updates, one network, 3D scores
+        from evsmap.runner.detail import detail_runs
+
+        runs += detail_runs(ctx)
     if cells is not None:
         from fnmatch import fnmatchcase
 

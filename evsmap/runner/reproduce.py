@@ -69,6 +69,8 @@ def reproduce(job: Reproduction) -> list[CellRecord]:
     job.out.mkdir(parents=True, exist_ok=True)
     ctx = RunContext.create(job.out, data_root=s.data_root, weights_dir=s.weights_dir,
                             quick=s.quick, strict_timing=s.strict_timing, extended=s.extended)
+    ctx.scannet_scenes = tuple(s.scannet_scenes or ())
+    ctx.scannet_step = s.scannet_step
     the_plan = plan(ctx, job.tables, job.systems, cells=s.cells)
     if not the_plan.keys:
         if created:

@@ -1,9 +1,10 @@
 """A small ScanNet scene in the official layout, and its independent voxelisation.
 
 The scene is a box room whose six faces are axis-aligned rectangles with gaps between them
-(each of one NYU40 id; the ceiling unannotated), seen from its middle by a camera turning on the spot. Depth and labels
-are ray cast against the rectangles exactly; the ``.sens``, labelled mesh, label table, 2D label
-archive and split files are written with :mod:`evsmap.readers.scannet.write`.
+(each of one NYU40 id; the ceiling unannotated), seen from its middle by a camera turning on
+the spot. Depth and labels are ray cast against the rectangles exactly; the ``.sens``, labelled
+mesh, label table, 2D label archive and split files are written with
+:mod:`evsmap.readers.scannet.write`.
 :func:`box_truth` voxelises the room from the rectangles' areas (no sampling): what the reader's
 mesh voxelisation must equal.
 """

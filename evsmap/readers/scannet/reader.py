@@ -262,9 +262,9 @@ class ScanNetSequence(Sequence):
         self.frames = frames
         self.step = step
         self.indices = np.arange(0, len(frames.numbers), step, dtype=np.int64)
+        if mesh is not None and not Path(mesh).is_file():
+            raise DataFormatError(f"{mesh}: file not found (mesh=)")
         self.mesh_path = Path(mesh) if mesh is not None else self._find_mesh(folder, scene_id)
-        if mesh is not None and not self.mesh_path.is_file():
-            raise DataFormatError(f"{self.mesh_path}: file not found (mesh=)")
         self.table_path = (Path(label_table) if label_table is not None
                            else _find_upwards(folder, LABELS_TSV))
         self.label_images = self._find_label_images(folder, scene_id)

@@ -130,7 +130,7 @@ def read_header(f: io.BufferedReader, path: Path) -> SensHeader:
 
 
 class SensFile:
-    """A ``.sens`` file's header and frame index (:mod:`module notes <evsmap.readers.scannet.sens>`).
+    """A ``.sens`` file's header and frame index (the module notes).
 
     Args:
         path: the ``.sens`` file.

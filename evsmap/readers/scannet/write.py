@@ -67,7 +67,6 @@ def write_sens(path: str | os.PathLike[str], frames: Iterable[SensFrame], *,
             ``raw_ushort``.
     """
     frames = list(frames)
-    eye = np.eye(4)
 
     def mat(m: np.ndarray | None) -> list[float]:
         out = np.eye(4)
@@ -80,8 +79,8 @@ def write_sens(path: str | os.PathLike[str], frames: Iterable[SensFrame], *,
     with open(path, "wb") as f:
         f.write(struct.pack("<I", VERSION))
         f.write(struct.pack("<Q", len(name)) + name)
-        f.write(struct.pack("<64f", *mat(intrinsic_color), *mat(eye if extrinsic_color is None else extrinsic_color),
-                            *mat(intrinsic_depth), *mat(eye if extrinsic_depth is None else extrinsic_depth)))
+        f.write(struct.pack("<64f", *mat(intrinsic_color), *mat(extrinsic_color),
+                            *mat(intrinsic_depth), *mat(extrinsic_depth)))
         f.write(struct.pack("<2i", _code(COLOR_COMPRESSION, color_compression),
                             _code(DEPTH_COMPRESSION, depth_compression)))
         f.write(struct.pack("<4I", *color_size, *depth_size))

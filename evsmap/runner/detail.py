@@ -1,0 +1,65 @@
+"""The semantic-detail section: Table IV's map updates, one network feeding all of them, scored
+in 3D on ScanNet's labelled meshes (and on the synthetic room, so the comparison is always
+there).
+
+The paper says EVSMap "maintains the same level of detail in semantic information
+representation" while its map shrinks, and shows pictures (Fig. 7). Here every Table IV update
+maps the same frames with the same labels (EVSMap's network with its NYUv2 weights where they
+are, else the oracle on the sequence's ground-truth labels), so that the maps differ by the
+update alone, and each map is scored against the scene's voxelised ground truth. With one
+network, TESAMap and TFEAGMap are the same system (semantic_slam's update), as are MESAMap and
+EVSMap (the multi-class Bayesian update): the section has one row for each update, and ORGBMap
+for geometry. The records are ordinary mapping runs (``extra/mapping/detail-<row>/...``).
+
+ScanNet scenes: :mod:`evsmap.runner.scannet`.
+"""
+
+from __future__ import annotations
+
+from evsmap.runner.context import RunContext
+from evsmap.runner.mapping_cells import MappingRun
+from evsmap.runner.scannet import SCANNET, scannet_scenes, scannet_sequence
+from evsmap.tables.schema import mapping_table
+
+DETAIL_PREFIX = "detail-"
+"""What the section's row ids start with."""
+DETAIL_ROWS = ("orgbmap", "tesamap", "evsmap")
+"""Table IV's rows whose updates the section maps (one network: TFEAGMap maps as TESAMap,
+MESAMap as EVSMap)."""
+SAME_AS = {"tesamap": "TFEAGMap", "evsmap": "MESAMap"}
+"""The Table IV system each row stands for too, with one network."""
+NETWORK_ROW = "evsmap"
+"""The row whose network labels every semantic row (EVSMap's FEAGNet-V2, NYUv2 weights)."""
+SEMANTIC_DETAIL_TOLERANCE = 0.01
+"""The claim "EVSMap keeps TESAMap's semantic detail" holds where EVSMap's 3D scene mIoU is at
+most this much (1 point) below TESAMap's, on the same frames and labels."""
+
+
+def detail_row(row: str) -> str:
+    return DETAIL_PREFIX + row
+
+
+def detail_runs(ctx: RunContext) -> list[MappingRun]:
+    """The section's mapping runs: each of :data:`DETAIL_ROWS` on the synthetic room and on
+    each ScanNet scene (one n/a run naming the dataset when it is not under the data root), at
+    Table IV's voxel size."""
+    table = mapping_table()
+    rows = {r.id: r for r in table.rows}
+    segmenter = rows[NETWORK_ROW].segmenter_for("nyuv2")
+    scenes = scannet_scenes(ctx)
+    sequences = ["synthetic"] + ([scannet_sequence(s) for s in scenes] or [SCANNET])
+    runs = []
+    for seq in sequences:
+        for row_id in DETAIL_ROWS:
+            system = rows[row_id]
+            assert system.updater is not None
+            label = system.label + (f" (= {SAME_AS[row_id]} with one network)"
+                                    if row_id in SAME_AS else "")
+            runs.append(MappingRun(detail_row(row_id), label,
+                                   segmenter if system.segmenter is not None else None,
+                                   system.updater, seq, ctx.voxel_size))
+    return runs
+
+
+__all__ = ["DETAIL_PREFIX", "DETAIL_ROWS", "NETWORK_ROW", "SAME_AS", "SEMANTIC_DETAIL_TOLERANCE",
+           "detail_row", "detail_runs"]
