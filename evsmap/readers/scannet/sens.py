@@ -44,6 +44,9 @@ READ_DEPTH = ("raw_ushort", "zlib_ushort")
 MAX_NAME_BYTES = 1 << 16
 """Longest sensor name accepted (ScanNet's are a few dozen bytes)."""
 MAX_IMAGE_SIDE = 1 << 15
+DEPTH_SHIFT_RANGE = (1.0, 1e6)
+"""Stored depth values per metre accepted (ScanNet 1000, TUM 5000): below 1 a 16-bit value
+would stand for kilometres, above 10^6 for less than a micrometre."""
 FRAME_HEADER = struct.Struct("<16f4Q")
 """A frame's fixed part: pose (16 ``float32``), colour and depth stamps, colour and depth sizes."""
 _HEAD = struct.Struct("<I")
@@ -121,9 +124,10 @@ def read_header(f: io.BufferedReader, path: Path) -> SensHeader:
         if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
             raise DataFormatError(f"{path}: {what} image size {w}x{h} in the header is not a "
                                   f"camera's")
-    if not (np.isfinite(shift) and shift > 0):
-        raise DataFormatError(f"{path}: depth shift {shift!r} in the header must be a positive "
-                              f"number (1000: millimetres)")
+    if not (np.isfinite(shift) and DEPTH_SHIFT_RANGE[0] <= shift <= DEPTH_SHIFT_RANGE[1]):
+        raise DataFormatError(f"{path}: depth shift {shift!r} in the header must lie in "
+                              f"{DEPTH_SHIFT_RANGE[0]:g}..{DEPTH_SHIFT_RANGE[1]:g} (1000: "
+                              f"millimetres)")
     return SensHeader(name, mats[0], mats[1], mats[2], mats[3], COLOR_COMPRESSION[color_c],
                       DEPTH_COMPRESSION[depth_c], (int(cw), int(ch)), (int(dw), int(dh)),
                       float(shift), int(count))
