@@ -88,6 +88,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lst.add_argument("--json", action="store_true", help="print the list as JSON")
     lst.set_defaults(run=run_list)
 
+    check = dsub.add_parser(
+        "check", help="check a copy of a dataset evsmap cannot download (ScanNet)",
+        description="ScanNet needs a signed agreement, so evsmap does not download it: this "
+                    "says how to obtain it and where to put it, and checks a copy in the "
+                    "release layout (scans/sceneNNNN_NN/ with the .sens and "
+                    "_vh_clean_2.labels.ply, scannetv2-labels.combined.tsv, the split files): "
+                    "every file present and readable, frames and vertices counted, one line "
+                    "per problem. Exit 0: no problem; 1: problems (listed); 2: no copy there.")
+    check.add_argument("dataset", choices=["scannet"], metavar="DATASET", help="scannet")
+    check.add_argument("--root", type=Path, metavar="DIR",
+                       help="the release folder (default: scannet/ under the data root, "
+                            "$EVSMAP_DATA_ROOT or ../shared/data, or under datasets/)")
+    check.add_argument("--no-meshes", action="store_true",
+                       help="do not read the labelled meshes (faster; their presence is "
+                            "still checked)")
+    check.add_argument("--json", action="store_true", help="print the check as JSON")
+    check.set_defaults(run=run_check)
+
     from evsmap.download import CACHE_ENV, MIRROR_ENV, RETRIES, format_size
     from evsmap.fetch import CONFIRM_BYTES
     from evsmap.samples import SAMPLES
@@ -281,6 +299,47 @@ def run_list(args: argparse.Namespace) -> int:
             detail = d.get("note", "")
         print(f"{d['name'] or '?':<11} {d['path']:<{width}}  {detail}")
     return 0
+
+
+# -- check ----------------------------------------------------------------------------------------
+def _scannet_root(given: Path | None) -> Path | None:
+    if given is not None:
+        return given
+    from evsmap.paths import default_data_root
+
+    for base in (default_data_root(), DEFAULT_ROOT):
+        if base is not None and (Path(base) / "scannet").is_dir():
+            return Path(base) / "scannet"
+    return None
+
+
+def run_check(args: argparse.Namespace) -> int:
+    from evsmap.readers.scannet.check import OBTAIN, check_release
+
+    root = _scannet_root(args.root)
+    if root is None or not root.is_dir():
+        where = f"--root {root}: no such folder" if args.root is not None else \
+            "no scannet/ folder under the data root or datasets/"
+        raise DataFormatError(f"{where}. {OBTAIN}")
+    result = check_release(root, meshes=not args.no_meshes,
+                           progress=lambda it: progress(list(it), desc="checking scenes"))
+    problems = result.all_problems()
+    if args.json:
+        print(json.dumps(result.as_dict(), indent=2))
+        return 1 if problems else 0
+    frames = sum(s.frames or 0 for s in result.scenes)
+    print(f"ScanNet at {root}: {len(result.scenes)} scenes, {frames:,} frames in their .sens "
+          f"files, label table {'ok' if result.label_table else 'missing or unreadable'}")
+    for split, listed in result.splits.items():
+        print(f"  {split:<5} split: {result.split_present[split]} of its {listed} scenes present")
+    with_2d = sum(s.label_images for s in result.scenes)
+    lost = sum(s.invalid_poses or 0 for s in result.scenes)
+    print(f"  {with_2d} scenes with 2D label images; {lost:,} frames with invalid (-inf) poses "
+          f"(skipped with --skip-bad)")
+    for line in problems:
+        print(f"problem: {line}")
+    print("no problems found" if not problems else f"{len(problems)} problem(s)")
+    return 1 if problems else 0
 
 
 # -- fetch ----------------------------------------------------------------------------------------

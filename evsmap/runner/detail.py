@@ -26,7 +26,7 @@ DETAIL_PREFIX = "detail-"
 DETAIL_ROWS = ("orgbmap", "tesamap", "evsmap")
 """Table IV's rows whose updates the section maps (one network: TFEAGMap maps as TESAMap,
 MESAMap as EVSMap)."""
-SAME_AS = {"tesamap": "TFEAGMap", "evsmap": "MESAMap"}
+SAME_AS = {"tesamap": "= TFEAGMap with one network", "evsmap": "EVSMap; = MESAMap with one network"}
 """The Table IV system each row stands for too, with one network."""
 NETWORK_ROW = "evsmap"
 """The row whose network labels every semantic row (EVSMap's FEAGNet-V2, NYUv2 weights)."""
@@ -53,7 +53,7 @@ def detail_runs(ctx: RunContext) -> list[MappingRun]:
         for row_id in DETAIL_ROWS:
             system = rows[row_id]
             assert system.updater is not None
-            label = system.label + (f" (= {SAME_AS[row_id]} with one network)"
+            label = system.label + (f" ({SAME_AS[row_id]})"
                                     if row_id in SAME_AS else "")
             runs.append(MappingRun(detail_row(row_id), label,
                                    segmenter if system.segmenter is not None else None,

@@ -5,7 +5,8 @@ The release sits under the data root as ``scannet/`` in its official layout (``s
 ``scannetv2-labels.combined.tsv``, the split files). A scene is the sequence
 ``scannet-<scene id>``; the scenes mapped are ``--scannet-scenes``, else the first
 :data:`AUTO_SCENES` of the validation split found there (the scenes present, by name, without
-the split file), read every ``--scannet-step``-th frame (ScanNet records at 30 Hz).
+the split file), read every ``--scannet-step``-th frame (ScanNet records at 30 Hz) of those whose
+pose is valid (ScanNet marks a frame its tracking lost with -inf).
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ def open_scannet(ctx: RunContext, name: str) -> Sequence:
         raise EvsmapError(f"sequence {name!r}: no {SCANNET}/ folder under {ctx.roots()}")
     sequence: Sequence = READERS.create(
         "scannet", path=str(root), scene=name.removeprefix(SCANNET_SEQUENCE_PREFIX),
-        step=ctx.scannet_step)
+        step=ctx.scannet_step, drop_lost=True)
     return sequence
 
 

@@ -193,6 +193,15 @@ class _ExportedFrames:
         return read_rgb(self._file("color", i, ".jpg"))
 
 
+def _tracked(frames: _SensFrames | _ExportedFrames, i: int) -> bool:
+    """Whether frame ``i``'s stored pose is not ScanNet's -inf mark (an unreadable pose file
+    stays in, a bad frame for :meth:`ScanNetSequence.frame` to report)."""
+    try:
+        return not np.all(np.isneginf(np.asarray(frames.pose(i))))
+    except DataFormatError:
+        return True
+
+
 def _numbered(folder: Path, ext: str) -> dict[int, Path]:
     try:
         names = os.listdir(folder)
@@ -245,11 +254,13 @@ class ScanNetSequence(Sequence):
         mesh: the labelled mesh (default ``<scene>_vh_clean_2.labels.ply`` beside the frames).
         label_table: ``scannetv2-labels.combined.tsv`` (default: looked for in the scene's
             folder and the three above it).
+        drop_lost: leave out the frames whose pose is invalid (-inf, tracking lost) before
+            taking every ``step``-th (what the runner maps); by default they are bad frames.
     """
 
     def __init__(self, *, path: str | Path, scene: str | None = None, labels: str = "auto",
                  step: int = 1, mesh: str | Path | None = None,
-                 label_table: str | Path | None = None) -> None:
+                 label_table: str | Path | None = None, drop_lost: bool = False) -> None:
         given = Path(path)
         if labels not in LABEL_SOURCES:
             raise EvsmapError(f"labels must be one of {', '.join(LABEL_SOURCES)}, got {labels!r}")
@@ -261,7 +272,12 @@ class ScanNetSequence(Sequence):
         self.root = frames.path
         self.frames = frames
         self.step = step
-        self.indices = np.arange(0, len(frames.numbers), step, dtype=np.int64)
+        kept = np.arange(len(frames.numbers), dtype=np.int64)
+        lost = 0
+        if drop_lost:
+            tracked = np.array([_tracked(frames, i) for i in kept], dtype=bool)
+            kept, lost = kept[tracked], int(np.count_nonzero(~tracked))
+        self.indices = kept[::step]
         if mesh is not None and not Path(mesh).is_file():
             raise DataFormatError(f"{mesh}: file not found (mesh=)")
         self.mesh_path = Path(mesh) if mesh is not None else self._find_mesh(folder, scene_id)
@@ -274,6 +290,7 @@ class ScanNetSequence(Sequence):
         self._label_lookup: np.ndarray | None = None
         meta = {"layout": LAYOUT, "source": frames.source, "path": str(frames.path),
                 "scene": scene_id, "step": step, **frames.meta,
+                **({"lost_frames_dropped": lost} if drop_lost else {}),
                 "mesh": None if self.mesh_path is None else str(self.mesh_path),
                 "label_table": None if self.table_path is None else str(self.table_path),
                 "labels": self.labels_source,
@@ -484,7 +501,8 @@ def _find_upwards(folder: Path, name: str) -> Path | None:
                               "labelled mesh, the .sens file, a SensReader export, or the "
                               "release root (-r scene=scene0011_00)")
 def open_scannet(*, path: str, scene: str | None = None, labels: str = "auto", step: int = 1,
-                 mesh: str | None = None, label_table: str | None = None) -> ScanNetSequence:
+                 mesh: str | None = None, label_table: str | None = None,
+                 drop_lost: bool = False) -> ScanNetSequence:
     """ScanNet v2 scene (``.sens`` stream or SensReader export, labelled mesh as 3D truth).
 
     Args:
@@ -497,9 +515,11 @@ def open_scannet(*, path: str, scene: str | None = None, labels: str = "auto", s
         mesh: the labelled mesh (default ``<scene>_vh_clean_2.labels.ply`` beside the frames).
         label_table: ``scannetv2-labels.combined.tsv`` (default: found in the scene's folder or
             up to three folders above).
+        drop_lost: leave out the frames with invalid (-inf) poses before taking every
+            step-th (by default each is a bad frame that --skip-bad skips).
     """
     return ScanNetSequence(path=path, scene=scene, labels=labels, step=step, mesh=mesh,
-                           label_table=label_table)
+                           label_table=label_table, drop_lost=drop_lost)
 
 
 __all__ = ["LABEL_SOURCES", "MESH_LABEL_RESOLUTION", "ScanNetSequence", "is_scannet",
