@@ -1,5 +1,5 @@
-"""The ScanNet reader on small scenes written in the official layout (tests/readers/scannet_scene.py):
-the ``.sens`` stream and SensReader's export, the labelled mesh's voxelisation against an
+"""The ScanNet reader on small scenes written in the official layout
+(tests/readers/scannet_scene.py): the ``.sens`` stream and SensReader's export, the labelled mesh's voxelisation against an
 independent one, the label table and the 2D label images, and ``evsmap info`` / ``evsmap map``."""
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def test_mesh_voxelisation_equals_an_independent_one(folder, resolution):
     seq = READERS.create("scannet", path=str(folder))
     got, want = seq.ground_truth(resolution), scene.box_truth(resolution)
     assert got is not None and len(got) == len(want) > 0
-    for a, b in zip(_sorted(got), _sorted(want)):
+    for a, b in zip(_sorted(got), _sorted(want), strict=True):
         np.testing.assert_array_equal(a, b)
     assert 255 in want.labels  # the unannotated ceiling: void, scored for geometry only
 

@@ -275,8 +275,8 @@ class ScanNetSequence(Sequence):
         kept = np.arange(len(frames.numbers), dtype=np.int64)
         lost = 0
         if drop_lost:
-            tracked = np.array([_tracked(frames, i) for i in kept], dtype=bool)
-            kept, lost = kept[tracked], int(np.count_nonzero(~tracked))
+            tracked = [i for i in range(len(kept)) if _tracked(frames, i)]
+            kept, lost = kept[tracked], len(kept) - len(tracked)
         self.indices = kept[::step]
         if mesh is not None and not Path(mesh).is_file():
             raise DataFormatError(f"{mesh}: file not found (mesh=)")
