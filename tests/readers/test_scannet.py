@@ -1,6 +1,7 @@
 """The ScanNet reader on small scenes written in the official layout
-(tests/readers/scannet_scene.py): the ``.sens`` stream and SensReader's export, the labelled mesh's voxelisation against an
-independent one, the label table and the 2D label images, and ``evsmap info`` / ``evsmap map``."""
+(tests/readers/scannet_scene.py): the ``.sens`` stream and SensReader's export, the labelled
+mesh's voxelisation against an independent one, the label table and the 2D label images, and
+``evsmap info`` / ``evsmap map``."""
 
 from __future__ import annotations
 
