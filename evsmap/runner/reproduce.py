@@ -27,6 +27,7 @@ from evsmap.runner.mapping_cells import lacks_labels
 from evsmap.runner.matrix import Plan, plan, run_matrix
 from evsmap.runner.records import CellRecord, RecordStore
 from evsmap.runner.runfile import RUN_FILE, RunFile, RunSettings
+from evsmap.runner.scannet import SCANNET, SCANNET_SEQUENCE_PREFIX, is_scannet_sequence
 from evsmap.runner.systems import ExtraSystem, load_systems, systems_from_records
 from evsmap.tables.schema import mapping_table, mapping_table_id
 
@@ -94,7 +95,9 @@ def reproduce(job: Reproduction) -> list[CellRecord]:
 def run_file(ctx: RunContext, job: Reproduction, the_plan: Plan) -> RunFile:
     """``run.json`` of ``job`` as it starts (``finished`` not yet set)."""
     sequences = {"synthetic": {**ctx.synthetic, "labels": "ground truth (oracle segmenter)"}}
-    for name in the_plan.sequences:
+    scenes = sorted({r.sequence for r in the_plan.runs
+                     if is_scannet_sequence(r.sequence) and r.sequence != SCANNET})
+    for name in [*the_plan.sequences, *scenes]:
         if name != "synthetic":
             sequences[name] = describe_sequence(ctx, name)
     return RunFile(
@@ -177,8 +180,13 @@ def user_systems(path: Path | None, tables: list[str], resumed: RunFile | None,
 def describe_sequence(ctx: RunContext, name: str) -> dict[str, Any]:
     """What index.md says about a real mapping sequence: its folder, the frames mapped (all, or
     the ``--quick`` cap), their size, and whether it has labels for the oracle."""
-    path = ctx.dataset_path(name)
-    info: dict[str, Any] = {"path": str(path), "scene": path.name if path is not None else None}
+    if is_scannet_sequence(name):
+        path = ctx.dataset_path(SCANNET)
+        info: dict[str, Any] = {"path": str(path), "scene": name.removeprefix(
+            SCANNET_SEQUENCE_PREFIX), "step": ctx.scannet_step}
+    else:
+        path = ctx.dataset_path(name)
+        info = {"path": str(path), "scene": path.name if path is not None else None}
     try:
         seq = open_mapping_sequence(ctx, name)
         n = len(seq) if ctx.frames is None else min(ctx.frames, len(seq))

@@ -68,5 +68,5 @@ def open_scannet(ctx: RunContext, name: str) -> Sequence:
     return sequence
 
 
-__all__ = ["AUTO_SCENES", "SCANNET", "is_scannet_sequence", "open_scannet", "scannet_scenes",
-           "scannet_sequence"]
+__all__ = ["AUTO_SCENES", "SCANNET", "SCANNET_SEQUENCE_PREFIX", "is_scannet_sequence",
+           "open_scannet", "scannet_scenes", "scannet_sequence"]
