@@ -58,6 +58,8 @@ def summarize_sequence(
                 "time_source_reason"):
         if key in sequence.meta:
             record[key] = sequence.meta[key]
+    if sequence.has_ground_truth:
+        record["ground_truth"] = sequence.meta.get("ground_truth_source", "ground-truth voxels")
     return record
 
 

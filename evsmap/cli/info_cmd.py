@@ -90,6 +90,9 @@ def format_info(r: dict) -> str:
         dropped = ", ".join(f"{k.replace('_', ' ')}: {v}" for k, v in r["dropped"].items() if v)
         if dropped:
             lines.append(f"dropped     {dropped}")
+    if r.get("ground_truth"):
+        lines.append(f"3D truth    {r['ground_truth']} (`evsmap map --json` scores the map "
+                     f"against it)")
     if "skipped" in r:
         lines.append("skipped     " + SkippedFrames(
             [(f["index"], f["reason"]) for f in r["skipped"]["frames"]]).summary())

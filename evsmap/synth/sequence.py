@@ -54,7 +54,9 @@ class SyntheticSequence(Sequence):
             f"synthetic-{scene}-s{seed}" + (f"-{laps}laps" if laps > 1 else ""),
             default_intrinsics(width, height),
             {"layout": "synthetic", "scene": scene, "seed": seed, "noise": noise,
-             "room_size": list(self.room.size), "generator_version": GENERATOR_VERSION},
+             "room_size": list(self.room.size), "generator_version": GENERATOR_VERSION,
+             "ground_truth_source": "the room's visible surfaces, voxelised at the map's "
+                                    "resolution"},
         )
         self.scene, self.seed, self.noise = scene, seed, noise
         self.num_classes = len(NYU40_CLASSES)

@@ -290,10 +290,12 @@ class ScanNetSequence(Sequence):
         self._label_lookup: np.ndarray | None = None
         meta = {"layout": LAYOUT, "source": frames.source, "path": str(frames.path),
                 "scene": scene_id, "step": step, **frames.meta,
-                **({"lost_frames_dropped": lost} if drop_lost else {}),
+                **({"dropped": {"lost_tracking": lost}} if drop_lost else {}),
                 "mesh": None if self.mesh_path is None else str(self.mesh_path),
                 "label_table": None if self.table_path is None else str(self.table_path),
                 "labels": self.labels_source,
+                "ground_truth_source": None if self.mesh_path is None else
+                f"labelled mesh {self.mesh_path.name}, voxelised at the map's resolution",
                 "colour_registration": "colour resized to the depth image; depth camera "
                                        "intrinsics for both",
                 "class_names": list(NYU40_CLASSES), "num_classes": len(NYU40_CLASSES)}
