@@ -449,6 +449,13 @@ class Sequence(abc.ABC):
     def num_classes(self, count: int | None) -> None:
         self._num_classes = int(count) if count else None
 
+    def frames_identity(self) -> str | None:
+        """What the frames (and their labels) are, for caches of what is computed from them
+        (the runner's segmentation cache): a string that changes whenever a frame could, or
+        None to let the caller use the sequence's folder and its modification time (the
+        default)."""
+        return None
+
     @property
     def has_ground_truth(self) -> bool:
         """Whether :meth:`ground_truth` gives voxels for this sequence as opened (False by

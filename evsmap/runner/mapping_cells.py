@@ -159,7 +159,11 @@ def sequence_identity(sequence: FrameSequence) -> str:
     """What a sequence's frames are, for the shared segmentation cache: its folder (resolved)
     and that folder's modification time and size, so frames replaced in place, or another
     rendering of the synthetic scene (its folder names the renderer's source digest), get new
-    entries."""
+    entries; a sequence that says what its frames are (:meth:`Sequence.frames_identity`, e.g. a
+    ScanNet scene read every N-th frame) is taken at its word."""
+    own = sequence.frames_identity()
+    if own is not None:
+        return own
     path = getattr(sequence, "root", None) or getattr(sequence, "path", None)
     if path is None:
         return str(getattr(sequence, "name", "unknown"))

@@ -228,3 +228,13 @@ def test_bad_files_are_one_line_errors(tmp_path, folder):
 def test_empty_mesh_has_no_voxels():
     mesh = LabelMesh(np.zeros((0, 3)), np.zeros(0, np.uint8), np.zeros((0, 3), np.int64))
     assert len(voxelise(mesh, 0.05)) == 0
+
+
+def test_frames_identity_follows_the_frames_chosen(folder):
+    """The runner's segmentation cache keys a sequence's observations by what its frames are:
+    another step, dropping the lost frames or another label source is another key."""
+    ids = {READERS.create("scannet", path=str(folder), **options).frames_identity()
+           for options in ({}, {"step": 2}, {"drop_lost": True}, {"labels": "mesh"})}
+    assert len(ids) == 4
+    same = READERS.create("scannet", path=str(folder)).frames_identity()
+    assert same in ids

@@ -38,6 +38,7 @@ map's resolution (:func:`~evsmap.readers.scannet.mesh.voxelise`).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import zipfile
 from pathlib import Path
@@ -375,6 +376,21 @@ class ScanNetSequence(Sequence):
         if self.label_images is not None and self.table_path is not None:
             return "label-filt"
         return "mesh" if self.mesh_path is not None else "none"
+
+    def frames_identity(self) -> str:
+        """The stream's and the label files' paths, sizes and modification times, with the
+        frames chosen (step, lost frames dropped) and the labels' source."""
+        parts = [f"scannet:{self.scene_id}", f"step={self.step}",
+                 "frames=" + hashlib.sha256(self.indices.tobytes()).hexdigest()[:16],
+                 f"labels={self.labels_source}"]
+        for path in (self.frames.path, self.mesh_path, self.table_path, self.label_images):
+            if path is not None:
+                try:
+                    st = Path(path).stat()
+                    parts.append(f"{Path(path).resolve()}:{st.st_mtime_ns}:{st.st_size}")
+                except OSError:
+                    parts.append(str(path))
+        return "|".join(parts)
 
     # ---- ground truth
     @property
