@@ -23,6 +23,7 @@ from evsmap.errors import DataFormatError
 from evsmap.fileio import atomic_write_text
 from evsmap.report import plots
 from evsmap.report.claims import claims_markdown, relative_markdown
+from evsmap.report.detail import detail_markdown
 from evsmap.report.explore import study_markdown
 from evsmap.report.int8 import PREFIX as INT8_PREFIX
 from evsmap.report.int8 import int8_frame, int8_markdown, int8_records
@@ -34,6 +35,7 @@ from evsmap.report.tables import (
     table_frame,
     table_markdown,
 )
+from evsmap.runner.detail import is_detail
 from evsmap.runner.records import CellRecord
 from evsmap.runner.runfile import RUN_FILE, RunFile
 from evsmap.tables.schema import PaperTable, expand_all, load_tables
@@ -134,6 +136,11 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
         table_ids = sorted(tables)
     # the int8 records have their own section and CSV (evsmap.report.int8)
     extras = [r for r in extra_records(records) if not r.key.startswith(INT8_PREFIX)]
+    # the semantic-detail runs have their own section (evsmap.report.detail): the other views
+    # (the extra table, the plots) would show their rows as second copies of Table IV's systems
+    detail = [r for r in extras if is_detail(r.row)]
+    extras = [r for r in extras if not is_detail(r.row)]
+    plotted = [r for r in records if not is_detail(r.row)]
     skipped = {str(pair[0]): str(pair[1]) for pair in run.get("skipped") or []
                if isinstance(pair, (list, tuple)) and len(pair) == 2}
 
@@ -153,11 +160,9 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
             if proxy:
                 md = md + "\n" + "\n".join(proxy).rstrip() + "\n"
         if table.role == "mapping":  # one network, Table IV's updates, 3D scores (ScanNet)
-            from evsmap.report.detail import detail_markdown
-
-            detail = detail_markdown(extras)
-            if detail:
-                md = md + "\n" + "\n".join(detail).rstrip() + "\n"
+            section = detail_markdown(detail)
+            if section:
+                md = md + "\n" + "\n".join(section).rstrip() + "\n"
         if table.role == "mapping":  # where the claims hold: the latest `evsmap explore`
             linked = study_markdown(_study(study), run_dir)
             if linked:
@@ -173,8 +178,8 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
     else:
         int8_path.unlink(missing_ok=True)
     extra_path = run_dir / "extra.csv"
-    if extras:
-        written.append(_write_csv(extra_path, extra_frame(extras)))
+    if extras or detail:
+        written.append(_write_csv(extra_path, extra_frame(extras + detail)))
     else:
         extra_path.unlink(missing_ok=True)
 
@@ -182,8 +187,8 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
     drawn: dict[str, bool] = {}
     for name, draw in (
         ("networks.png", lambda p: plots.networks_plot(frames, p, records)),
-        ("mapping.png", lambda p: plots.mapping_plot(records, p, tables)),
-        ("map_growth.png", lambda p: plots.growth_plot(records, p)),
+        ("mapping.png", lambda p: plots.mapping_plot(plotted, p, tables)),
+        ("map_growth.png", lambda p: plots.growth_plot(plotted, p)),
         ("qualitative.png", lambda p: plots.qualitative_plot(run_dir / "artifacts", p, labels)),
     ):
         path = run_dir / name
@@ -196,7 +201,7 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
     from evsmap.cache import cache_root, folder_size
 
     index = index_markdown(run, tables, table_ids, frames, extras, drawn,
-                           has_extra_csv=bool(extras), records=records,
+                           has_extra_csv=bool(extras or detail), records=records, detail=detail,
                            sizes={"run": folder_size(run_dir)[1],
                                   "cache_root": str(cache_root()),
                                   "cache": folder_size(cache_root())[1]})
@@ -251,12 +256,13 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
                    table_ids: list[str], frames: Mapping[str, pd.DataFrame],
                    extras: list[CellRecord], drawn: Mapping[str, bool], *,
                    has_extra_csv: bool, sizes: Mapping[str, Any] | None = None,
-                   records: list[CellRecord] | None = None) -> str:
+                   records: list[CellRecord] | None = None,
+                   detail: list[CellRecord] | None = None) -> str:
     """The run's ``index.md`` (``sizes``: bytes of the run folder and of the shared cache;
     ``records``: the run's records, for the timing precision)."""
     run_id = run.get("run") or "unknown"
     out = [f"# evsmap report - run {run_id}", ""]
-    out += claims_markdown(frames, extras)
+    out += claims_markdown(frames, extras, detail or [])
     from evsmap.report.map_size import consistency_markdown
     from evsmap.runner.mapping_cells import TABLE4_READING
 

@@ -16,6 +16,7 @@ from collections.abc import Iterable, Mapping
 
 import pandas as pd
 
+from evsmap.report.detail import verdict_rows as detail_rows
 from evsmap.runner.records import CellRecord
 from evsmap.tables.claims import BASELINES, CLAIMS, MATCH_TOLERANCE, Claim
 from evsmap.tables.schema import PaperTable
@@ -109,11 +110,14 @@ def check(claim: Claim, frame: pd.DataFrame) -> dict:
 
 
 def claims_markdown(frames: Mapping[str, pd.DataFrame],
-                    extras: Iterable[CellRecord] = ()) -> list[str]:
+                    extras: Iterable[CellRecord] = (),
+                    detail: Iterable[CellRecord] = ()) -> list[str]:
     """``index.md``'s opening section: each claim of :data:`CLAIMS` whose table is in the run,
-    then the map-size claim on the extra sequences (the synthetic room, TUM)."""
+    then the map-size claim on the extra sequences (the synthetic room, TUM), then the
+    semantic-detail claim on ScanNet (``detail``: :mod:`evsmap.report.detail`'s records)."""
     rows = [check(c, frames[c.table]) for c in CLAIMS if c.table in frames]
-    if not rows and not extras:
+    extras, detail = list(extras), list(detail)
+    if not rows and not extras and not detail:
         return []
     out = ["## What reproduces here", "",
            "The paper's comparative claims, each as a ratio of two systems measured the same "
@@ -137,9 +141,7 @@ def claims_markdown(frames: Mapping[str, pd.DataFrame],
     from evsmap.report.map_size import verdict_rows
 
     out += verdict_rows(extras)
-    from evsmap.report.detail import verdict_rows as detail_rows
-
-    out += detail_rows(extras)
+    out += detail_rows(detail)
     out.append("")
     return out
 

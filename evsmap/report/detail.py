@@ -8,7 +8,7 @@ import math
 from collections.abc import Iterable
 from typing import Any
 
-from evsmap.runner.detail import DETAIL_PREFIX, SEMANTIC_DETAIL_TOLERANCE, detail_row
+from evsmap.runner.detail import SEMANTIC_DETAIL_TOLERANCE, detail_row, is_detail
 from evsmap.runner.mapping_cells import READINGS, TABLE4_READING
 from evsmap.runner.records import CellRecord
 from evsmap.runner.scannet import is_scannet_sequence
@@ -17,7 +17,7 @@ CLAIM = "EVSMap keeps TESAMap's semantic detail"
 
 
 def _records(extras: Iterable[CellRecord]) -> list[CellRecord]:
-    return [r for r in extras if r.row.startswith(DETAIL_PREFIX)]
+    return [r for r in extras if is_detail(r.row)]
 
 
 def _by_sequence(records: list[CellRecord]) -> dict[str, dict[str, CellRecord]]:

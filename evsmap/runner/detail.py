@@ -39,6 +39,11 @@ def detail_row(row: str) -> str:
     return DETAIL_PREFIX + row
 
 
+def is_detail(row: str) -> bool:
+    """Whether a record's row is one of the section's."""
+    return row.startswith(DETAIL_PREFIX)
+
+
 def detail_runs(ctx: RunContext) -> list[MappingRun]:
     """The section's mapping runs: each of :data:`DETAIL_ROWS` on the synthetic room and on
     each ScanNet scene (one n/a run naming the dataset when it is not under the data root), at
@@ -62,4 +67,4 @@ def detail_runs(ctx: RunContext) -> list[MappingRun]:
 
 
 __all__ = ["DETAIL_PREFIX", "DETAIL_ROWS", "NETWORK_ROW", "SAME_AS", "SEMANTIC_DETAIL_TOLERANCE",
-           "detail_row", "detail_runs"]
+           "detail_row", "detail_runs", "is_detail"]
