@@ -222,7 +222,17 @@ def unlabelled_record(run: MappingRun) -> CellRecord:
                       f"labels for the oracle)", started=now())
 
 
+def _missing(ctx: RunContext, sequence: str) -> str | None:
+    """The dataset a real sequence needs when it is not under the data roots, else None."""
+    dataset = SCANNET if is_scannet_sequence(sequence) else sequence
+    if sequence in SYNTHETIC_SEQUENCES or ctx.dataset_path(dataset) is not None:
+        return None
+    return dataset
+
+
 def _unlabelled(ctx: RunContext, sequence: str, cache: dict[str, bool]) -> bool:
+    if _missing(ctx, sequence) is not None:  # its record says which dataset it needs
+        return False
     if sequence not in cache:
         seq = open_mapping_sequence(ctx, sequence)
         cache[sequence] = len(seq) == 0 or seq.frame(0).labels is None
@@ -371,8 +381,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     room, a ScanNet scene) its 3D quality."""
     from evsmap.measure.contention import CalibrationLog, Probe, contention, machine_log_path
 
-    dataset = SCANNET if is_scannet_sequence(run.sequence) else run.sequence
-    if run.sequence not in SYNTHETIC_SEQUENCES and ctx.dataset_path(dataset) is None:
+    dataset = _missing(ctx, run.sequence)
+    if dataset is not None:
         need = f"dataset:{dataset}"
         return CellRecord(**run.base_fields(), status="na", needs=[need],
                           reason=needs_text([need]), started=now())
