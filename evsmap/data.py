@@ -393,6 +393,41 @@ class VoxelLabels:
     def __len__(self) -> int:
         return int(self.labels.shape[0])
 
+    @classmethod
+    def by_vote(cls, points: np.ndarray, labels: np.ndarray, resolution: float,
+                weights: np.ndarray | None = None) -> VoxelLabels:
+        """The voxels holding ``points`` (N x 3, metres), each with the label of most weight
+        among its points (``weights``, default 1 each: the most points), ties to the lower
+        label (so :data:`VOID` loses every tie).
+
+        Raises:
+            InvalidDataError: the points span more voxels than an int64 code can number.
+        """
+        if not len(points):
+            return cls(np.zeros((0, 3), np.int32), np.zeros(0, np.uint8), float(resolution))
+        keys = np.floor(np.asarray(points, dtype=np.float64) / resolution).astype(np.int64)
+        off = keys.min(axis=0)
+        span = keys.max(axis=0) - off + 1
+        if float(np.prod(span.astype(np.float64))) * 256 > 2.0 ** 62:
+            raise InvalidDataError(f"the surface spans {(span * resolution).tolist()} m: too "
+                                   f"large to voxelise at {resolution:g} m")
+        rel = keys - off
+        code = (rel[:, 0] * span[1] + rel[:, 1]) * span[2] + rel[:, 2]
+        pair, inverse = np.unique(code * 256 + np.asarray(labels, dtype=np.int64),
+                                  return_inverse=True)
+        weight = np.bincount(inverse.ravel(), weights=weights, minlength=len(pair))
+        vox, lab = pair // 256, pair % 256
+        order = np.lexsort((lab, -weight, vox))  # per voxel: most weight, then the lower label
+        vox, lab = vox[order], lab[order]
+        first = np.ones(len(vox), dtype=bool)
+        first[1:] = vox[1:] != vox[:-1]
+        vox, lab = vox[first], lab[first]
+        kz = vox % span[2]
+        ky = (vox // span[2]) % span[1]
+        kx = vox // (span[2] * span[1])
+        out = np.stack([kx, ky, kz], axis=1) + off
+        return cls(out.astype(np.int32), lab.astype(np.uint8), float(resolution))
+
 
 class Sequence(abc.ABC):
     """A named series of frames seen by one camera.

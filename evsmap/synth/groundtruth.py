@@ -48,7 +48,7 @@ def ground_truth_voxels(room: Room, resolution: float, *, hidden_tol: float = 1e
     L, W, H = room.size
     lo_room, hi_room = np.array([0.0, 0.0, 0.0]) - 1e-6, np.array([L, W, H]) + 1e-6
     boxes = [_aabb(p) for p in room.parts]
-    all_keys, all_labels = [], []
+    all_points, all_labels = [], []
     for i, part in enumerate(room.parts):
         for pts in _face_samples(part, spacing):
             pts = pts[np.all((pts >= lo_room) & (pts <= hi_room), axis=1)]
@@ -65,29 +65,13 @@ def ground_truth_voxels(room: Room, resolution: float, *, hidden_tol: float = 1e
                 keep &= ~other.contains(pts, tol=hidden_tol)
             pts = pts[keep]
             if len(pts):
-                all_keys.append(np.floor(pts / resolution).astype(np.int64))
+                all_points.append(pts)
                 all_labels.append(np.full(len(pts), part.label, dtype=np.int64))
-    if not all_keys:
+    if not all_points:
         return VoxelLabels(np.zeros((0, 3), np.int32), np.zeros(0, np.uint8), resolution)
-    keys = np.concatenate(all_keys)
-    labels = np.concatenate(all_labels)
-    off = keys.min(axis=0)
-    span = keys.max(axis=0) - off + 1
-    rel = keys - off
-    code = (rel[:, 0] * span[1] + rel[:, 1]) * span[2] + rel[:, 2]
-    pair, counts = np.unique(code * 256 + labels, return_counts=True)
-    vox, lab = pair // 256, pair % 256
-    # for each voxel keep the label with most samples (ties: lower class id)
-    order = np.lexsort((lab, -counts, vox))
-    vox, lab = vox[order], lab[order]
-    first = np.ones(len(vox), dtype=bool)
-    first[1:] = vox[1:] != vox[:-1]
-    vox, lab = vox[first], lab[first]
-    kz = vox % span[2]
-    ky = (vox // span[2]) % span[1]
-    kx = vox // (span[2] * span[1])
-    out = np.stack([kx, ky, kz], axis=1) + off
-    return VoxelLabels(out.astype(np.int32), lab.astype(np.uint8), float(resolution))
+    # each voxel keeps the label with most samples (ties: lower class id)
+    return VoxelLabels.by_vote(np.concatenate(all_points), np.concatenate(all_labels),
+                               resolution)
 
 
 __all__ = ["VoxelLabels", "ground_truth_voxels"]

@@ -26,7 +26,7 @@ import numpy as np
 
 from evsmap.classes import NYU40_CLASSES
 from evsmap.data import MAX_TRANSLATION_M, VOID, VoxelLabels
-from evsmap.errors import DataFormatError
+from evsmap.errors import DataFormatError, InvalidDataError
 
 NYU40_UNANNOTATED = 0
 """The NYU40 id ScanNet writes for an unannotated vertex."""
@@ -188,30 +188,10 @@ def voxelise(mesh: LabelMesh, resolution: float) -> VoxelLabels:
         raise DataFormatError(f"voxel size must be a positive number of metres, got "
                               f"{resolution!r}")
     points, weights, classes = surface_samples(mesh, resolution / SAMPLES_PER_EDGE)
-    if not len(points):
-        return VoxelLabels(np.zeros((0, 3), np.int32), np.zeros(0, np.uint8), float(resolution))
-    keys = np.floor(points / resolution).astype(np.int64)
-    off = keys.min(axis=0)
-    span = keys.max(axis=0) - off + 1
-    if float(np.prod(span.astype(np.float64))) * 256 > 2.0 ** 62:
-        raise DataFormatError(f"the mesh spans {(span * resolution).tolist()} m: too large to "
-                              f"voxelise at {resolution:g} m")
-    rel = keys - off
-    code = (rel[:, 0] * span[1] + rel[:, 1]) * span[2] + rel[:, 2]
-    pair, inverse = np.unique(code * 256 + classes.astype(np.int64), return_inverse=True)
-    area = np.bincount(inverse.ravel(), weights=weights, minlength=len(pair))
-    vox, lab = pair // 256, pair % 256
-    # per voxel the class of most area (ties: the lower id; void ranks last at 255)
-    order = np.lexsort((lab, -area, vox))
-    vox, lab = vox[order], lab[order]
-    first = np.ones(len(vox), dtype=bool)
-    first[1:] = vox[1:] != vox[:-1]
-    vox, lab = vox[first], lab[first]
-    kz = vox % span[2]
-    ky = (vox // span[2]) % span[1]
-    kx = vox // (span[2] * span[1])
-    out = np.stack([kx, ky, kz], axis=1) + off
-    return VoxelLabels(out.astype(np.int32), lab.astype(np.uint8), float(resolution))
+    try:  # per voxel the class of most area (ties: the lower id; void ranks last at 255)
+        return VoxelLabels.by_vote(points, classes, float(resolution), weights)
+    except InvalidDataError as exc:
+        raise DataFormatError(f"mesh: {exc}") from None
 
 
 __all__ = ["LabelMesh", "NYU40_UNANNOTATED", "nyu40_classes", "read_label_mesh",
