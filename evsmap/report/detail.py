@@ -9,7 +9,6 @@ from collections.abc import Iterable
 from typing import Any
 
 from evsmap.runner.detail import SEMANTIC_DETAIL_TOLERANCE, detail_row, is_detail
-from evsmap.runner.mapping_cells import READINGS, TABLE4_READING
 from evsmap.runner.records import CellRecord
 from evsmap.runner.scannet import is_scannet_sequence
 
@@ -55,6 +54,8 @@ def detail_markdown(extras: Iterable[CellRecord]) -> list[str]:
     records = _records(extras)
     if not records:
         return []
+    from evsmap.runner.mapping_cells import READINGS, TABLE4_READING
+
     reading = READINGS[TABLE4_READING]
     out = ["## Semantic detail in 3D: Table IV's updates, one network (beyond the paper)", "",
            "The paper says EVSMap keeps the semantic detail of the map while shrinking it, and "

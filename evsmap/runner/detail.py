@@ -16,10 +16,13 @@ ScanNet scenes: :mod:`evsmap.runner.scannet`.
 
 from __future__ import annotations
 
-from evsmap.runner.context import RunContext
-from evsmap.runner.mapping_cells import MappingRun
+from typing import TYPE_CHECKING
+
 from evsmap.runner.scannet import SCANNET, scannet_scenes, scannet_sequence
-from evsmap.tables.schema import mapping_table
+
+if TYPE_CHECKING:  # the report imports this module's names: it stays light (no torch)
+    from evsmap.runner.context import RunContext
+    from evsmap.runner.mapping_cells import MappingRun
 
 DETAIL_PREFIX = "detail-"
 """What the section's row ids start with."""
@@ -48,6 +51,9 @@ def detail_runs(ctx: RunContext) -> list[MappingRun]:
     """The section's mapping runs: each of :data:`DETAIL_ROWS` on the synthetic room and on
     each ScanNet scene (one n/a run naming the dataset when it is not under the data root), at
     Table IV's voxel size."""
+    from evsmap.runner.mapping_cells import MappingRun
+    from evsmap.tables.schema import mapping_table
+
     table = mapping_table()
     rows = {r.id: r for r in table.rows}
     segmenter = rows[NETWORK_ROW].segmenter_for("nyuv2")

@@ -12,10 +12,13 @@ pose is valid (ScanNet marks a frame its tracking lost with -inf).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from evsmap.data import Sequence
 from evsmap.errors import EvsmapError
-from evsmap.runner.context import RunContext
+
+if TYPE_CHECKING:  # the report imports this module's names: it stays light (no torch)
+    from evsmap.data import Sequence
+    from evsmap.runner.context import RunContext
 
 SCANNET = "scannet"
 """The data root folder of the release, and the sequence of the n/a record without it."""
