@@ -8,7 +8,7 @@ import math
 from collections.abc import Iterable
 from typing import Any
 
-from evsmap.runner.detail import SEMANTIC_DETAIL_TOLERANCE, detail_row, is_detail
+from evsmap.runner.detail import DETAIL_ROWS, SEMANTIC_DETAIL_TOLERANCE, detail_row, is_detail
 from evsmap.runner.records import CellRecord
 from evsmap.runner.scannet import is_scannet_sequence
 
@@ -20,8 +20,10 @@ def _records(extras: Iterable[CellRecord]) -> list[CellRecord]:
 
 
 def _by_sequence(records: list[CellRecord]) -> dict[str, dict[str, CellRecord]]:
+    """Per sequence, its records by row, in :data:`DETAIL_ROWS` order (others after)."""
+    order = {detail_row(row): i for i, row in enumerate(DETAIL_ROWS)}
     out: dict[str, dict[str, CellRecord]] = {}
-    for r in records:
+    for r in sorted(records, key=lambda r: (order.get(r.row, len(order)), r.row)):
         out.setdefault(str(r.inputs.get("sequence")), {})[r.row] = r
     return out
 

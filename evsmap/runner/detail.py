@@ -29,8 +29,9 @@ DETAIL_PREFIX = "detail-"
 DETAIL_ROWS = ("orgbmap", "tesamap", "evsmap")
 """Table IV's rows whose updates the section maps (one network: TFEAGMap maps as TESAMap,
 MESAMap as EVSMap)."""
-SAME_AS = {"tesamap": "= TFEAGMap with one network", "evsmap": "EVSMap; = MESAMap with one network"}
-"""The Table IV system each row stands for too, with one network."""
+LABELS = {"orgbmap": "ORGBMap", "tesamap": "TESAMap (= TFEAGMap with one network)",
+          "evsmap": "EVSMap (printed MVSMMap; = MESAMap with one network)"}
+"""The section's row labels: with one network TFEAGMap maps as TESAMap and MESAMap as EVSMap."""
 NETWORK_ROW = "evsmap"
 """The row whose network labels every semantic row (EVSMap's FEAGNet-V2, NYUv2 weights)."""
 SEMANTIC_DETAIL_TOLERANCE = 0.01
@@ -64,13 +65,11 @@ def detail_runs(ctx: RunContext) -> list[MappingRun]:
         for row_id in DETAIL_ROWS:
             system = rows[row_id]
             assert system.updater is not None
-            label = system.label + (f" ({SAME_AS[row_id]})"
-                                    if row_id in SAME_AS else "")
-            runs.append(MappingRun(detail_row(row_id), label,
+            runs.append(MappingRun(detail_row(row_id), LABELS[row_id],
                                    segmenter if system.segmenter is not None else None,
                                    system.updater, seq, ctx.voxel_size))
     return runs
 
 
-__all__ = ["DETAIL_PREFIX", "DETAIL_ROWS", "NETWORK_ROW", "SAME_AS", "SEMANTIC_DETAIL_TOLERANCE",
+__all__ = ["DETAIL_PREFIX", "DETAIL_ROWS", "LABELS", "NETWORK_ROW", "SEMANTIC_DETAIL_TOLERANCE",
            "detail_row", "detail_runs", "is_detail"]

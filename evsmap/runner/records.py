@@ -33,6 +33,11 @@ FETCHABLE = {"tum": "tum-fr1-xyz"}
 """Datasets a missing cell can get from ``evsmap datasets fetch`` (the sample's name)."""
 
 
+CHECKED = ("scannet",)
+"""Datasets evsmap cannot download (their terms need an agreement): ``evsmap datasets check``
+says how to obtain one and checks a copy."""
+
+
 def needs_text(needs: list[str] | tuple[str, ...]) -> str:
     """``"n/a - needs the nyuv2 dataset, needs trained weights (feagnet-v2@nyuv2)"``."""
     parts = []
@@ -41,6 +46,8 @@ def needs_text(needs: list[str] | tuple[str, ...]) -> str:
         text = NEEDS_TEXT.get(kind, "needs {}").format(what or kind)
         if kind == "dataset" and what in FETCHABLE:
             text += f" (`evsmap datasets fetch {FETCHABLE[what]}`)"
+        elif kind == "dataset" and what in CHECKED:
+            text += f" under the data root (`evsmap datasets check {what}` says how to get it)"
         parts.append(text)
     return "n/a - " + ", ".join(parts) if parts else "n/a"
 
