@@ -238,3 +238,35 @@ def test_frames_identity_follows_the_frames_chosen(folder):
     assert len(ids) == 4
     same = READERS.create("scannet", path=str(folder)).frames_identity()
     assert same in ids
+
+
+def test_datasets_check_scannet(tmp_path, capsys, monkeypatch):
+    """`evsmap datasets check scannet`: how to obtain it without a copy (exit 2), the counts of a
+    good copy (exit 0), one line per problem of a damaged one (exit 1)."""
+    monkeypatch.setenv("EVSMAP_DATA_ROOT", str(tmp_path / "empty"))
+    monkeypatch.chdir(tmp_path)
+    assert main(["datasets", "check", "scannet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "scan-net.org" in err and "scannet/" in err
+    root = tmp_path / "release"
+    scene.write_scene(root, NAME)
+    scene.write_scene(root, "scene0001_00")
+    assert main(["datasets", "check", "scannet", "--root", str(root)]) == 0
+    out = capsys.readouterr().out
+    assert "2 scenes, 16 frames" in out and "val   split: 1 of its 1 scenes present" in out
+    assert "2 frames with invalid (-inf) poses" in out and "no problems found" in out
+    sens = root / "scans" / "scene0001_00" / "scene0001_00.sens"
+    sens.write_bytes(sens.read_bytes()[:5000])
+    (root / "scans" / NAME / f"{NAME}_vh_clean_2.labels.ply").unlink()
+    assert main(["datasets", "check", "scannet", "--root", str(root)]) == 1
+    problems = [line for line in capsys.readouterr().out.splitlines()
+                if line.startswith("problem: ")]
+    assert len(problems) == 2
+    assert "scene0001_00.sens" in problems[1] or "scene0001_00.sens" in problems[0]
+    assert any("labels.ply: missing" in p for p in problems)
+
+
+def test_reproduce_refuses_a_scene_that_is_not_an_id(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["reproduce", "--scannet-scenes", "scene11", "--out", "unused"])
+    assert stop.value.code == 2 and "--scannet-scenes" in capsys.readouterr().err
