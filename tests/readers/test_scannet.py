@@ -270,3 +270,24 @@ def test_reproduce_refuses_a_scene_that_is_not_an_id(capsys):
     with pytest.raises(SystemExit) as stop:
         main(["reproduce", "--scannet-scenes", "scene11", "--out", "unused"])
     assert stop.value.code == 2 and "--scannet-scenes" in capsys.readouterr().err
+
+
+def test_depth_shift_comes_from_the_header(tmp_path):
+    """A stream stored at 4000 values a metre reads as the same metres as ScanNet's 1000."""
+    from evsmap.readers.scannet.write import SensFrame, write_sens
+
+    depth_m = np.full((4, 6), 1.25)
+    depth_m[0, 0] = 0.0  # no measurement
+    folder = tmp_path / "scene0002_00"
+    folder.mkdir()
+    frame = SensFrame(np.zeros((4, 6, 3), np.uint8), np.round(depth_m * 4000).astype(np.uint16),
+                      np.eye(4))
+    write_sens(folder / "scene0002_00.sens", [frame], intrinsic_color=np.eye(3) * 5,
+               intrinsic_depth=np.array([[5.0, 0, 3], [0, 5.0, 2], [0, 0, 1]]),
+               color_size=(6, 4), depth_size=(6, 4), depth_shift=4000.0,
+               color_compression="raw", depth_compression="raw_ushort")
+    seq = READERS.create("scannet", path=str(folder))
+    assert seq.meta["depth_shift"] == 4000.0 and seq.labels_source == "none"
+    got = seq.frame(0)
+    assert got.depth[0, 0] == 0 and np.allclose(got.depth[1:], 1.25)
+    assert got.timestamp == 0.0 and not seq.has_ground_truth and seq.ground_truth(0.05) is None
