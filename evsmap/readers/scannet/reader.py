@@ -289,6 +289,7 @@ class ScanNetSequence(Sequence):
         self._mesh: LabelMesh | None = None
         self._truth: dict[float, VoxelLabels] = {}
         self._label_lookup: np.ndarray | None = None
+        self._lookup: VoxelLookup | None = None
         meta = {"layout": LAYOUT, "source": frames.source, "path": str(frames.path),
                 "scene": scene_id, "step": step, **frames.meta,
                 **({"dropped": {"lost_tracking": lost}} if drop_lost else {}),
@@ -448,9 +449,11 @@ class ScanNetSequence(Sequence):
         if self.labels_source == "label-filt":
             return self._label_image(i)
         if self.labels_source == "mesh":
-            truth = self.ground_truth(MESH_LABEL_RESOLUTION)
-            assert truth is not None
-            return project_labels(truth, depth, self.frames.intrinsics, pose)
+            if self._lookup is None:
+                truth = self.ground_truth(MESH_LABEL_RESOLUTION)
+                assert truth is not None
+                self._lookup = VoxelLookup(truth)
+            return self._lookup.project(depth, self.frames.intrinsics, pose)
         return None
 
     def _label_image(self, i: int) -> np.ndarray:
@@ -475,31 +478,52 @@ class ScanNetSequence(Sequence):
         return _resize(self._label_lookup[raw], intr.width, intr.height, nearest=True)
 
 
+class VoxelLookup:
+    """A :class:`~evsmap.data.VoxelLabels` made searchable once: its voxels' codes sorted, so
+    that labelling a frame's pixels (:meth:`project`) costs the search alone.
+
+    Args:
+        truth: the voxels and their classes.
+    """
+
+    def __init__(self, truth: VoxelLabels) -> None:
+        from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack
+
+        gt = truth.keys.astype(np.int64) + KEY_OFFSET
+        inside = np.all((gt >= 0) & (gt <= KEY_MAX), axis=1)
+        codes = pack(gt[inside])
+        order = np.argsort(codes)
+        self.resolution = truth.resolution
+        self.codes = codes[order]
+        self.labels = truth.labels[inside][order]
+
+    def project(self, depth: np.ndarray, intrinsics: Intrinsics,
+                pose: np.ndarray) -> np.ndarray:
+        """Each pixel's class: the voxel at its back-projected point, else the nearest within
+        one voxel (:func:`~evsmap.metrics.mapping.nearest_within`); :data:`VOID` where the
+        depth is missing or no voxel is near."""
+        from evsmap.geometry import backproject
+        from evsmap.mapping.keys import KEY_OFFSET
+        from evsmap.metrics.mapping import nearest_within
+
+        out = np.full(depth.shape, VOID, dtype=np.uint8)
+        valid = depth > 0
+        if not valid.any() or not self.codes.size:
+            return out
+        points = backproject(depth, intrinsics, pose)
+        keys = np.floor(points / self.resolution).astype(np.int64) + KEY_OFFSET
+        found = nearest_within(keys, self.codes, 1)
+        cls = np.full(len(keys), VOID, dtype=np.uint8)
+        hit = found >= 0
+        cls[hit] = self.labels[found[hit]]
+        out[valid] = cls
+        return out
+
+
 def project_labels(truth: VoxelLabels, depth: np.ndarray, intrinsics: Intrinsics,
                    pose: np.ndarray) -> np.ndarray:
-    """Each pixel's class from ``truth``: the voxel at its back-projected point, else the
-    nearest within one voxel (:func:`~evsmap.metrics.mapping.nearest_within`); :data:`VOID`
-    where the depth is missing or no voxel is near."""
-    from evsmap.geometry import backproject
-    from evsmap.mapping.keys import KEY_MAX, KEY_OFFSET, pack
-    from evsmap.metrics.mapping import nearest_within
-
-    out = np.full(depth.shape, VOID, dtype=np.uint8)
-    valid = depth > 0
-    if not valid.any() or not len(truth):
-        return out
-    points = backproject(depth, intrinsics, pose)
-    keys = np.floor(points / truth.resolution).astype(np.int64) + KEY_OFFSET
-    gt = truth.keys.astype(np.int64) + KEY_OFFSET
-    inside = np.all((gt >= 0) & (gt <= KEY_MAX), axis=1)
-    codes = pack(gt[inside])
-    order = np.argsort(codes)
-    found = nearest_within(keys, codes[order], 1)
-    cls = np.full(len(keys), VOID, dtype=np.uint8)
-    hit = found >= 0
-    cls[hit] = truth.labels[inside][order][found[hit]]
-    out[valid] = cls
-    return out
+    """:meth:`VoxelLookup.project` of ``truth`` (one frame; a sequence keeps its lookup)."""
+    return VoxelLookup(truth).project(depth, intrinsics, pose)
 
 
 def _find_upwards(folder: Path, name: str) -> Path | None:
@@ -541,4 +565,4 @@ def open_scannet(*, path: str, scene: str | None = None, labels: str = "auto", s
 
 
 __all__ = ["LABEL_SOURCES", "MESH_LABEL_RESOLUTION", "ScanNetSequence", "is_scannet",
-           "open_scannet", "project_labels"]
+           "open_scannet", "project_labels", "VoxelLookup"]
