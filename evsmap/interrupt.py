@@ -99,7 +99,33 @@ def reraise_interruption(exc: BaseException) -> None:
         raise interrupt
 
 
+NATIVE_CALLBACK_PACKAGES = ("llvmlite",)
+"""Packages whose Python code runs as ctypes callbacks from native code (llvmlite: LLVM's object
+cache while numba compiles or loads a kernel). An exception raised there is swallowed
+("Exception ignored on calling ctypes callback function") and the native caller goes on with a
+broken result: the process crashed (SIGSEGV) where Ctrl-C came during numba's first compile."""
+DEFER_S = 0.02
+"""How soon a signal that landed in such a callback is delivered again."""
+
+
+def _in_native_callback(frame: object) -> bool:
+    """Whether the interrupted code runs inside one of :data:`NATIVE_CALLBACK_PACKAGES`."""
+    parts = tuple(f"{os.sep}{name}{os.sep}" for name in NATIVE_CALLBACK_PACKAGES)
+    current = frame
+    while current is not None:
+        code = getattr(current, "f_code", None)
+        if code is not None and any(p in code.co_filename for p in parts):
+            return True
+        current = getattr(current, "f_back", None)
+    return False
+
+
 def _raise_interrupted(signum: int, frame: object) -> None:
+    if _in_native_callback(frame):  # not here: deliver it again once the callback returned
+        timer = threading.Timer(DEFER_S, os.kill, (os.getpid(), signum))
+        timer.daemon = True
+        timer.start()
+        return
     # the first signal unwinds the command; a second one (an impatient Ctrl-C) must not break
     # off that cleanup (terminating workers takes at most a second or two), so it is ignored
     for other in (signal.SIGINT, signal.SIGTERM):
