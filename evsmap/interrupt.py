@@ -120,7 +120,35 @@ def _in_native_callback(frame: object) -> bool:
     return False
 
 
+_held = 0
+"""How many :func:`uninterrupted` blocks the main thread is in."""
+_pending: int | None = None
+"""A signal that came during such a block, raised at its end."""
+
+
+@contextlib.contextmanager
+def uninterrupted() -> Iterator[None]:
+    """A block that SIGINT and SIGTERM do not break into (under :func:`handle_signals`): a
+    signal that comes meanwhile is raised as :class:`Interrupted` when the block ends. For
+    short steps that must not stop half-done, e.g. taking a trial from a shared study and
+    marking it as this worker's (stopped between the two, nobody could tell it was
+    abandoned)."""
+    global _held, _pending
+    _held += 1
+    try:
+        yield
+    finally:
+        _held -= 1
+        if _held == 0 and _pending is not None:
+            signum, _pending = _pending, None
+            _raise_interrupted(signum, None)
+
+
 def _raise_interrupted(signum: int, frame: object) -> None:
+    global _pending
+    if _held:  # inside an uninterrupted() block: raised at its end
+        _pending = signum
+        return
     if _in_native_callback(frame):  # not here: deliver it again once the callback returned
         timer = threading.Timer(DEFER_S, os.kill, (os.getpid(), signum))
         timer.daemon = True

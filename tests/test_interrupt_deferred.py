@@ -42,3 +42,14 @@ def test_a_signal_elsewhere_raises_at_once():
     finally:
         for s, handler in saved.items():
             signal.signal(s, handler)
+
+
+def test_a_signal_in_an_uninterrupted_block_is_raised_at_its_end():
+    """`uninterrupted()`: Ctrl-C inside the block lets it finish, then raises."""
+    done = []
+    with pytest.raises(interrupt.Interrupted), interrupt.handle_signals():
+        with interrupt.uninterrupted():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # the handler has run by now, and raised nothing
+            done.append("finished")
+    assert done == ["finished"]

@@ -20,6 +20,7 @@ from optuna.trial import FrozenTrial, TrialState
 from evsmap.errors import EvsmapError
 from evsmap.explore.sampler import COUNTED, DrawnPerTrial, slot_of, suggest
 from evsmap.explore.study import GRACE_S, HEARTBEAT_S, StudyError
+from evsmap.interrupt import uninterrupted
 
 if TYPE_CHECKING:
     from evsmap.explore.bench import Bench
@@ -182,11 +183,21 @@ def _next_trial(study: optuna.Study, storage: optuna.storages.RDBStorage, trials
     n = counts(study)
     if n.get("COMPLETE", 0) + n.get("RUNNING", 0) >= trials:
         return None
-    trial = study.ask()
-    sampler = study.sampler
-    trial.set_user_attr("worker", worker.as_dict())
-    trial.set_user_attr("slot", sampler.slots.get(trial.number)
-                        if isinstance(sampler, DrawnPerTrial) else None)
+    # asked and claimed as one step: a Ctrl-C in between would leave a running trial no worker
+    # claimed, which a resumed study counts as running for a minute (GRACE_S) and stops short;
+    # the signal is raised once the trial carries this worker, and fails it
+    trial = None
+    try:
+        with uninterrupted():
+            trial = study.ask()
+            sampler = study.sampler
+            trial.set_user_attr("worker", worker.as_dict())
+            trial.set_user_attr("slot", sampler.slots.get(trial.number)
+                                if isinstance(sampler, DrawnPerTrial) else None)
+    except BaseException:
+        if trial is not None:
+            _fail_running(study, trial)
+        raise
     if slot_of(study, trial.number) >= trials:  # another worker took the last place
         trial.set_user_attr("surplus", True)
         study.tell(trial, state=TrialState.PRUNED)
