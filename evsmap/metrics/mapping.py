@@ -225,7 +225,7 @@ def evaluate_map(updater, ground_truth, *, slack_voxels: int = 1,
                   int(pred.max()) if pred.size else -1,
                   int(gt_labels[classed].max()) if classed.any() else -1)
         num_classes = max(top + 1, 1)
-    cm = ConfusionMatrix(num_classes, ignore_index=VOID)
+    cm = ConfusionMatrix(num_classes)  # ignores VOID ground truth
     cm.update(pred[labelled], truth[labelled])
     result = cm.result()
     # the scene: each observed ground-truth voxel's nearest occupied leaf (sorted codes)

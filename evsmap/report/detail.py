@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Any
 
 from evsmap.runner.detail import DETAIL_ROWS, SEMANTIC_DETAIL_TOLERANCE, detail_row, is_detail
 from evsmap.runner.records import CellRecord
@@ -46,9 +45,10 @@ def _labels_from(r: CellRecord) -> str:
         return "-"
     if r.inputs.get("segmenter") is None:
         return "none (geometry)"
-    notes = " ".join(r.notes)
-    return "oracle (ground truth, seeded noise)" if "oracle" in notes else \
-        str(r.inputs.get("segmenter"))
+    source = r.details.get("labels_from")
+    if source == "oracle":
+        return "oracle (ground truth, seeded noise)"
+    return str(source) if source else "-"
 
 
 def detail_markdown(extras: Iterable[CellRecord]) -> list[str]:
@@ -149,9 +149,4 @@ def _why_not(scenes: dict[str, dict[str, CellRecord]]) -> str:
     return "needs the ScanNet dataset under the data root as scannet/"
 
 
-def summary(extras: Iterable[CellRecord]) -> dict[str, Any]:
-    """The differences per sequence (plain numbers, for tests and notes)."""
-    return {seq: difference(rows) for seq, rows in _by_sequence(_records(extras)).items()}
-
-
-__all__ = ["CLAIM", "detail_markdown", "difference", "summary", "verdict_rows"]
+__all__ = ["CLAIM", "detail_markdown", "difference", "verdict_rows"]

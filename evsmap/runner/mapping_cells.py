@@ -309,7 +309,8 @@ def _own_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indic
     note = (f"labels from {spec} (not a network: no weights"
             + ("; reads ground truth, so segmentation + update = update only)"
                if is_oracle(own) else ")"))
-    return Labels(observations, segment_ms, timing, [note])
+    return Labels(observations, segment_ms, timing, [note],
+                  source="oracle" if is_oracle(own) else spec)
 
 
 def _network_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indices: list[int],
@@ -402,6 +403,8 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         mapped, updater=run.updater.spec, segmenter=None if run.segmenter is None
         else run.segmenter.spec, segment_ms=labels.segment_ms)
     values, details = _values_and_details(record, mapped, labels)
+    if run.segmenter is not None:
+        details["labels_from"] = labels.source  # "oracle", or the segmenter that labelled
     notes = labels.notes + [
         f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians over "
         f"frames (update only; segmentation + update = the median segmentation time + the "

@@ -112,6 +112,27 @@ def test_voxel_takes_the_class_of_most_area(tmp_path):
     assert voxelise(read_label_mesh(ascii_path), 0.05).labels.tolist() == [3]
 
 
+def test_label_archive_is_opened_once_and_not_pickled(folder, monkeypatch):
+    import pickle
+    import zipfile
+
+    opened = []
+    real = zipfile.ZipFile
+
+    def counting(*args, **kwargs):
+        opened.append(args[0])
+        return real(*args, **kwargs)
+
+    seq = READERS.create("scannet", path=str(folder), labels="label-filt")
+    monkeypatch.setattr(zipfile, "ZipFile", counting)
+    for i in (0, 1, 2):
+        seq.frame(i)
+    assert len(opened) == 1
+    monkeypatch.undo()
+    again = pickle.loads(pickle.dumps(seq))  # the open archive stays behind
+    np.testing.assert_array_equal(again.frame(0).labels, seq.frame(0).labels)
+
+
 def test_mesh_labels_equal_the_label_images(folder):
     images = READERS.create("scannet", path=str(folder), labels="label-filt")
     projected = READERS.create("scannet", path=str(folder), labels="mesh")

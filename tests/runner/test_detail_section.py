@@ -49,7 +49,10 @@ def test_scannet_scene_is_mapped_and_scored(tmp_path):
         assert 0 < r.values["scene_miou"] <= 1 and r.details["quality"]["ground_truth"] > 0
     diff = difference({r.row: r for r in records})
     assert np.isclose(diff, evsmap.values["scene_miou"] - tesamap.values["scene_miou"])
+    assert records[0].details.get("labels_from") is None  # ORGBMap reads no labels
+    assert all(r.details["labels_from"] == "oracle" for r in records[1:])  # no weights here
     text = "\n".join(detail_markdown(records))
+    assert text.count("oracle (ground truth, seeded noise)") == 2
     assert "### scannet-scene0000_00 at 2 cm" in text and "ORGBMap" in text
     claim = verdict_rows(records)
     assert len(claim) == 1 and "scannet-scene0000_00" in claim[0]

@@ -48,7 +48,13 @@ import numpy as np
 from evsmap.classes import NYU40_CLASSES
 from evsmap.data import VOID, Frame, Intrinsics, Sequence, VoxelLabels
 from evsmap.errors import DataFormatError, EvsmapError
-from evsmap.readers.images import decode_uint16, dequantize_depth, read_rgb, read_uint16
+from evsmap.readers.images import (
+    decode_uint16,
+    dequantize_depth,
+    image_size,
+    read_rgb,
+    read_uint16,
+)
 from evsmap.readers.poses import checked_pose
 from evsmap.readers.scannet.labelmap import LABELS_TSV, SCENE_ID, read_label_table
 from evsmap.readers.scannet.mesh import LabelMesh, read_label_mesh, voxelise
@@ -160,7 +166,7 @@ class _ExportedFrames:
         self.numbers = np.array(numbers, dtype=np.int64)
         k_file = folder / "intrinsic" / "intrinsic_depth.txt"
         first_depth = found["depth"].get(numbers[0])
-        size = _png_size(first_depth) if first_depth is not None else None
+        size = image_size(first_depth) if first_depth is not None else None
         w, h = size if size is not None else (640, 480)
         from evsmap.readers.sevenscenes import read_matrix
 
@@ -214,12 +220,6 @@ def _numbered(folder: Path, ext: str) -> dict[int, Path]:
         if dot and "." + suffix == ext and stem.isdigit() and len(stem) < 16:
             out[int(stem)] = folder / name
     return out
-
-
-def _png_size(path: Path) -> tuple[int, int] | None:
-    from evsmap.readers.images import image_size
-
-    return image_size(path)
 
 
 def _intrinsics(k: np.ndarray, width: int, height: int, where: str) -> Intrinsics:
@@ -290,6 +290,7 @@ class ScanNetSequence(Sequence):
         self._truth: dict[float, VoxelLabels] = {}
         self._label_lookup: np.ndarray | None = None
         self._lookup: VoxelLookup | None = None
+        self._zip: zipfile.ZipFile | None = None
         meta = {"layout": LAYOUT, "source": frames.source, "path": str(frames.path),
                 "scene": scene_id, "step": step, **frames.meta,
                 **({"dropped": {"lost_tracking": lost}} if drop_lost else {}),
@@ -456,6 +457,19 @@ class ScanNetSequence(Sequence):
             return self._lookup.project(depth, self.frames.intrinsics, pose)
         return None
 
+    def _label_archive(self) -> zipfile.ZipFile:
+        """The 2D label archive, opened once: its central directory lists thousands of images
+        (parsing it took 13 ms a frame for 5 000 when the archive was opened per frame)."""
+        if self._zip is None:
+            assert self.label_images is not None
+            self._zip = zipfile.ZipFile(self.label_images)
+        return self._zip
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_zip"] = None  # an open file does not travel to another process
+        return state
+
     def _label_image(self, i: int) -> np.ndarray:
         n = int(self.frames.numbers[i])
         assert self.label_images is not None and self.table_path is not None
@@ -467,10 +481,11 @@ class ScanNetSequence(Sequence):
             member = f"{LABEL_DIR}/{n}.png"
             where = f"{self.label_images}: {member}"
             try:
-                with zipfile.ZipFile(self.label_images) as archive:
-                    data = archive.read(member)
+                data = self._label_archive().read(member)
             except KeyError:
                 raise DataFormatError(f"{where}: not in the archive") from None
+            # what zipfile raises on a damaged archive or member (NotImplementedError: a
+            # compression method it does not have)
             except (OSError, zipfile.BadZipFile, EOFError, NotImplementedError) as exc:
                 raise DataFormatError(f"{where}: cannot read ({exc})") from None
             raw = decode_uint16(data, where=where)
@@ -480,7 +495,7 @@ class ScanNetSequence(Sequence):
 
 class VoxelLookup:
     """A :class:`~evsmap.data.VoxelLabels` made searchable once: its voxels' codes sorted, so
-    that labelling a frame's pixels (:meth:`project`) costs the search alone.
+    that labelling a frame's pixels (:meth:`project`) costs the search alone; a sequence keeps one.
 
     Args:
         truth: the voxels and their classes.
@@ -518,12 +533,6 @@ class VoxelLookup:
         cls[hit] = self.labels[found[hit]]
         out[valid] = cls
         return out
-
-
-def project_labels(truth: VoxelLabels, depth: np.ndarray, intrinsics: Intrinsics,
-                   pose: np.ndarray) -> np.ndarray:
-    """:meth:`VoxelLookup.project` of ``truth`` (one frame; a sequence keeps its lookup)."""
-    return VoxelLookup(truth).project(depth, intrinsics, pose)
 
 
 def _find_upwards(folder: Path, name: str) -> Path | None:
@@ -565,4 +574,4 @@ def open_scannet(*, path: str, scene: str | None = None, labels: str = "auto", s
 
 
 __all__ = ["LABEL_SOURCES", "MESH_LABEL_RESOLUTION", "ScanNetSequence", "is_scannet",
-           "open_scannet", "project_labels", "VoxelLookup"]
+           "open_scannet", "VoxelLookup"]
