@@ -159,6 +159,8 @@ class ClassicSemanticMap(OctreeUpdater):
         (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`)
     """
 
+    semantics_within_range = True
+
     def __init__(self, *, fusion_rule: str = "bayes", **kwargs) -> None:
         if fusion_rule not in ("bayes", "max"):
             from evsmap.errors import UnknownNameError

@@ -58,6 +58,14 @@ class Segmenter(abc.ABC):
     def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
         """Top-``k`` classes and probabilities for every pixel of ``frame``."""
 
+    def predict_at(self, frame: Frame, pixels: np.ndarray | None, *, k: int = 3
+                   ) -> SemanticObservation:
+        """:meth:`predict` for a caller that reads the observation only at ``pixels`` (a bool
+        HxW mask; None: every pixel): exact there, and valid but unspecified elsewhere (a
+        network segmenter leaves class 0 with probability 0 there). The default predicts every
+        pixel; a segmenter whose work scales with the pixels overrides it."""
+        return self.predict(frame, k=k)
+
     @property
     def input_names(self) -> tuple[str, ...]:
         """Names of the network's inputs, in order (the ONNX graph's); () for a segmenter that is
@@ -170,6 +178,12 @@ class MapUpdater(abc.ABC):
     @abc.abstractmethod
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
         """Fuse one frame (depth, colour, pose, intrinsics) and its semantics into the map."""
+
+    def semantic_pixels(self, frame: Frame) -> np.ndarray | None:
+        """The pixels of ``frame`` whose observation :meth:`integrate` may read, as a bool HxW
+        mask (a superset is fine), or None for every pixel (the default; a point-cloud frame).
+        A mapping loop passes it to :meth:`Segmenter.predict_at`."""
+        return None
 
     @abc.abstractmethod
     def stats(self) -> MapStats:

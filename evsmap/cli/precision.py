@@ -104,6 +104,10 @@ def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
         EvsmapError: int8 for a segmenter that is not a network, or no calibration frame.
     """
     if args.precision != "int8":
+        from evsmap.segmenters.network import NetworkSegmenter
+
+        if isinstance(segmenter, NetworkSegmenter):
+            return segmenter.precision_record()
         return {"precision": "fp32"} if segmenter.module is not None else {}
     if segmenter.module is None:
         raise EvsmapError(f"--precision int8: {type(segmenter).__name__} is not a network")

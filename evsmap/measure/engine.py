@@ -65,13 +65,13 @@ def _ms_since(t0: float) -> float:
     return (time.perf_counter() - t0) * 1000.0
 
 
-def timed_predict(segmenter: Segmenter, frame: Frame, times: StageTimes
-                  ) -> SemanticObservation:
-    """``segmenter.predict(frame)``, its time added to ``times`` (stage ``predict``, or
-    :data:`ORACLE_STAGE` for a segmenter that only reads ground truth) with the network's own
-    stages (``last_timings``)."""
+def timed_predict(segmenter: Segmenter, frame: Frame, times: StageTimes,
+                  pixels: np.ndarray | None = None) -> SemanticObservation:
+    """``segmenter.predict_at(frame, pixels)`` (the pixels the map reads, or None for all), its
+    time added to ``times`` (stage ``predict``, or :data:`ORACLE_STAGE` for a segmenter that
+    only reads ground truth) with the network's own stages (``last_timings``)."""
     t0 = time.perf_counter()
-    observation = segmenter.predict(frame)
+    observation = segmenter.predict_at(frame, pixels)
     ms = _ms_since(t0)
     if is_oracle(segmenter):
         times.add(ORACLE_STAGE, ms)
@@ -380,6 +380,7 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
         for position, index, frame, observation in pipelined_frames(
                 sequence, order, segmenter=segmenter, read_times=times,
                 segment_times=segment_times, timed_predict=timed_predict,
+                needed=the_map.semantic_pixels,
                 timed_frames=_timed_frames, skip_bad=skip_bad, skipped=skipped, progress=progress):
             if segmenter is None:
                 observation = observation_at(position, index)
@@ -392,7 +393,8 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
         for position, index, frame in _timed_frames(sequence, order, times,
                                                     skip_bad=skip_bad, skipped=skipped,
                                                     progress=progress):
-            observation = timed_predict(segmenter, frame, times) \
+            observation = timed_predict(segmenter, frame, times,
+                                        the_map.semantic_pixels(frame)) \
                 if segmenter is not None else observation_at(position, index)
             timed_update(the_map, frame, observation, update_times)
             done.append(index)

@@ -99,7 +99,8 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
                      timed_predict: Callable[[Segmenter, Frame, Any], SemanticObservation],
                      timed_frames: Callable[..., Iterator[tuple[int, int, Frame]]],
                      skip_bad: bool, skipped: SkippedFrames,
-                     progress: Callable[[Any], Any] | None = None, depth: int = DEPTH
+                     progress: Callable[[Any], Any] | None = None, depth: int = DEPTH,
+                     needed: Callable[[Frame], Any] | None = None
                      ) -> Iterator[tuple[int, int, Frame, SemanticObservation | None]]:
     """``(position, index, frame, observation)`` for each frame, in order, read and segmented
     ahead of the caller by two worker threads.
@@ -117,6 +118,9 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
             only written by the reader thread).
         progress: wraps the list of indices (it advances as frames are read).
         depth: frames each queue holds.
+        needed: the pixels of a frame the caller reads the observation at (the updater's
+            :meth:`~evsmap.interfaces.MapUpdater.semantic_pixels`, called in the segmentation
+            thread; it must only read the frame and fixed settings), or None for all.
     """
     stop = threading.Event()
     read_q: queue.Queue[Any] = queue.Queue(maxsize=depth)
@@ -137,7 +141,8 @@ def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segment
                 return
             index, frame = item
             observation = None if segmenter is None else \
-                timed_predict(segmenter, frame, segment_times)
+                timed_predict(segmenter, frame, segment_times,
+                              None if needed is None else needed(frame))
             if not put((index, frame, observation)):
                 return
 

@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from evsmap.models.hardnet import HarDNetEncoder
-from evsmap.models.layers import ConvBNReLU, resize_to
+from evsmap.models.layers import ConvBNReLU, StridedLogits, resize_to
 
 # ---------------------------------------------------------------------------------------------
 # blocks
@@ -423,10 +423,12 @@ class LADStage(nn.Module):
 # model
 
 
-class FEAGNet(nn.Module):
+class FEAGNet(StridedLogits, nn.Module):
     """FEAGNet: RGB-D (or RGB-only) semantic segmentation.
 
-    In eval mode ``forward`` returns logits at the input resolution; in training mode with
+    In eval mode ``forward`` returns logits at the input resolution (at the output stride, 4
+    for V2 and 8 for V1, while :attr:`~evsmap.models.layers.StridedLogits.upsample_logits` is
+    off); in training mode with
     ``multiscale=True`` it returns ``(main, side, side)``: the main logits, then the side heads
     of the second and first decoder stages (1/8 and 1/16 of the input for V2, 1/16 and 1/32 for
     V1), for multi-scale supervision.
@@ -539,7 +541,7 @@ class FEAGNet(nn.Module):
         for stage, skip in zip(self.decoder, reversed(features[-4:-1]), strict=True):
             inner, x = stage(x, skip)
             stage_outputs.append(inner)
-        main = resize_to(self.head(x), size)
+        main = self.final_resize(self.head(x), size)
         if self.training and self.side_heads is not None:
             sides = [head(out) for head, out in zip(self.side_heads, stage_outputs[1:],
                                                     strict=True)]

@@ -1,4 +1,5 @@
-"""Small layers shared by the networks: conv-BN-ReLU and bilinear resizing."""
+"""Small layers shared by the networks: conv-BN-ReLU, bilinear resizing, and the switch that
+lets a network return its logits before the final resize."""
 
 from __future__ import annotations
 
@@ -49,3 +50,21 @@ def resize_to(x: torch.Tensor, size: tuple[int, int] | torch.Size) -> torch.Tens
     if tuple(x.shape[-2:]) == tuple(size):
         return x
     return F.interpolate(x, size=tuple(size), mode="bilinear", align_corners=True)
+
+
+class StridedLogits:
+    """A network whose ``forward`` ends in :func:`resize_to` of its logits to the input size,
+    and returns them at its output stride instead while :attr:`upsample_logits` is False.
+
+    :class:`~evsmap.segmenters.network.NetworkSegmenter` turns it off for its ``postprocess``
+    options ``fused`` (the resize done inside the top-k, the same labels) and ``stride`` (the
+    top-k at the output stride); training and every other caller see the resized logits.
+    """
+
+    upsample_logits: bool = True
+
+    def final_resize(self, logits: torch.Tensor, size: tuple[int, int] | torch.Size
+                     ) -> torch.Tensor:
+        """``logits`` resized to ``size``, or as they are while :attr:`upsample_logits` is
+        off."""
+        return resize_to(logits, size) if self.upsample_logits else logits

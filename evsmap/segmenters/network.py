@@ -36,6 +36,13 @@ if TYPE_CHECKING:
 
 BACKENDS = ("torch", "onnxruntime")
 PRECISIONS = ("fp32", "int8")
+POSTPROCESSES = ("network", "fused", "stride")
+"""How logits become the observation (``postprocess``): ``network`` - the network resizes its
+logits to the input size, then the top-k and softmax of every pixel (the faithful path);
+``fused`` - the network returns its logits at its output stride and the bilinear resize runs
+inside the top-k, block by block, at the pixels the map reads only (the same arithmetic up to
+float32 rounding: the same labels); ``stride`` - the top-k at the output stride, the observation
+resized by nearest neighbour (a named variant: labels change along class boundaries)."""
 
 
 def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Normalization,
@@ -126,6 +133,9 @@ class NetworkSegmenter(Segmenter):
         int8_scheme: ``"auto"`` (default: the scheme exact on this machine's instruction
             set, :func:`evsmap.segmenters.quantize.auto_scheme`) or one of
             :data:`evsmap.segmenters.quantize.SCHEMES`, used by :meth:`calibrate`.
+        postprocess: one of :data:`POSTPROCESSES` (default ``network``); ``fused`` and
+            ``stride`` need a :class:`~evsmap.models.layers.StridedLogits` network (FEAGNet)
+            and change what :meth:`logits` returns (the logits at the output stride).
     """
 
     uses_depth: ClassVar[bool] = True  # overridden per instance
@@ -146,7 +156,20 @@ class NetworkSegmenter(Segmenter):
         config: dict | None = None,
         precision: str = "fp32",
         int8_scheme: str = "auto",
+        postprocess: str = "network",
     ) -> None:
+        if postprocess not in POSTPROCESSES:
+            raise UnknownNameError(f"{name}: unknown postprocess {postprocess!r} (known: "
+                                   f"{', '.join(POSTPROCESSES)})")
+        if postprocess != "network":
+            from evsmap.models.layers import StridedLogits
+
+            if not isinstance(module, StridedLogits):
+                raise InvalidDataError(f"{name}: postprocess={postprocess} needs a network "
+                                       f"that can return its logits before the final resize "
+                                       f"(FEAGNet); {name} cannot: use postprocess=network")
+            module.upsample_logits = False
+        self.postprocess = postprocess
         if backend not in BACKENDS:
             raise UnknownNameError(
                 f"unknown backend {backend!r} (known: {', '.join(BACKENDS)})")
@@ -238,6 +261,8 @@ class NetworkSegmenter(Segmenter):
         from evsmap.models.onnx_export import cached_onnx
 
         key = f"{self.name}:{sorted(self.config.items())}"
+        if self.postprocess != "network":  # a graph without the final resize
+            key += ":logits at the output stride"
         return cached_onnx(self._module, inputs, self.input_names, key=key,
                            cache_dir=cache_dir)
 
@@ -286,11 +311,13 @@ class NetworkSegmenter(Segmenter):
         return self.quantization
 
     def precision_record(self) -> dict:
-        """``precision`` and, for int8, the scheme and how the model was made (for records)."""
+        """``precision``, ``postprocess`` and, for int8, the scheme and how the model was made
+        (for records)."""
         if self.precision != "int8":
-            return {"precision": self.precision}
+            return {"precision": self.precision, "postprocess": self.postprocess}
         q = self.quantization
-        return {"precision": "int8", "int8_scheme": self.int8_scheme,
+        return {"precision": "int8", "postprocess": self.postprocess,
+                "int8_scheme": self.int8_scheme,
                 "int8_scheme_chosen_by": self.int8_scheme_chosen_by,
                 "instruction_set": None if q is None else q.instruction_set,
                 "int8": None if q is None else {
@@ -343,6 +370,12 @@ class NetworkSegmenter(Segmenter):
                 "spinning": self._ort_spinning}
 
     def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
+        return self.predict_at(frame, None, k=k)
+
+    def predict_at(self, frame: Frame, pixels: np.ndarray | None, *, k: int = 3
+                   ) -> SemanticObservation:
+        """:meth:`predict`; with ``postprocess="fused"`` only ``pixels`` (bool HxW) are
+        post-processed (the others: class 0, probability 0)."""
         if not 1 <= k <= self.num_classes:
             raise InvalidDataError(f"k must lie in [1, {self.num_classes}], got {k}")
         t0 = time.perf_counter()
@@ -351,19 +384,36 @@ class NetworkSegmenter(Segmenter):
         logits = self.logits(inputs)
         t2 = time.perf_counter()
         assert frame.rgb is not None  # preprocess checked that it is an image frame
-        observation = self.top_k(logits, frame.rgb.shape[:2], k)
+        observation = self.top_k(logits, frame.rgb.shape[:2], k, pixels)
         t3 = time.perf_counter()
         self.last_timings = {"preprocess": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3,
                              "postprocess": (t3 - t2) * 1e3}
         return observation
 
-    def top_k(self, logits: torch.Tensor, size: tuple[int, int], k: int) -> SemanticObservation:
-        """The per-pixel top-``k`` classes and softmax probabilities of ``logits`` (1, C, h, w)
-        at the frame's ``size`` (bilinear upsampling of the logits first when they differ)."""
+    def top_k(self, logits: torch.Tensor, size: tuple[int, int], k: int,
+              pixels: np.ndarray | None = None) -> SemanticObservation:
+        """The per-pixel top-``k`` classes and softmax probabilities of ``logits`` (1, C, h, w,
+        what :meth:`logits` returned) at the frame's ``size``, as :attr:`postprocess` says:
+        ``network`` - bilinear upsampling of the logits first when they differ from ``size``;
+        ``fused`` - the network's own resize to its input size inside the top-k
+        (:func:`~evsmap.segmenters.topk.top_k_upsampled`, at ``pixels`` only, a bool mask;
+        resized in two steps as ``network`` would when the input size is not the frame's);
+        ``stride`` - the top-k at the output stride, resized by nearest neighbour."""
+        from evsmap.segmenters import topk
+
         h, w = size
+        if self.postprocess == "stride":
+            classes, probs = topk.nearest_observation(*topk.top_k_softmax(logits[0], k), size)
+            return SemanticObservation.of_kernel(classes, probs, self.num_classes)
+        if self.postprocess == "fused":
+            if tuple(self.input_size) == (h, w) and k <= 3 and topk.njit is not None:
+                index = None if pixels is None else np.flatnonzero(pixels)
+                classes, probs = topk.top_k_upsampled(logits[0], size, k, index)
+                return SemanticObservation.of_kernel(classes, probs, self.num_classes)
+            from evsmap.models.layers import resize_to
+
+            logits = resize_to(logits, self.input_size)
         if tuple(logits.shape[-2:]) != (h, w):
             logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
-        from evsmap.segmenters.topk import top_k_softmax
-
-        classes, probs = top_k_softmax(logits[0], k)
-        return SemanticObservation(classes=classes, probs=probs, num_classes=self.num_classes)
+        classes, probs = topk.top_k_softmax(logits[0], k)
+        return SemanticObservation.of_kernel(classes, probs, self.num_classes)

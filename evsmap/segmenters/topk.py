@@ -149,3 +149,136 @@ def top_k_softmax(logits: torch.Tensor, k: int) -> tuple[np.ndarray, np.ndarray]
     total = _denominator(flat, torch.from_numpy(vals[0]))
     probs = np.clip(_probabilities(vals, total.numpy()), 0.0, 1.0)
     return np.ascontiguousarray(cls.T).reshape(h, w, k), probs.reshape(h, w, k)
+
+
+# ------------------------------------------------------------ upsampling fused with the top-k
+BLOCK = 8192
+"""Output pixels per block of :func:`top_k_upsampled` (their 40 logits stay in the L2 cache)."""
+
+
+def _source_axis(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bilinear source positions along one axis with ``align_corners=True`` (what the
+    networks' final resize does, :func:`evsmap.models.layers.resize_to`), in torch's float32
+    arithmetic: ``src = float32((n_in - 1) / (n_out - 1)) * dst``; ``(lower, upper, weight of
+    upper)`` per output position."""
+    scale = np.float32((n_in - 1) / (n_out - 1)) if n_out > 1 else np.float32(0)
+    src = scale * np.arange(n_out, dtype=np.float32)
+    lower = np.minimum(np.floor(src).astype(np.int64), n_in - 1)
+    upper = np.minimum(lower + 1, n_in - 1)
+    return lower, upper, (src - lower.astype(np.float32)).astype(np.float32)
+
+
+def _upsample(low, pixels, width, y0, y1, wy, x0, x1, wx, buf):
+    """Bilinear logits of the output ``pixels`` (sorted flat indices in an image ``width``
+    wide) from ``low`` (C, h, w), channel by channel into ``buf`` (C, m), in torch's order of
+    operations: ``hy * (hx * low[a, c] + lx * low[a, d]) + ly * (hx * low[b, c] + lx * low[b,
+    d])``. The source rows the block spans are interpolated along x once (the two inner
+    terms), then each output row combines two of them."""
+    m = pixels.shape[0]
+    c_count = low.shape[0]
+    one = np.float32(1)
+    rows = pixels // width
+    cols = pixels - rows * width
+    first = y0[rows[0]]
+    span = y1[rows[m - 1]] - first + 1
+    along_x = np.empty((span, c_count, width), np.float32)
+    for s in range(span):
+        for ch in range(c_count):
+            src = low[ch, first + s]
+            dst = along_x[s, ch]
+            for q in range(width):
+                dst[q] = (one - wx[q]) * src[x0[q]] + wx[q] * src[x1[q]]
+    starts = [0]
+    for j in range(1, m):
+        if rows[j] != rows[j - 1]:
+            starts.append(j)
+    starts.append(m)
+    for s in range(len(starts) - 1):
+        lo, hi = starts[s], starts[s + 1]
+        r = rows[lo]
+        ly = wy[r]
+        hy = one - ly
+        for ch in range(c_count):
+            top = along_x[y0[r] - first, ch]
+            bottom = along_x[y1[r] - first, ch]
+            out = buf[ch]
+            for j in range(lo, hi):
+                out[j] = hy * top[cols[j]] + ly * bottom[cols[j]]
+
+
+def _scatter(vals, cls, total, pixels, k, out_cls, out_p):
+    """The kept classes and softmax probabilities of a block written at their ``pixels``."""
+    for j in range(pixels.shape[0]):
+        p = pixels[j]
+        for i in range(k):
+            out_cls[p, i] = cls[i, j]
+            prob = np.float32(np.exp(np.float64(vals[i, j]) - np.float64(vals[0, j]))
+                              / np.float64(total[j]))
+            out_p[p, i] = min(max(prob, np.float32(0)), np.float32(1))
+
+
+if njit is not None:
+    _upsample = njit(cache=True, nogil=True)(_upsample)
+    _scatter = njit(cache=True, nogil=True)(_scatter)
+
+
+def top_k_upsampled(low: torch.Tensor, size: tuple[int, int], k: int,
+                    pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`top_k_softmax` of ``low`` (C, h, w) resized bilinearly (``align_corners=True``)
+    to ``size`` (H, W), without the (C, H, W) logits: each block of output pixels is
+    interpolated, swept for its top 3 and exponentiated while it sits in the cache.
+
+    The same arithmetic as the network's own resize followed by :func:`top_k_softmax` up to
+    float32 rounding (the same labels; ``tests/segmenters/test_topk.py``). Only ``pixels``
+    (sorted flat indices into H x W; None: all) are computed; the others hold class 0 with
+    probability 0. ``k`` must be 1 to 3 and the compiler present (callers fall back to
+    resizing then :func:`top_k_softmax`).
+    """
+    if njit is None or not 1 <= k <= 3:
+        raise ValueError("top_k_upsampled needs numba and k <= 3")
+    x = low.detach().float().contiguous().numpy()
+    c_count, h, w = x.shape
+    height, width = size
+    y0, y1, wy = _source_axis(h, height)
+    x0, x1, wx = _source_axis(w, width)
+    if pixels is None:
+        pixels = np.arange(height * width, dtype=np.int64)
+    pixels = np.ascontiguousarray(pixels, dtype=np.int64)
+    out_cls = np.zeros((height * width, k), np.int16)
+    out_p = np.zeros((height * width, k), np.float32)
+    store = torch.empty(c_count * _padded(min(BLOCK, len(pixels))), dtype=torch.float32)
+    top = torch.zeros(_padded(min(BLOCK, len(pixels))), dtype=torch.float32)
+    for start in range(0, len(pixels), BLOCK):
+        block = pixels[start:start + BLOCK]
+        m, padded = len(block), _padded(len(block))
+        buf = store[:c_count * padded].view(c_count, padded)
+        buf[:, m:] = 0
+        _upsample(x, block, width, y0, y1, wy, x0, x1, wx, buf.numpy())
+        vals, cls = _sweep3(buf.numpy()[:, :m])
+        top[:m] = torch.from_numpy(vals[0])
+        buf.sub_(top[:padded]).exp_()
+        total = buf.sum(0)
+        _scatter(vals, cls, total.numpy(), block, k, out_cls, out_p)
+    return out_cls.reshape(height, width, k), out_p.reshape(height, width, k)
+
+
+def _padded(m: int) -> int:
+    """``m`` columns rounded up to whole vectors: torch then takes every column of a block
+    through its vectorised exponential and sum (none through a scalar tail), so a pixel's
+    probabilities do not depend on which block it fell in or on the pixels asked for."""
+    return -(-m // PAD) * PAD
+
+
+PAD = 64
+
+
+def nearest_observation(classes: np.ndarray, probs: np.ndarray, size: tuple[int, int]
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """A top-k observation (h, w, k) at ``size`` (H, W) by nearest neighbour: output pixel
+    (y, x) takes input pixel ``(floor((y + 0.5) h / H), floor((x + 0.5) w / W))``, the input
+    pixel whose footprint holds the output pixel's centre."""
+    h, w = classes.shape[:2]
+    height, width = size
+    rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(np.int64), h - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(np.int64), w - 1)
+    return classes[rows[:, None], cols[None, :]], probs[rows[:, None], cols[None, :]]

@@ -104,6 +104,7 @@ def _register(card: ModelCard) -> None:
         dappf: bool | str = True,
         attention: bool | str = True,
         multiscale: bool = True,
+        postprocess: str = "network",
     ) -> NetworkSegmenter:
         from evsmap.errors import EvsmapError
         from evsmap.models import feagnet
@@ -120,7 +121,7 @@ def _register(card: ModelCard) -> None:
             name=name, module=module, num_classes=num_classes,
             class_names=class_names_for(num_classes, outdoor=not depth), uses_depth=depth,
             default_size=size, normalization=normalization, backend=backend,
-            weights=weights, input_size=input_size,
+            weights=weights, input_size=input_size, postprocess=postprocess,
             config={"num_classes": num_classes, **switches})
 
     factory.__name__ = name.replace("-", "_")

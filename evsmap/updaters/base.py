@@ -234,6 +234,27 @@ class OctreeUpdater(MapUpdater):
         self._reused_tree: Tree | None = None
         self._init_payloads()
 
+    semantics_within_range: ClassVar[bool] = False
+    """Whether :meth:`integrate` reads the observation only at end points within
+    :attr:`max_range` (the direct front end, SSMI's generator); semantic_slam's node labels
+    every centroid, beyond the range too."""
+
+    def semantic_pixels(self, frame: Frame) -> np.ndarray | None:
+        """The pixels whose semantics can reach the map: valid depth, and with
+        :attr:`semantics_within_range` only those that may end inside the range. A point's range
+        is at least its depth; the end point tested against the range may lie nearer than the
+        point: its voxel centre (``discretize``, half a voxel diagonal) or the centroid of its
+        voxel-grid cell (SSMI's generator front end, less than a cell diagonal; the cell's
+        semantics average every point in it). So depth <= max range + two voxels keeps every
+        pixel whose semantics can reach the map (a superset). None for every pixel: an updater
+        without semantics or a point-cloud frame."""
+        if not self.uses_semantics or frame.depth is None or frame.points is not None:
+            return None
+        depth = frame.depth
+        if self.semantics_within_range and self.max_range >= 0:
+            return (depth > 0) & (depth <= np.float32(self.max_range + 2 * self.resolution))
+        return (depth > 0) & np.isfinite(depth)
+
     @property
     def tree_id(self) -> str:
         """The ``.ot`` id of the map's files (its node type's)."""

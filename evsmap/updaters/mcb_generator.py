@@ -225,6 +225,8 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
             update is always the compiled :func:`~evsmap.mapping.ssmi_kernel.frame_update`.
     """
 
+    semantics_within_range = True
+
     name = "multiclass-bayes"
     node_type = NODE_TYPE
     front_end = "generator"

@@ -177,6 +177,8 @@ class MultiClassBayesMap(OctreeUpdater):
         (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`)
     """
 
+    semantics_within_range = True
+
     name = "multiclass-bayes"
     node_type = NODE_TYPE
 
