@@ -311,13 +311,13 @@ class NetworkSegmenter(Segmenter):
         return self.quantization
 
     def precision_record(self) -> dict:
-        """``precision``, ``postprocess`` and, for int8, the scheme and how the model was made
-        (for records)."""
+        """``precision``, ``postprocess`` (where not the faithful ``network``) and, for int8, the
+        scheme and how the model was made (for records)."""
+        post = {} if self.postprocess == "network" else {"postprocess": self.postprocess}
         if self.precision != "int8":
-            return {"precision": self.precision, "postprocess": self.postprocess}
+            return {"precision": self.precision, **post}
         q = self.quantization
-        return {"precision": "int8", "postprocess": self.postprocess,
-                "int8_scheme": self.int8_scheme,
+        return {"precision": "int8", **post, "int8_scheme": self.int8_scheme,
                 "int8_scheme_chosen_by": self.int8_scheme_chosen_by,
                 "instruction_set": None if q is None else q.instruction_set,
                 "int8": None if q is None else {
