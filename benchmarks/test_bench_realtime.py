@@ -15,6 +15,9 @@ alternating with the other within the same test so that both see the same machin
   EVSMap (``multiclass-bayes``, 5 cm, max range 5 m) and FEAGNet-V1/V2 int8 on the synthetic
   room (60 frames, read as ``evsmap map`` reads it: rendered once into the cache) and on the
   real TUM fr1_xyz frames: frames / wall time, reading included;
+* **the faithful path and the variants** (issue 40): the same pipelined loop with each
+  ``postprocess`` (``network``: the faithful path; ``fused``: the same labels and EVSMap map;
+  ``stride``: the named variant; accuracy costs in ``benchmarks/realtime_variants.py``);
 * **multiclass-bayes / OctoMap C++ at 2 cm** on the TUM frames (the update alone, max range
   4 m, discretize on; the C++ side pays the same back-projection).
 
@@ -155,6 +158,50 @@ def test_pipelined_over_sequential(benchmark, name, sequence_name, synthetic):
     assert all(r.frames == len(sequence) for recs in records.values() for r in recs)
 
 
+POSTPROCESSES = ("network", "fused", "stride")
+
+
+@pytest.mark.parametrize("sequence_name", ["synthetic", "tum"])
+@pytest.mark.parametrize("name", ["feagnet-v1", "feagnet-v2"])
+def test_faithful_and_variants(benchmark, name, sequence_name, synthetic):
+    """``evsmap map``'s pipelined loop, EVSMap, int8, with each ``postprocess``: the faithful
+    ``network``, the exact ``fused`` and the ``stride`` variant, alternating (two runs each)."""
+    from evsmap.measure.mapping import map_sequence
+    from evsmap.registry import UPDATERS
+
+    sequence = synthetic if sequence_name == "synthetic" else _tum()
+    calibration = _calibration(sequence)
+    segs = {}
+    for post in POSTPROCESSES:
+        segs[post] = _network(name, postprocess=post)
+        segs[post].calibrate(calibration, source=sequence.name)
+    records: dict[str, list] = {post: [] for post in POSTPROCESSES}
+
+    def one(post: str):
+        rec = map_sequence(sequence, UPDATERS.create("multiclass-bayes", resolution=0.05,
+                                                     max_range=5.0),
+                           updater_name="multiclass-bayes", segmenter=segs[post],
+                           segmenter_name=name, pipeline=True)
+        records[post].append(rec)
+        return rec
+
+    for p in range(2):
+        for post in (POSTPROCESSES if p % 2 == 0 else POSTPROCESSES[::-1]):
+            one(post)
+    benchmark.group = f"postprocess {sequence_name}"
+    benchmark.pedantic(lambda: one("fused"), rounds=1, iterations=1)
+    summary: dict = {}
+    for post, recs in records.items():
+        hz = [r.wall_hz for r in recs]
+        summary[post] = {"wall_hz": float(np.median(hz)), "wall_hz_runs": hz,
+                         "frames": recs[0].frames, "stage_ms_median": recs[-1].stage_medians()}
+    summary["instruction_set"] = segs["network"].precision_record()["instruction_set"]
+    summary["int8_scheme"] = segs["network"].int8_scheme
+    benchmark.extra_info.update(summary)
+    _save("postprocess", f"{name}/{sequence_name}/int8", summary)
+    assert all(r.frames == len(sequence) for recs in records.values() for r in recs)
+
+
 def test_multiclass_bayes_over_octomap_2cm(benchmark):
     import torch
 
@@ -215,6 +262,10 @@ def _summary():
         lines.append(f"  {key:28s} pipelined {r['pipelined']['wall_hz']:5.1f} Hz, "
                      f"sequential {r['sequential']['wall_hz']:5.1f} Hz "
                      f"(x{r['ratio']:.2f})")
+    for key, r in _RESULTS.get("postprocess", {}).items():
+        lines.append(f"  {key:28s} " + ", ".join(
+            f"{post} {r[post]['wall_hz']:5.1f} Hz" for post in POSTPROCESSES)
+            + f" (pipelined, {r['instruction_set']}, int8 {r['int8_scheme']})")
     for key, r in _RESULTS.get("update_2cm", {}).items():
         lines.append(f"  multiclass-bayes / OctoMap C++ at 2 cm on {key}: x{r['ratio']:.2f} "
                      f"({r['multiclass-bayes']['ms_median']:.1f} vs "

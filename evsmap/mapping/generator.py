@@ -95,11 +95,22 @@ def camera_points(frame: Frame, updater: str) -> tuple[np.ndarray, np.ndarray]:
                                f"(use -o front_end=direct)")
     from evsmap.geometry import backproject
 
+    from evsmap.mapping.kernels import depth_points
+
     depth, intrinsics = frame.depth, frame.intrinsics
     assert depth is not None and intrinsics is not None  # an image frame (Frame's invariant)
+    if depth_points is not None:
+        # the compiled back-projection: the same float64 arithmetic, rounded to float32 (the
+        # identity pose adds exact zeros); a frame's depth is finite (Frame's invariant)
+        pixels, points = depth_points(depth, intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                      intrinsics.cy, _IDENTITY)
+        return points, pixels
     valid = np.isfinite(depth) & (depth > 0)
     return (backproject(depth, intrinsics, mask=valid).astype(np.float32),
             np.flatnonzero(valid))
+
+
+_IDENTITY = np.eye(4)
 
 
 def to_world(points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
