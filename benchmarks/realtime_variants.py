@@ -63,9 +63,8 @@ def _scores_2d(seg, frames, faithful: list[np.ndarray] | None):
 
 def _map_3d(seg, sequence):
     from evsmap.measure.mapping import map_sequence
-    from evsmap.registry import UPDATERS
-
     from evsmap.metrics import evaluate_map
+    from evsmap.registry import UPDATERS
 
     updater = UPDATERS.create("multiclass-bayes", resolution=0.05, max_range=5.0)
     record = map_sequence(sequence, updater, updater_name="multiclass-bayes", segmenter=seg,

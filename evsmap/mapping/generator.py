@@ -94,7 +94,6 @@ def camera_points(frame: Frame, updater: str) -> tuple[np.ndarray, np.ndarray]:
                                f"from a depth image; frame {frame.name!r} is a point cloud "
                                f"(use -o front_end=direct)")
     from evsmap.geometry import backproject
-
     from evsmap.mapping.kernels import depth_points
 
     depth, intrinsics = frame.depth, frame.intrinsics

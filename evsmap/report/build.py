@@ -27,6 +27,7 @@ from evsmap.report.detail import detail_markdown
 from evsmap.report.explore import study_markdown
 from evsmap.report.int8 import PREFIX as INT8_PREFIX
 from evsmap.report.int8 import int8_frame, int8_markdown, int8_records
+from evsmap.report.realtime import realtime_markdown
 from evsmap.report.tables import (
     STATUSES,
     extra_frame,
@@ -168,6 +169,8 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
             if linked:
                 md = md + "\n" + "\n".join(linked).rstrip() + "\n"
         int8 = int8_markdown(records, tid)  # reproduce --precision int8, beside the table
+        if table.role == "mapping":  # and its end-to-end rates, faithful path and variants
+            int8 += realtime_markdown(records)
         if int8:
             md = md + "\n" + "\n".join(int8).rstrip() + "\n"
         written.append(_write(run_dir / f"{tid}.md", md))

@@ -152,6 +152,10 @@ def _extra_passes(ctx: RunContext, job: Reproduction, the_plan: Plan,
 
         run.precision = "int8"
         records += run_int8(ctx, the_plan.specs, resume=job.resume, force=job.force)
+        if mapping_table_id() in job.tables:
+            from evsmap.runner.realtime import run_realtime
+
+            records += run_realtime(ctx, resume=job.resume, force=job.force)
     return records
 
 
