@@ -96,7 +96,7 @@ def _get(q: queue.Queue[Any], stop: threading.Event) -> Any:
 
 def pipelined_frames(sequence: Sequence, order: list[int], *, segmenter: Segmenter | None,
                      read_times: Any, segment_times: Any,
-                     timed_predict: Callable[[Segmenter, Frame, Any], SemanticObservation],
+                     timed_predict: Callable[[Segmenter, Frame, Any, Any], SemanticObservation],
                      timed_frames: Callable[..., Iterator[tuple[int, int, Frame]]],
                      skip_bad: bool, skipped: SkippedFrames,
                      progress: Callable[[Any], Any] | None = None, depth: int = DEPTH,

@@ -49,11 +49,14 @@ def _segmenters(network: str, calibration: list[Any], source: str) -> dict[str, 
     from evsmap.registry import SEGMENTERS
     from evsmap.segmenters.network import POSTPROCESSES
 
+    from evsmap.segmenters.network import NetworkSegmenter
+
     segs = {}
     for post in POSTPROCESSES:
         torch.manual_seed(0)
         seg = SEGMENTERS.create(network, backend="onnxruntime", postprocess=post,
                                 input_size=INPUT_SIZE)
+        assert isinstance(seg, NetworkSegmenter)  # a FEAGNet
         seg.calibrate(calibration, source=source)
         segs[post] = seg
     return segs
