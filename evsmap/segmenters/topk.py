@@ -168,12 +168,13 @@ def _source_axis(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     return lower, upper, (src - lower.astype(np.float32)).astype(np.float32)
 
 
-def _upsample(low, pixels, width, y0, y1, wy, x0, x1, wx, buf):
+def _upsample(low, pixels, width, y0, y1, wy, x0, x1, wx, buf, scratch):
     """Bilinear logits of the output ``pixels`` (sorted flat indices in an image ``width``
     wide) from ``low`` (C, h, w), channel by channel into ``buf`` (C, m), in torch's order of
     operations: ``hy * (hx * low[a, c] + lx * low[a, d]) + ly * (hx * low[b, c] + lx * low[b,
     d])``. The source rows the block spans are interpolated along x once (the two inner
-    terms), then each output row combines two of them."""
+    terms) into ``scratch`` (at least (rows spanned, C, width)), then each output row combines
+    two of them."""
     m = pixels.shape[0]
     c_count = low.shape[0]
     one = np.float32(1)
@@ -181,7 +182,7 @@ def _upsample(low, pixels, width, y0, y1, wy, x0, x1, wx, buf):
     cols = pixels - rows * width
     first = y0[rows[0]]
     span = y1[rows[m - 1]] - first + 1
-    along_x = np.empty((span, c_count, width), np.float32)
+    along_x = scratch[:span]
     for s in range(span):
         for ch in range(c_count):
             src = low[ch, first + s]
@@ -198,22 +199,31 @@ def _upsample(low, pixels, width, y0, y1, wy, x0, x1, wx, buf):
         r = rows[lo]
         ly = wy[r]
         hy = one - ly
+        c0 = cols[lo]
+        run = cols[hi - 1] - c0 == hi - 1 - lo  # consecutive columns: no gather, vectorised
         for ch in range(c_count):
             top = along_x[y0[r] - first, ch]
             bottom = along_x[y1[r] - first, ch]
             out = buf[ch]
-            for j in range(lo, hi):
-                out[j] = hy * top[cols[j]] + ly * bottom[cols[j]]
+            if run:  # slices first: indices from 0 vectorise (no wraparound test)
+                o, a, b = out[lo:hi], top[c0:c0 + hi - lo], bottom[c0:c0 + hi - lo]
+                for j in range(hi - lo):
+                    o[j] = hy * a[j] + ly * b[j]
+            else:
+                for j in range(lo, hi):
+                    out[j] = hy * top[cols[j]] + ly * bottom[cols[j]]
 
 
 def _scatter(vals, cls, total, pixels, k, out_cls, out_p):
     """The kept classes and softmax probabilities of a block written at their ``pixels``."""
     for j in range(pixels.shape[0]):
         p = pixels[j]
+        denominator = np.float64(total[j])
         for i in range(k):
             out_cls[p, i] = cls[i, j]
-            prob = np.float32(np.exp(np.float64(vals[i, j]) - np.float64(vals[0, j]))
-                              / np.float64(total[j]))
+            # the top value's exp(0) is 1 exactly: one exponential fewer a pixel
+            e = 1.0 if i == 0 else np.exp(np.float64(vals[i, j]) - np.float64(vals[0, j]))
+            prob = np.float32(e / denominator)
             out_p[p, i] = min(max(prob, np.float32(0)), np.float32(1))
 
 
@@ -246,6 +256,12 @@ def top_k_upsampled(low: torch.Tensor, size: tuple[int, int], k: int,
     pixels = np.ascontiguousarray(pixels, dtype=np.int64)
     out_cls = np.zeros((height * width, k), np.int16)
     out_p = np.zeros((height * width, k), np.float32)
+    starts = np.arange(0, len(pixels), BLOCK)
+    firsts = y0[pixels[starts] // width] if len(pixels) else np.zeros(0, np.int64)
+    lasts = y1[pixels[np.minimum(starts + BLOCK, len(pixels)) - 1] // width] \
+        if len(pixels) else np.zeros(0, np.int64)
+    span = int((lasts - firsts).max()) + 1 if len(pixels) else 0
+    scratch = np.empty((span, c_count, width), np.float32)  # reused: no page faults a block
     store = torch.empty(c_count * _padded(min(BLOCK, len(pixels))), dtype=torch.float32)
     top = torch.zeros(_padded(min(BLOCK, len(pixels))), dtype=torch.float32)
     for start in range(0, len(pixels), BLOCK):
@@ -253,7 +269,7 @@ def top_k_upsampled(low: torch.Tensor, size: tuple[int, int], k: int,
         m, padded = len(block), _padded(len(block))
         buf = store[:c_count * padded].view(c_count, padded)
         buf[:, m:] = 0
-        _upsample(x, block, width, y0, y1, wy, x0, x1, wx, buf.numpy())
+        _upsample(x, block, width, y0, y1, wy, x0, x1, wx, buf.numpy(), scratch)
         vals, cls = _sweep3(buf.numpy()[:, :m])
         top[:m] = torch.from_numpy(vals[0])
         buf.sub_(top[:padded]).exp_()
