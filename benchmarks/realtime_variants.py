@@ -33,11 +33,16 @@ BUDGET_2D = 1.0
 BUDGET_3D = 0.5
 
 
-def _segmenter(name: str, weights: str, postprocess: str, precision: str, calibration):
+def _segmenter(name: str, weights: str, path: str, precision: str, calibration):
+    """``path``: a ``postprocess`` name, or ``stride@HxW`` (the stride variant with the network
+    run at input size HxW)."""
     from evsmap.registry import SEGMENTERS
 
     backend = "onnxruntime" if precision == "int8" else "torch"
-    seg = SEGMENTERS.create(name, weights=weights, backend=backend, postprocess=postprocess)
+    postprocess, _, size = path.partition("@")
+    options = {"input_size": size} if size else {}
+    seg = SEGMENTERS.create(name, weights=weights, backend=backend, postprocess=postprocess,
+                            **options)
     if precision == "int8":
         seg.calibrate(calibration, source="synthrooms train split, 16 evenly spaced frames")
     return seg
@@ -96,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--precision", default="int8", choices=("fp32", "int8"))
     ap.add_argument("--frames", type=int, default=60, help="synthetic-room frames mapped")
     ap.add_argument("--out", default="reports/realtime/variants.json")
+    ap.add_argument("--input-size", action="append", default=[], metavar="HxW",
+                    help="also the stride variant with the network at this input size")
     args = ap.parse_args(argv)
     test, _ = open_dataset(args.dataset, split="test")
     train, _ = open_dataset(args.dataset, split="train")
@@ -108,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         name, _, weights = item.partition("=")
         rows: dict = {}
         faithful_2d = faithful_3d = None
-        for post in POSTPROCESSES:
+        for post in (*POSTPROCESSES, *(f"stride@{size}" for size in args.input_size)):
             seg = _segmenter(name, weights, post, args.precision, calibration)
             labels, scores = _scores_2d(seg, frames, faithful_2d)
             seg = _segmenter(name, weights, post, args.precision, room_calibration)
