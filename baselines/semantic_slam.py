@@ -62,6 +62,7 @@ from evsmap.mapping.keys import pack, unpack
 from evsmap.mapping.occupancy import OccupancyMap
 from evsmap.mapping.raycast import octomap_keys, scan_keys
 from evsmap.mapping.sensor_model import OCTOMAP
+from evsmap.mapping.threads import kernel_threads
 from evsmap.mapping.tree import Tree
 from evsmap.updaters.base import OctreeUpdater, check_observation
 
@@ -217,6 +218,12 @@ class SemanticSlamMap(OctreeUpdater):
 
     # ---- MapUpdater
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
+        # the compiled kernels on evsmap.mapping.threads' number of threads (numba's setting
+        # is per thread: a pipelined loop gives the update one)
+        with kernel_threads():
+            self._integrate(frame, observation)
+
+    def _integrate(self, frame: Frame, observation: SemanticObservation | None) -> None:
         observation = check_observation(frame, observation, self.name)
         self.num_classes = max(self.num_classes if self.frames else 0,
                                int(observation.num_classes))

@@ -47,9 +47,7 @@ def _segmenters(network: str, calibration: list[Any], source: str) -> dict[str, 
     import torch
 
     from evsmap.registry import SEGMENTERS
-    from evsmap.segmenters.network import POSTPROCESSES
-
-    from evsmap.segmenters.network import NetworkSegmenter
+    from evsmap.segmenters.network import POSTPROCESSES, NetworkSegmenter
 
     segs = {}
     for post in POSTPROCESSES:

@@ -262,26 +262,30 @@ def top_k_upsampled(low: torch.Tensor, size: tuple[int, int], k: int,
         if len(pixels) else np.zeros(0, np.int64)
     span = int((lasts - firsts).max()) + 1 if len(pixels) else 0
     scratch = np.empty((span, c_count, width), np.float32)  # reused: no page faults a block
-    store = torch.empty(c_count * _padded(min(BLOCK, len(pixels))), dtype=torch.float32)
-    top = torch.zeros(_padded(min(BLOCK, len(pixels))), dtype=torch.float32)
+    store = np.empty(c_count * _padded(min(BLOCK, len(pixels))), np.float32)
+    top = np.zeros(_padded(min(BLOCK, len(pixels))), np.float32)
+    total = np.empty_like(top)
     for start in range(0, len(pixels), BLOCK):
         block = pixels[start:start + BLOCK]
         m, padded = len(block), _padded(len(block))
-        buf = store[:c_count * padded].view(c_count, padded)
+        buf = store[:c_count * padded].reshape(c_count, padded)
         buf[:, m:] = 0
-        _upsample(x, block, width, y0, y1, wy, x0, x1, wx, buf.numpy(), scratch)
-        vals, cls = _sweep3(buf.numpy()[:, :m])
-        top[:m] = torch.from_numpy(vals[0])
-        buf.sub_(top[:padded]).exp_()
-        total = buf.sum(0)
-        _scatter(vals, cls, total.numpy(), block, k, out_cls, out_p)
+        _upsample(x, block, width, y0, y1, wy, x0, x1, wx, buf, scratch)
+        vals, cls = _sweep3(buf[:, :m])
+        top[:m] = vals[0]
+        # numpy's vectorised float32 exponential, on this thread (torch's intra-op pool woken
+        # for every block cost more than the arithmetic next to a spinning ONNX Runtime)
+        np.subtract(buf, top[:padded], out=buf)
+        np.exp(buf, out=buf)
+        np.sum(buf, axis=0, out=total[:padded])
+        _scatter(vals, cls, total[:m], block, k, out_cls, out_p)
     return out_cls.reshape(height, width, k), out_p.reshape(height, width, k)
 
 
 def _padded(m: int) -> int:
-    """``m`` columns rounded up to whole vectors: torch then takes every column of a block
-    through its vectorised exponential and sum (none through a scalar tail), so a pixel's
-    probabilities do not depend on which block it fell in or on the pixels asked for."""
+    """``m`` columns rounded up to whole vectors: every column of a block then goes through the
+    vectorised exponential and sum (none through a scalar tail), so a pixel's probabilities do
+    not depend on which block it fell in or on the pixels asked for."""
     return -(-m // PAD) * PAD
 
 

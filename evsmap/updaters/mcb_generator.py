@@ -69,6 +69,7 @@ from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.raycast import octomap_keys, scan_keys
 from evsmap.mapping.sensor_model import OCTOMAP
 from evsmap.mapping.ssmi_kernel import LOGINIT, frame_update, occupancies, tree_constants
+from evsmap.mapping.threads import kernel_threads
 from evsmap.mapping.tree import Tree, octomap_colour_average, octomap_colour_prune
 from evsmap.mapping.voxel_grid import voxel_grid
 from evsmap.updaters.base import OctreeUpdater, check_observation
@@ -260,6 +261,12 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
 
     # ---- one frame
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
+        # the compiled kernels on evsmap.mapping.threads' number of threads (numba's setting
+        # is per thread: a pipelined loop gives the update one)
+        with kernel_threads():
+            self._integrate(frame, observation)
+
+    def _integrate(self, frame: Frame, observation: SemanticObservation | None) -> None:
         observation = check_observation(frame, observation, self.name)
         if int(observation.num_classes) > self.num_classes:  # the colour map grew: relabel
             self.num_classes = int(observation.num_classes)
