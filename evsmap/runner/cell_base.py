@@ -39,6 +39,23 @@ def spec_inputs(spec: CellSpec) -> dict[str, Any]:
             "config_key": spec.config_key}
 
 
+def error_record(base: dict[str, Any], exc: BaseException, t0: float) -> CellRecord:
+    """The record of a pass's item that failed (the pass goes on with the next one): its one-line
+    error, the traceback in ``details``, the seconds since ``perf_counter`` read ``t0``. An
+    interruption (Ctrl-C, a stop) is raised again instead."""
+    import time
+    import traceback
+
+    from evsmap.errors import EvsmapError
+    from evsmap.interrupt import reraise_interruption
+
+    reraise_interruption(exc)
+    text = str(exc) if isinstance(exc, EvsmapError) else f"{type(exc).__name__}: {exc}"
+    return CellRecord(**base, status="error", error=text,
+                      details={"traceback": traceback.format_exc()},
+                      seconds=time.perf_counter() - t0)
+
+
 def na_record(spec: CellSpec, needs: list[str], ctx: RunContext) -> CellRecord:
     return CellRecord(**base_fields(spec), status="na", needs=list(needs), reason=needs_text(needs),
                       started=now())

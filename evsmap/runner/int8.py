@@ -24,13 +24,11 @@ networks in TensorRT on a Jetson; precision is not stated).
 from __future__ import annotations
 
 import time
-import traceback
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from evsmap.errors import EvsmapError
-from evsmap.interrupt import reraise_interruption
-from evsmap.runner.cell_base import now
+from evsmap.runner.cell_base import error_record, now
 from evsmap.runner.context import RunContext
 from evsmap.runner.network_cells import cell_network
 from evsmap.runner.records import CellRecord, RecordStore
@@ -164,11 +162,7 @@ def int8_record(ctx: RunContext, spec: CellSpec, specs: list[CellSpec]) -> CellR
         return CellRecord(**base, status="ok", values=values, notes=notes, details=details,
                           seconds=time.perf_counter() - t0)
     except Exception as exc:  # one network's failure does not stop the others
-        reraise_interruption(exc)
-        text = str(exc) if isinstance(exc, EvsmapError) else f"{type(exc).__name__}: {exc}"
-        return CellRecord(**base, status="error", error=text,
-                          details={"traceback": traceback.format_exc()},
-                          seconds=time.perf_counter() - t0)
+        return error_record(base, exc, t0)
 
 
 def run_int8(ctx: RunContext, specs: list[CellSpec], *, resume: bool = False,

@@ -18,13 +18,10 @@ trained weights by ``benchmarks/realtime_variants.py``, docs/realtime.md).
 from __future__ import annotations
 
 import time
-import traceback
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from evsmap.errors import EvsmapError
-from evsmap.interrupt import reraise_interruption
-from evsmap.runner.cell_base import now
+from evsmap.runner.cell_base import error_record, now
 from evsmap.runner.records import CellRecord, RecordStore
 
 if TYPE_CHECKING:
@@ -100,11 +97,7 @@ def realtime_record(ctx: RunContext, network: str) -> CellRecord:
         return CellRecord(**base, status="ok", values=values, notes=notes, details=details,
                           seconds=time.perf_counter() - t0)
     except Exception as exc:  # one network's failure does not stop the other
-        reraise_interruption(exc)
-        text = str(exc) if isinstance(exc, EvsmapError) else f"{type(exc).__name__}: {exc}"
-        return CellRecord(**base, status="error", error=text,
-                          details={"traceback": traceback.format_exc()},
-                          seconds=time.perf_counter() - t0)
+        return error_record(base, exc, t0)
 
 
 def _median(values: list[float]) -> float:
