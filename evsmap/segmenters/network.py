@@ -407,6 +407,9 @@ class NetworkSegmenter(Segmenter):
             return SemanticObservation.of_kernel(classes, probs, self.num_classes)
         if self.postprocess == "fused":
             if tuple(self.input_size) == (h, w) and k <= 3 and topk.njit is not None:
+                if pixels is not None and np.shape(pixels) != (h, w):
+                    raise InvalidDataError(f"{self.name}: pixels must be a {h}x{w} mask (the "
+                                           f"frame's), got shape {np.shape(pixels)}")
                 index = None if pixels is None else np.flatnonzero(pixels)
                 classes, probs = topk.top_k_upsampled(logits[0], size, k, index)
                 return SemanticObservation.of_kernel(classes, probs, self.num_classes)

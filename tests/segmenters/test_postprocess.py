@@ -110,6 +110,9 @@ def test_postprocess_refusals():
                          postprocess="stride")
     seg = SEGMENTERS.create("feagnet-v1", input_size=(64, 96), postprocess="fused")
     assert seg.module.upsample_logits is False
+    frame = READERS.create("synthetic", frames=1, width=96, height=64).frame(0)
+    with pytest.raises(InvalidDataError, match="pixels must be a 64x96 mask"):
+        seg.predict_at(frame, np.ones((60, 80), bool))
 
 
 @pytest.mark.parametrize("discretize", [True, False])
