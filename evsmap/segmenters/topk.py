@@ -254,6 +254,8 @@ def top_k_upsampled(low: torch.Tensor, size: tuple[int, int], k: int,
     if pixels is None:
         pixels = np.arange(height * width, dtype=np.int64)
     pixels = np.ascontiguousarray(pixels, dtype=np.int64)
+    if pixels.size and (pixels.min() < 0 or pixels.max() >= height * width):
+        raise ValueError(f"pixels must index a {height}x{width} image")
     out_cls = np.zeros((height * width, k), np.int16)
     out_p = np.zeros((height * width, k), np.float32)
     starts = np.arange(0, len(pixels), BLOCK)
