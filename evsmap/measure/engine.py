@@ -18,12 +18,15 @@ What is timed, per frame, in milliseconds (``stages_ms``):
                   stage, ``oracle``, and is not a segmentation time)
 ``update``        the updater's ``integrate``
 
-Warm-up frames (``warmup``) run before the loop and are not recorded. Evaluators run outside
+Warm-up frames (``warmup``: the segmenter's, and one update into a scratch copy of the empty map)
+run before the loop and are not recorded. Evaluators run outside
 the timed spans.
 """
 
 from __future__ import annotations
 
+import copy
+import pickle
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -293,7 +296,9 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
             (:func:`~evsmap.measure.pipelined.pipelined_frames`); the updater sees the same
             frames and observations in the same order, so the map is the same.
         warmup: segmentations of the first frame before the loop, not timed (a network's first
-            call builds its session, quantises and tunes: not a per-frame cost).
+            call builds its session, quantises and tunes: not a per-frame cost); with any, the
+            first frame is also integrated into a scratch copy of the empty map, so that the
+            update's compiled kernels load (or compile) outside the loop.
         threads: a :class:`~evsmap.measure.pipelined.StageThreads` set for the warm-up and
             the loop, then restored (default: ``PIPELINED`` with ``pipeline``, else
             ``SEQUENTIAL``: the libraries' defaults).
@@ -354,10 +359,13 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
           growth: Any = None) -> float:
     """:func:`run_mapping`'s warm-up and timed loop; returns the loop's wall seconds (without
     the ``growth`` snapshots' time)."""
-    if warmup and segmenter is not None and order:
+    if warmup and order:
         first = sequence.frame(order[0])
-        for _ in range(int(warmup)):
-            segmenter.predict(first)
+        observation = observations[0] if observations is not None else None
+        for _ in range(int(warmup) if segmenter is not None else 0):
+            observation = segmenter.predict_at(first, the_map.semantic_pixels(first))
+        if observation is not None or not semantic:
+            _warm_update(the_map, first, observation if semantic else None)
 
     def observation_at(position: int, index: int) -> SemanticObservation | None:
         if observations is None or not semantic:
@@ -400,6 +408,18 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
             done.append(index)
             after(the_map)
     return time.perf_counter() - t_start - aside[0]
+
+
+def _warm_update(the_map: MapUpdater, frame: Frame,
+                 observation: SemanticObservation | None) -> None:
+    """Integrate ``frame`` into a scratch copy of the still empty map, so that the update's
+    compiled kernels load (or, on a fresh install, compile) before the timed loop, not in its
+    first frame. A map that cannot be copied (held by a C++ library) is not warmed."""
+    try:
+        scratch = copy.deepcopy(the_map)
+    except (TypeError, copy.Error, pickle.PicklingError):
+        return
+    scratch.integrate(frame, observation)
 
 
 def in_memory(frames: list[Frame], name: str = "frames") -> Sequence:
