@@ -323,10 +323,24 @@ def format_record(r: dict[str, Any]) -> str:
             f"  ({r['map_file']})" if r["map_file"] else "") + _other_size(r),
         f"map          {r['nodes']:,} nodes, {r['leaves']:,} leaves",
         "memory       " + _memory_text(r),
-    ] + _front_end_line(r.get("front_end")) + _machine_lines(r.get("machine")) + ply
+    ] + _network_lines(r) + _front_end_line(r.get("front_end"))
+        + _machine_lines(r.get("machine")) + ply
         + ([f"note         {r['extra']['segmenter_not_run']}"]
            if r.get("extra", {}).get("segmenter_not_run") else [])
         + _quality_lines(r.get("quality")))
+
+
+def _network_lines(r: dict[str, Any]) -> list[str]:
+    """The network's precision (with the int8 scheme) and post-processing path, where a network
+    ran."""
+    if "precision" not in r:
+        return []
+    text = r["precision"]
+    if r["precision"] == "int8":
+        text += f" {r.get('int8_scheme')} ({r.get('int8_scheme_chosen_by')})"
+    post = r.get("postprocess", "network")
+    text += f", postprocess {post}" + (" (the faithful path)" if post == "network" else "")
+    return [f"network      {text}"]
 
 
 def _machine_lines(m: dict[str, Any] | None) -> list[str]:

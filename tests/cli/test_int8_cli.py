@@ -123,3 +123,22 @@ def test_map_int8_and_its_errors(capsys, tiny):
     code, _, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater",
                        "multiclass-bayes", "--precision", "int8")
     one_line_error(code, err, "--precision int8", "not a network")
+
+
+def test_map_text_names_precision_scheme_and_post_processing(capsys, tiny):
+    code, out, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater",
+                         "multiclass-bayes", "--segmenter", "feagnet-v1", "-s",
+                         "input_size=64x96", "-s", "postprocess=stride", "--allow-random",
+                         "--frames", "2", *INT8)
+    assert code == 0, err
+    assert (f"network      int8 {auto_scheme()} (auto for {instruction_set()}), postprocess "
+            f"stride\n") in out
+    code, out, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater",
+                         "multiclass-bayes", "--segmenter", tiny, "-s", "num_classes=40",
+                         "--allow-random", "--frames", "2")
+    assert code == 0, err
+    assert "network      fp32, postprocess network (the faithful path)\n" in out
+    code, _, err = run(capsys, "map", "synthetic", *SMALL_SYNTH, "--updater",
+                       "multiclass-bayes", "--segmenter", tiny, "-s", "postprocess=stride",
+                       "--allow-random")
+    one_line_error(code, err, "postprocess=stride needs a network")
