@@ -64,7 +64,8 @@ class Segmenter(abc.ABC):
         HxW mask; None: every pixel): exact there, and valid but unspecified elsewhere (a
         network segmenter leaves class 0 with probability 0 there). The default predicts every
         pixel; a segmenter whose work scales with the pixels overrides it."""
-        return self.predict(frame, k=k)
+        # k left out at its default: a plug-in's (or a wrapper's) predict(frame) keeps working
+        return self.predict(frame) if k == 3 else self.predict(frame, k=k)
 
     @property
     def input_names(self) -> tuple[str, ...]:

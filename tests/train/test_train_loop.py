@@ -20,7 +20,7 @@ from evsmap.segmenters.weights import read_checkpoint, read_weights, tensors_sha
 from evsmap.train.checkpoint import load_checkpoint
 from evsmap.train.init import load_encoder_weights
 
-LEARN_EPOCHS = 20  # x 2 steps of 4 frames: 40 SGD steps
+LEARN_EPOCHS = 30  # x 2 steps of 4 frames: 60 SGD steps
 
 
 def _run(capsys, *argv) -> tuple[int, str, str]:
@@ -53,7 +53,7 @@ def test_loss_falls_and_train_miou_rises_well_above_chance(learned):
     # chance: the untrained network labels (nearly) everything one class, mIoU ~ 0.19 here;
     # uniform guessing over 4 classes gives ~0.14
     assert mious[0] < 0.3
-    assert max(mious) > 0.6, mious
+    assert max(mious) > 0.6, " ".join(f"{m:.3f}" for m in mious)
     assert losses[-1] < 0.5 * losses[0] and min(losses[-5:]) < min(losses[:5]), losses
     assert all(float(r["images"]) == 8 and float(r["images_per_s"]) > 0 for r in rows)
     assert list(rows[0]) == ["epoch", "lr", "loss", "val_miou", "train_seconds",
