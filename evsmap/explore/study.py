@@ -12,10 +12,17 @@ it (the sampler: :mod:`evsmap.explore.sampler`; the workers: :mod:`evsmap.explor
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
+
+try:  # POSIX; elsewhere a new SQLite study is opened without the creation lock
+    import fcntl
+except ImportError:  # pragma: no cover
+    fcntl = None  # type: ignore[assignment]
 
 import optuna
 from optuna.trial import TrialState
@@ -53,11 +60,32 @@ def open_storage(url: str) -> optuna.storages.RDBStorage:
     if url.startswith("sqlite"):
         kwargs = {"connect_args": {"timeout": 60}}
     try:
-        return optuna.storages.RDBStorage(url, engine_kwargs=kwargs,
-                                          heartbeat_interval=HEARTBEAT_S, grace_period=GRACE_S)
+        with _creation_lock(url):
+            return optuna.storages.RDBStorage(url, engine_kwargs=kwargs,
+                                              heartbeat_interval=HEARTBEAT_S,
+                                              grace_period=GRACE_S)
     except Exception as exc:  # SQLAlchemy's and the drivers' errors, of many classes
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise StudyError(f"--storage {url}: cannot be opened ({reason})") from None
+
+
+@contextlib.contextmanager
+def _creation_lock(url: str) -> Iterator[None]:
+    """Held while a SQLite study file is opened (``<file>.lock`` beside it, an exclusive
+    ``flock``): Optuna makes its tables and stamps their schema version on the first opening,
+    and two processes opening a new file at once (two workers, a resume, a reader) could both
+    stamp it, leaving a file no later opening accepts (``UNIQUE constraint failed:
+    alembic_version``; seen in CI). Other databases serialise this themselves."""
+    path = Path(url[len("sqlite:///"):]) if url.startswith("sqlite:///") else None
+    if fcntl is None or path is None or not path.parent.is_dir():
+        yield
+        return
+    with open(path.with_name(path.name + ".lock"), "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 @dataclass(frozen=True)

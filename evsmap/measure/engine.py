@@ -362,8 +362,9 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
     if warmup and order:
         first = sequence.frame(order[0])
         observation = observations[0] if observations is not None else None
-        for _ in range(int(warmup) if segmenter is not None else 0):
-            observation = segmenter.predict_at(first, the_map.semantic_pixels(first))
+        if segmenter is not None:
+            for _ in range(int(warmup)):
+                observation = segmenter.predict_at(first, the_map.semantic_pixels(first))
         if observation is not None or not semantic:
             _warm_update(the_map, first, observation if semantic else None)
 

@@ -100,7 +100,12 @@ def _env() -> dict[str, str]:
 def _study(out: Path):
     import optuna
 
-    return optuna.load_study(study_name="explore", storage=f"sqlite:///{out / 'study.db'}")
+    from evsmap.explore.study import open_storage
+
+    # through evsmap's opening (its creation lock): polling a study file the explore process is
+    # still making must not stamp its schema a second time
+    return optuna.load_study(study_name="explore",
+                             storage=open_storage(f"sqlite:///{out / 'study.db'}"))
 
 
 @pytest.mark.slow

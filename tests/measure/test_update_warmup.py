@@ -27,8 +27,12 @@ def test_the_warm_up_leaves_the_map_as_the_loop_builds_it(tmp_path, seq, updater
         the_map = UPDATERS.create(updater, resolution=0.1)
         cls = type(the_map)
         original = cls.integrate
-        monkeypatch.setattr(cls, "integrate", lambda self, f, o=None: (
-            integrated.append(self is the_map), original(self, f, o))[1])
+
+        def counting(self, f, o=None, *, the_map=the_map, original=original):
+            integrated.append(self is the_map)
+            return original(self, f, o)
+
+        monkeypatch.setattr(cls, "integrate", counting)
         out = tmp_path / f"{warm}.ot"
         run = run_mapping(seq, the_map, observations=[seg.predict(seq.frame(i))
                                                       for i in range(3)],
