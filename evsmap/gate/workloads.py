@@ -381,6 +381,13 @@ class ReadSequence(Job):
         return {"frames": len(self.frames), "frames_sha256": frame_digest(self.frames)}
 
 
+EMPTY_CACHE_WORKLOADS = frozenset({"report/build"})
+"""Workloads whose worker gets an empty evsmap cache of its own (``EVSMAP_CACHE_DIR``, set by
+the runner for this tree's and a reference's process alike): the report states the cache's
+size, so it walks the whole cache, and a user's or the paired gate's own cache (a reference's
+virtual environment is 56 000 files under ``gate/envs``) would time the disk, differently on
+each side, rather than the report's code."""
+
 REPORT_DIGESTED = ("table1.md", "table2.md", "table3.md", "table4.md", "table1.csv",
                    "table2.csv", "table3.csv", "table4.csv", "extra.csv")
 """Report files whose bytes are fixed by the records (index.md also states the cache size and

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -190,3 +191,30 @@ def test_networks_registered_with_gate_false_are_left_out_unbuilt(monkeypatch):
     assert compared <= set(context["not_gated"])
     assert not compared & (set(context["networks"]) | set(built) | set(built_names))
     assert {"feagnet-v1", "esanet-r34-nbt1d"} <= set(context["networks"])
+
+
+def test_the_report_workload_runs_on_an_empty_cache_of_its_own_on_every_side(tmp_path,
+                                                                             monkeypatch):
+    # the report walks the cache to state its size: a paired gate's reference would otherwise
+    # time its own small cache against this tree's, which holds the reference's environment
+    from evsmap.gate.run import Checkout, run_worker
+
+    monkeypatch.setenv("EVSMAP_CACHE_DIR", str(tmp_path / "users-cache"))
+    fake = tmp_path / "python"  # stands for an interpreter: records the cache it was given
+    fake.write_text("#!/bin/sh\nout=\"\"\nwhile [ $# -gt 0 ]; do [ \"$1\" = --out ] && "
+                    "out=\"$2\"; shift; done\nls -A \"$EVSMAP_CACHE_DIR\" | wc -l > "
+                    "\"$out.n\"\nprintf '{\"cache\": \"%s\"}' \"$EVSMAP_CACHE_DIR\" > \"$out\"\n")
+    fake.chmod(0o755)
+    side = Checkout(python=str(fake), env={"EVSMAP_CACHE_DIR": str(tmp_path / "theirs")})
+    (tmp_path / "theirs").mkdir()
+    (tmp_path / "theirs" / "gate").mkdir()
+    report = Workload("report/build", "report", "build")
+    read = Workload("read/tum", "read", "read")
+    for checkout in (side, Checkout(python=str(fake))):
+        got = run_worker(report, tmp_path / "ctx.json", tmp_path, budget_s=1, threads=1,
+                         checkout=checkout)["cache"]
+        assert got.startswith(str(tmp_path / "evsmap-gate-cache-"))
+        assert (tmp_path / "report__build.json.n").read_text().strip() == "0"  # empty
+        assert not Path(got).exists()  # removed afterwards
+    assert run_worker(read, tmp_path / "ctx.json", tmp_path, budget_s=1, threads=1,
+                      checkout=side)["cache"] == str(tmp_path / "theirs")
