@@ -191,3 +191,53 @@ def read_environment(stored: Mapping[str, Any]) -> dict[str, Any]:
     if versions:
         out["versions"] = versions
     return out
+
+
+GPU_QUERY = ("driver_version", "clocks.sm", "clocks.max.sm", "clocks.mem", "clocks.max.mem",
+             "power.limit", "pstate", "temperature.gpu")
+"""What ``nvidia-smi --query-gpu`` is asked for (:func:`gpu_clocks`)."""
+
+
+def gpu_clocks(index: int) -> dict[str, str]:
+    """GPU ``index``'s driver, clocks (MHz, now and maximum), power limit, performance state
+    and temperature, as ``nvidia-smi`` reports them now; ``{"nvidia_smi": why}`` where it
+    cannot be asked."""
+    import shutil
+    import subprocess
+
+    smi = shutil.which("nvidia-smi")
+    if smi is None:
+        return {"nvidia_smi": "not found"}
+    try:
+        out = subprocess.run([smi, f"--query-gpu={','.join(GPU_QUERY)}",
+                              "--format=csv,noheader,nounits", "-i", str(index)],
+                             capture_output=True, text=True, timeout=20, check=True).stdout
+    except (OSError, subprocess.SubprocessError) as exc:
+        return {"nvidia_smi": f"failed: {exc}"}
+    values = [v.strip() for v in out.strip().splitlines()[0].split(",")] if out.strip() else []
+    if len(values) != len(GPU_QUERY):
+        return {"nvidia_smi": f"unexpected output {out.strip()!r}"}
+    return {key.replace(".", "_"): value for key, value in zip(GPU_QUERY, values, strict=True)}
+
+
+def collect_gpu(device: Any) -> dict[str, Any]:
+    """The facts of the GPU a measurement ran on (``device`` a CUDA ``torch.device``): model,
+    compute capability, memory, multiprocessors, CUDA and cuDNN versions, cuDNN autotuning and
+    TF32 settings, and :func:`gpu_clocks`. The one record of them, as
+    :func:`collect_environment` is of the CPU; ``{}`` for the CPU."""
+    import torch
+
+    device = torch.device(device)
+    if device.type != "cuda":
+        return {}
+    index = device.index if device.index is not None else torch.cuda.current_device()
+    props = torch.cuda.get_device_properties(index)
+    return {"gpu": props.name, "gpu_index": index,
+            "compute_capability": f"{props.major}.{props.minor}",
+            "gpu_memory_bytes": int(props.total_memory),
+            "multiprocessors": int(props.multi_processor_count),
+            "cuda": torch.version.cuda, "cudnn": torch.backends.cudnn.version(),
+            "cudnn_benchmark": bool(torch.backends.cudnn.benchmark),
+            "tf32_matmul": bool(torch.backends.cuda.matmul.allow_tf32),
+            "tf32_cudnn": bool(torch.backends.cudnn.allow_tf32),
+            **gpu_clocks(index)}

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import nonnegative_int, positive_float, positive_int
+from evsmap.cli.precision import device_arg
 from evsmap.errors import EvsmapError
 
 
@@ -78,6 +79,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "(a new file unless --overwrite)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing --results file (once the new one is complete)")
+    p.add_argument("--device", type=device_arg, default="cpu", metavar="DEVICE",
+                   help="cpu (default: every workload) or cuda[:N]: each network's forward "
+                        "pass on that GPU, timed against a GPU matmul calibration, compared "
+                        "with the baseline's figures of this GPU kind (GPU model, CUDA, cuDNN, "
+                        "driver; record them once with --update); docs/gates.md")
     p.add_argument("--json", action="store_true",
                    help="print the verdicts and measurements as JSON instead of the table")
     p.set_defaults(run=run)
@@ -154,6 +160,9 @@ def choose_comparison(args: argparse.Namespace, data: dict[str, Any] | None,
         resolved = resolve_commit(root, args.against)
         return Comparison("paired", f"--against {args.against}: commit {resolved[:12]} measured "
                                     "beside this tree", commit=resolved, root=root)
+    if entry is None and here.get("gpu"):
+        raise EvsmapError(f"{args.baseline} has no figures of this GPU kind ({this}): record "
+                          f"them once with evsmap gate --device {args.device} --update")
     if entry is not None:
         return Comparison("stored", f"the baseline has figures of this machine kind ({this}), "
                                     f"recorded {entry.get('updated', '?')} at commit "
@@ -205,9 +214,17 @@ def run(args: argparse.Namespace) -> int:
     from evsmap.gate.run import pick_cpu
 
     if args.list:
-        return _list()
+        return _list(args.device)
     claim(args)
-    here = machine_info(args.threads)
+    if args.device != "cpu":
+        from evsmap.devices import require_device
+
+        require_device(args.device)
+        if args.against:
+            raise EvsmapError(f"--against with --device {args.device}: a paired run measures "
+                              f"the CPU workloads; a GPU kind compares with its stored figures "
+                              f"(record them with --device {args.device} --update)")
+    here = machine_info(args.threads, args.device)
     data = _load(args, here)
     comparison = choose_comparison(args, data, here)
     log = (lambda msg: sys.stderr.write(f"evsmap gate: {msg}\n")) if not args.json else \
@@ -244,12 +261,12 @@ def run(args: argparse.Namespace) -> int:
     return 0 if passed else 1
 
 
-def _list() -> int:
+def _list(device: str = "cpu") -> int:
     from evsmap.gate.prepare import discover
     from evsmap.gate.workloads import plan
 
     context, _ = discover(threads=1)
-    for w in plan(context):
+    for w in plan({**context, "device": device}):
         print(f"{w.name:44s} {w.calibration:8s} {w.description}")
     return 0
 
@@ -262,7 +279,8 @@ def _stored(args: argparse.Namespace, comparison: Comparison, cpu: int, tmp: Pat
     from evsmap.gate.run import combine, measure_all, outside_band
     from evsmap.gate.workloads import selected_names
 
-    context, chosen = prepare(tmp, threads=args.threads, cpu=cpu, patterns=args.only, log=log)
+    context, chosen = prepare(tmp, threads=args.threads, cpu=cpu, patterns=args.only, log=log,
+                              device=args.device)
     repeats = args.repeats or (5 if args.update else 1)
     base = {}
     if comparison.entry is not None and comparison.mode != "record":
@@ -326,7 +344,7 @@ def _record(args: argparse.Namespace, data: dict[str, Any] | None, here: dict[st
     from evsmap.gate.baseline import updated_baseline, write_baseline
     from evsmap.gitinfo import head_commit
 
-    settings = {"threads": args.threads, "budget_s": args.budget,
+    settings = {"threads": args.threads, "budget_s": args.budget, "device": args.device,
                 "repeats": args.repeats or 5}
     write_baseline(args.baseline, updated_baseline(data, measured, settings, machine=here,
                                                    commit=head_commit()))

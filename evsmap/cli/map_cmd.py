@@ -131,8 +131,10 @@ def run(args: argparse.Namespace) -> int:
         ply_color = check_color_by(updater, args.ply_color)
     sequence = _open(args)
     segmenter, seg_name, weights_record = _segmenter(args, updater, sequence)
-    if args.precision == "int8" and segmenter is None:
-        raise EvsmapError(f"--precision int8: updater {args.updater!r} runs no segmenter (pass "
+    if segmenter is None and (args.precision != "fp32" or args.device != "cpu"):
+        option = f"--precision {args.precision}" if args.precision != "fp32" \
+            else f"--device {args.device}"
+        raise EvsmapError(f"{option}: updater {args.updater!r} runs no segmenter (pass "
                           f"--segmenter NAME, a network)")
     precision = {} if segmenter is None else apply_precision(
         args, segmenter, sequence, count=args.frames, what="map")
@@ -340,7 +342,14 @@ def _network_lines(r: dict[str, Any]) -> list[str]:
         text += f" {r.get('int8_scheme')} ({r.get('int8_scheme_chosen_by')})"
     post = r.get("postprocess", "network")
     text += f", postprocess {post}" + (" (the faithful path)" if post == "network" else "")
-    return [f"network      {text}"]
+    if r.get("device"):
+        text += f", on {r['device']}"
+    lines = [f"network      {text}"]
+    if r.get("gpu"):
+        from evsmap.cli.speed_cmd import gpu_text
+
+        lines.append(f"gpu          {gpu_text(r['gpu'])}")
+    return lines
 
 
 def _machine_lines(m: dict[str, Any] | None) -> list[str]:

@@ -16,9 +16,20 @@ import sys
 from typing import Any
 
 from evsmap.cli.options import nonnegative_int, positive_int
+from evsmap.devices import DEVICES_HELP, device_name
 from evsmap.errors import EvsmapError
 
-PRECISIONS = ("fp32", "int8")
+
+def device_arg(text: str) -> str:
+    """``--device``'s value, canonical (``cpu``, ``cuda:N``); its spelling checked only (the
+    machine is checked when the command runs)."""
+    try:
+        return device_name(text)
+    except EvsmapError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+PRECISIONS = ("fp32", "fp16", "bf16", "int8")
+AUTOCAST_PRECISIONS = ("fp16", "bf16")
 SCHEMES = ("auto", "u8s8", "u8s7", "u8u8", "s8s8")
 """``auto`` and evsmap.segmenters.quantize.SCHEMES, spelled out so that building the parser
 imports nothing heavy."""
@@ -36,8 +47,13 @@ def add_precision_options(p: argparse.ArgumentParser, *, target: str = "the fram
         calibrate_on: offer ``--calibrate-on`` (a command without a sequence does not).
     """
     p.add_argument("--precision", choices=PRECISIONS, default="fp32",
-                   help="fp32 (default) or int8: ONNX Runtime static QDQ quantisation, "
-                        "calibrated first (implies --backend onnxruntime; docs/int8.md)")
+                   help="fp32 (default); fp16 or bf16: torch's autocast at that dtype (torch "
+                        "backends; docs/gpu.md); or int8: ONNX Runtime static QDQ "
+                        "quantisation, calibrated first (implies --backend onnxruntime; "
+                        "docs/int8.md)")
+    p.add_argument("--device", type=device_arg, default="cpu", metavar="DEVICE",
+                   help=f"where the network runs: {DEVICES_HELP}; a GPU needs a CUDA build "
+                        f"of torch (docs/gpu.md)")
     p.add_argument("--int8-scheme", choices=SCHEMES, default="auto",
                    help="int8 types: auto (default: u8s8 where the CPU has VNNI or is ARM, "
                         "u8s7 on x86 without VNNI, whose u8s8 kernels saturate), u8s8 (uint8 "
@@ -66,6 +82,12 @@ def backend_for(args: argparse.Namespace, model: str | None = None) -> str | Non
         EvsmapError: ``--precision int8`` with ``--backend torch``, or for a registered
             segmenter that has no backend (not a network: the oracle).
     """
+    _check_device(args)
+    tensorrt_fp16 = args.precision == "fp16" and getattr(args, "provider", None) == "tensorrt"
+    if args.precision in AUTOCAST_PRECISIONS and args.backend == "onnxruntime" \
+            and not tensorrt_fp16:
+        raise EvsmapError(f"--precision {args.precision} is torch's autocast: pass --backend "
+                          f"torch (or leave --backend out)")
     if args.precision != "int8":
         if args.backend is not None and model is not None:
             _require_network(model, f"--backend {args.backend}")
@@ -78,6 +100,19 @@ def backend_for(args: argparse.Namespace, model: str | None = None) -> str | Non
     return "onnxruntime"
 
 
+def _check_device(args: argparse.Namespace) -> None:
+    """``--device`` is on this machine and goes with ``--precision`` (before any work)."""
+    device = getattr(args, "device", "cpu")
+    if device == "cpu":
+        return
+    from evsmap.devices import require_device
+
+    require_device(device)
+    if args.precision == "int8":
+        raise EvsmapError(f"--precision int8 --device {device}: int8 here is ONNX Runtime's CPU "
+                          f"quantisation; on a GPU use --precision fp16 or bf16")
+
+
 def _require_network(model: str, option: str) -> None:
     from evsmap.registry import SEGMENTERS
 
@@ -88,9 +123,12 @@ def _require_network(model: str, option: str) -> None:
 
 
 def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
-                    count: int | None = None, what: str = "") -> dict[str, Any]:
-    """Calibrate ``segmenter`` to int8 when ``--precision int8``; return the record fields
-    (``precision``, and for int8 ``int8_scheme`` and ``int8``: how it was calibrated).
+                    count: int | None = None, what: str = "", place: bool = True
+                    ) -> dict[str, Any]:
+    """Place ``segmenter`` on ``--device`` at an autocast ``--precision``, or calibrate it to
+    int8 when ``--precision int8``; return the record fields (``precision``, ``device`` and
+    ``gpu``, the GPU's facts, on a GPU, and for int8 ``int8_scheme`` and ``int8``: how it was
+    calibrated).
 
     Args:
         args: the parsed command line (:func:`add_precision_options`'s options).
@@ -99,10 +137,22 @@ def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
             frames), or None where there is none (``--calibrate-on`` or the synthetic scene).
         count: how many of its frames are processed (default all).
         what: the command name for the note on stderr.
+        place: move the network to ``--device`` and set an autocast ``--precision`` on it
+            (``speed`` times a copy of the module itself and passes neither).
 
     Raises:
         EvsmapError: int8 for a segmenter that is not a network, or no calibration frame.
     """
+    if place and _place(args, segmenter):
+        from evsmap.environment import collect_gpu
+
+        gpu = collect_gpu(args.device)
+        return {**_precision_fields(args, segmenter, sequence, count, what), "gpu": gpu}
+    return _precision_fields(args, segmenter, sequence, count, what)
+
+
+def _precision_fields(args: argparse.Namespace, segmenter: Any, sequence: Any,
+                      count: int | None, what: str) -> dict[str, Any]:
     if args.precision != "int8":
         from evsmap.segmenters.network import NetworkSegmenter
 
@@ -134,6 +184,24 @@ def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
                         cache_dir=getattr(args, "cache_dir", None),
                         source=f"{label}: frames {', '.join(map(str, indices))}")
     return segmenter.precision_record()
+
+
+def _place(args: argparse.Namespace, segmenter: Any) -> bool:
+    """``--device`` and an autocast ``--precision`` applied to a network segmenter (refused in
+    one line for a segmenter that is not one); whether it runs on a GPU."""
+    device = getattr(args, "device", "cpu")
+    autocast = args.precision if args.precision in AUTOCAST_PRECISIONS else None
+    _check_device(args)
+    if device == "cpu" and autocast is None:
+        return False
+    from evsmap.segmenters.network import NetworkSegmenter
+
+    if not isinstance(segmenter, NetworkSegmenter):
+        option = f"--device {device}" if device != "cpu" else f"--precision {autocast}"
+        raise EvsmapError(f"{option}: segmenter {getattr(segmenter, 'name', segmenter)!r} is "
+                          f"not a network (nothing to run on a device or in {autocast or 'it'})")
+    segmenter.place(device=device, precision=autocast)
+    return device != "cpu"
 
 
 def _calibration_sequence(name: str) -> tuple[Any, int, str]:

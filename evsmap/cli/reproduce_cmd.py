@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from evsmap.cli.options import positive_float, positive_int
 from evsmap.cli.outputs import Output, check_writable
+from evsmap.cli.precision import device_arg
 from evsmap.errors import DataFormatError, EvsmapError
 
 if TYPE_CHECKING:
@@ -176,6 +177,11 @@ def _add_resume_and_passes(p: argparse.ArgumentParser) -> None:
                         "feagnet-v1,feagnet-v2,fchardnet-70)")
     p.add_argument("--proxy-recipe", default=None, metavar="NAME",
                    help="with --train: training recipe (default synth-proxy)")
+    p.add_argument("--device", type=device_arg, default=None, metavar="DEVICE",
+                   help="where the speed cells time the networks: cpu (default) or cuda[:N] "
+                        "(torch on the GPU, CUDA events, a warm-up until the speed settles; "
+                        "the cells' notes and records name the GPU; the map updates stay on "
+                        "the CPU; docs/gpu.md; with --resume, the run's)")
     p.add_argument("--precision", choices=("fp32", "int8"), default=None,
                    help="int8: also measure every network with a speed cell in int8 beside "
                         "fp32 (ONNX Runtime static QDQ, the scheme auto picks for this CPU: "
@@ -279,9 +285,17 @@ def _settings(args: argparse.Namespace, out: Path) -> RunSettings:
 
 
 def _check_machine(settings: RunSettings) -> None:
-    """The data folder exists; with ``--strict-timing``, the machine is idle."""
+    """The data folder exists; the device is here; with ``--strict-timing``, the machine is
+    idle."""
     if settings.data_root is not None and not settings.data_root.is_dir():
         raise EvsmapError(f"--data-root {settings.data_root}: no such folder")
+    if settings.device != "cpu":
+        from evsmap.devices import require_device
+
+        require_device(settings.device)
+        if settings.precision == "int8":
+            raise EvsmapError(f"--precision int8 --device {settings.device}: the int8 pass is "
+                              f"ONNX Runtime's CPU quantisation; time int8 on the CPU")
     if settings.strict_timing:
         import os
 

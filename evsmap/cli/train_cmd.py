@@ -52,6 +52,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", metavar="cpu|cuda",
                    help="cpu, cuda or cuda:N (default: cuda when available; under torchrun "
                         "each process takes cuda:LOCAL_RANK)")
+    p.add_argument("--channels-last", action="store_true",
+                   help="the network and its inputs in channels-last memory format (NHWC: "
+                        "tensor-core convolutions on a GPU; docs/gpu.md)")
+    p.add_argument("--deterministic", action="store_true",
+                   help="deterministic algorithms only (cuDNN's autotuner off; torch warns of "
+                        "an operation without a deterministic kernel): a resumed run repeats a "
+                        "straight one bit for bit on a GPU as on the CPU")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its checkpoint (recipe, weights, "
                         "optimizer, schedule and random states)")
@@ -151,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
         model=args.model, dataset=args.dataset, out=args.out, recipe=args.recipe,
         overrides=overrides(args), options=dict(args.option), reader=args.reader,
         reader_options=list(args.reader_option), train_split=args.train_split,
-        val_split=args.val_split, limit=args.limit, device=args.device, resume=args.resume,
+        val_split=args.val_split, limit=args.limit, device=args.device,
+        channels_last=args.channels_last, deterministic=args.deterministic, resume=args.resume,
         init=args.init, stop_after=args.stop_after,
         messages=sys.stderr if args.json else sys.stdout)
     summary = train(opts)

@@ -28,18 +28,27 @@ BASELINE_FORMAT = 2
 DEFAULT_BASELINE = Path("benchmarks") / "baseline.json"
 KIND_KEYS = ("cpu", "cpus", "machine", "instruction_set", "cpu_flags", "python")
 KIND_LIBRARIES = ("torch", "onnxruntime", "numpy")
+GPU_KIND_KEYS = ("gpu", "cuda", "cudnn", "driver_version", "clocks_max_sm")
+"""The GPU facts a GPU kind's figures depend on (of :func:`evsmap.environment.collect_gpu`):
+its model, CUDA, cuDNN, the driver and its maximum SM clock."""
 """The machine facts a baseline's figures depend on (of
 :func:`evsmap.environment.collect_environment`, the libraries' from its ``versions``): their
 digest is the machine kind."""
 
 
-def machine_info(threads: int) -> dict[str, Any]:
+def machine_info(threads: int, device: str = "cpu") -> dict[str, Any]:
     """Facts about this machine and its libraries (:func:`~evsmap.environment.
-    collect_environment` less the host and the commit, which the entry names as ``commit``), and
-    ``kind``: what must match for a baseline's figures to hold here (see :data:`KIND_KEYS`)."""
+    collect_environment` less the host and the commit, which the entry names as ``commit``),
+    on a GPU ``device`` its facts (``gpu``: :func:`~evsmap.environment.collect_gpu`), and
+    ``kind``: what must match for a baseline's figures to hold here (see :data:`KIND_KEYS`;
+    on a GPU also :data:`GPU_KIND_KEYS`)."""
     info = collect_environment(threads)
     for key in ("host", "git_commit"):
         info.pop(key)
+    if device != "cpu":
+        from evsmap.environment import collect_gpu
+
+        info["gpu"] = collect_gpu(device)
     info["kind"] = machine_kind(info)
     return info
 
@@ -55,14 +64,18 @@ def machine_kind(info: dict[str, Any]) -> str:
     versions = facts.get("versions") or {}
     flat = {**{k: facts.get(k) for k in KIND_KEYS},
             **{k: versions.get(k) for k in KIND_LIBRARIES}}
+    if facts.get("gpu"):  # a GPU kind (absent on the CPU, so a CPU kind keeps its id)
+        flat["gpu"] = {k: facts["gpu"].get(k) for k in GPU_KIND_KEYS}
     text = json.dumps(flat, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
 def describe_machine(machine: dict[str, Any]) -> str:
-    """``AMD EPYC, avx512-vnni, 2 cores`` (what a person reads to tell two kinds apart)."""
+    """``AMD EPYC, avx512-vnni, 2 cores`` (what a person reads to tell two kinds apart), and
+    the GPU's model after it for a GPU kind."""
+    gpu = (machine.get("gpu") or {}).get("gpu")
     return (f"{machine.get('cpu', '?')}, {machine.get('instruction_set', '?')}, "
-            f"{machine.get('cpus', '?')} cores")
+            f"{machine.get('cpus', '?')} cores" + (f", {gpu}" if gpu else ""))
 
 
 # -- reading -------------------------------------------------------------------------------------

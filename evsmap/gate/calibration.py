@@ -39,7 +39,9 @@ SORT_SIZE = 1 << 17
 GATHER_TABLE = 1 << 24  # floats: 64 MiB
 GATHER_SIZE = 1 << 20
 REPEATS = 3
-KINDS = {"compute": ("matmul", "sort"), "memory": ("gather",)}
+GPU_MATMUL_SIZE = 2048
+GPU_MATMUL_REPEATS = 8
+KINDS = {"compute": ("matmul", "sort"), "memory": ("gather",), "gpu": ("gpu_matmul",)}
 
 
 class Calibration:
@@ -47,10 +49,13 @@ class Calibration:
     fastest of :data:`REPEATS` runs); ``parts`` holds those per-part seconds of the last call.
 
     Args:
-        kind: ``"compute"`` (parts ``matmul`` and ``sort``) or ``"memory"`` (``gather``).
+        kind: ``"compute"`` (parts ``matmul`` and ``sort``), ``"memory"`` (``gather``) or
+            ``"gpu"`` (``gpu_matmul``: eight 2048x2048 fp32 matmuls on ``device``, a GPU,
+            timed between CUDA events, for the workloads that run there).
+        device: the GPU of the ``gpu`` kind.
     """
 
-    def __init__(self, kind: str = "compute") -> None:
+    def __init__(self, kind: str = "compute", device: str = "cuda") -> None:
         if kind not in KINDS:
             raise ValueError(f"calibration kind {kind!r}: one of {', '.join(KINDS)}")
         self.kind = kind
@@ -64,6 +69,13 @@ class Calibration:
         if "sort" in self._names:
             self._src = rng.random(SORT_SIZE, dtype=np.float32)
             self._buf = np.empty_like(self._src)
+        if "gpu_matmul" in self._names:
+            from evsmap.devices import PassTimer
+
+            self._ga = torch.randn(GPU_MATMUL_SIZE, GPU_MATMUL_SIZE, generator=gen).to(device)
+            self._gb = torch.randn(GPU_MATMUL_SIZE, GPU_MATMUL_SIZE, generator=gen).to(device)
+            self._gout = torch.empty_like(self._ga)
+            self._timer = PassTimer(device)
         if "gather" in self._names:
             self._table = rng.random(GATHER_TABLE, dtype=np.float32)
             self._index = rng.integers(0, GATHER_TABLE, GATHER_SIZE).astype(np.int32)
@@ -78,6 +90,10 @@ class Calibration:
         self._buf[:] = self._src
         self._buf.sort()
 
+    def _gpu_matmul(self) -> None:
+        for _ in range(GPU_MATMUL_REPEATS):
+            torch.matmul(self._ga, self._gb, out=self._gout)
+
     def _gather(self) -> None:
         np.take(self._table, self._index, out=self._picked)
 
@@ -86,6 +102,9 @@ class Calibration:
         for _ in range(REPEATS):
             for name in self._names:
                 part = getattr(self, f"_{name}")
+                if name == "gpu_matmul":
+                    best[name] = min(best[name], self._timer(part))
+                    continue
                 t = time.perf_counter()
                 part()
                 best[name] = min(best[name], time.perf_counter() - t)

@@ -129,7 +129,7 @@ def missing_input(workload: Workload, context: dict[str, Any]) -> str | None:
 
 def prepare(workdir: Path, *, threads: int, cpu: int, patterns: Sequence[str] | None = None,
             strict: bool = True, log: Callable[[str], Any] = lambda _: None,
-            ) -> tuple[dict[str, Any], list[Workload]]:
+            device: str = "cpu") -> tuple[dict[str, Any], list[Workload]]:
     """The gate context and the selected workloads, their shared inputs made in ``workdir``
     and both written there (:data:`CONTEXT_FILE`, :data:`PLAN_FILE`).
 
@@ -141,6 +141,7 @@ def prepare(workdir: Path, *, threads: int, cpu: int, patterns: Sequence[str] | 
     """
     workdir.mkdir(parents=True, exist_ok=True)
     context, built = discover(threads=threads)
+    context["device"] = device
     workloads = plan(context)
     if strict:
         chosen = select(workloads, patterns)

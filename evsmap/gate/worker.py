@@ -74,7 +74,7 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     job = make_job(name, context)
     job.warm()
     kinds = {w.name: w.calibration for w in plan(context)}
-    calibration = Calibration(kinds.get(name, "compute"))
+    calibration = Calibration(kinds.get(name, "compute"), device=context.get("device", "cuda"))
     calibration.run()
     gc.collect()
     trim_heap()

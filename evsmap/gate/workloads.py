@@ -87,7 +87,14 @@ def digest(*parts: Any) -> str:
 
 def plan(context: dict[str, Any]) -> list[Workload]:
     """Every workload of this installation: one per network and backend, per updater and
-    resolution, plus the end-to-end map, the readers and the report build."""
+    resolution, plus the end-to-end map, the readers and the report build; on a GPU
+    (``context["device"]``), each network's forward pass there (the GPU's workloads)."""
+    device = context.get("device", "cpu")
+    if device != "cpu":
+        return [Workload(f"net/{name}/torch", "net",
+                         f"{name}: one forward pass on torch (eager) on {device}, 480x640",
+                         calibration="gpu")
+                for name in sorted(context.get("networks", {}))]
     out = []
     for name in sorted(context.get("networks", {})):
         out.append(Workload(f"net/{name}/torch", "net",
@@ -178,6 +185,7 @@ def last_run(value: _T | None) -> _T:
 class TorchForward(Job):
     def __init__(self, name: str, context: dict[str, Any]) -> None:
         self.name = name
+        self.device = context.get("device", "cpu")
         self.output: torch.Tensor | None = None
 
     def build(self) -> None:
@@ -189,20 +197,24 @@ class TorchForward(Job):
         self.segmenter = SEGMENTERS.create(self.name)
         if self.segmenter.module is None:
             raise EvsmapError(f"segmenter {self.name!r} is not a network")
-        self.module = self.segmenter.module.eval()
-        self.inputs = self.segmenter.example_inputs(*NETWORK_SIZE)
+        self.module = self.segmenter.module.eval().to(self.device)
+        self.inputs = tuple(t.to(self.device)
+                            for t in self.segmenter.example_inputs(*NETWORK_SIZE))
 
     def run(self) -> None:
         import torch
 
+        from evsmap.devices import synchronize
+
         with torch.inference_mode():
             self.output = self.module(*self.inputs)
+        synchronize(self.device)  # the pass's time is the GPU's, not the launch's
 
     def counts(self) -> dict[str, Any]:
         from evsmap.measure.complexity import count_parameters, measure_complexity
 
         flops = measure_complexity(self.module, self.inputs).flops
-        labels = last_run(self.output)[0].argmax(0).numpy().astype(np.int16)
+        labels = last_run(self.output)[0].argmax(0).cpu().numpy().astype(np.int16)
         return {"params": count_parameters(self.module), "flops": int(flops),
                 "output_sha256": digest(labels)}
 

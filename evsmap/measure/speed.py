@@ -1,8 +1,17 @@
-"""Inference speed of a network on the CPU (the paper's "FPS"), with an fp32 matmul roofline."""
+"""Inference speed of a network (the paper's "FPS") on the CPU or a GPU, with an fp32 matmul
+roofline of the same device.
+
+On a GPU (``device="cuda[:N]"``) each pass is timed between CUDA events and synchronised
+(:class:`evsmap.devices.PassTimer`), the device is warmed up until its speed settles
+(:func:`evsmap.devices.settle`) instead of a fixed count of passes, cuDNN's autotuner is on,
+and the record carries the GPU's facts (:func:`evsmap.environment.collect_gpu`), read again
+after the timed passes so the clocks are those under load."""
 
 from __future__ import annotations
 
 import contextlib
+import copy
+import dataclasses
 import functools
 import math
 import os
@@ -14,13 +23,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from evsmap.environment import LIBRARIES, collect_environment
-from evsmap.errors import UnknownNameError
+from evsmap.devices import PassTimer, Settled, require_device, settle
+from evsmap.environment import LIBRARIES, collect_environment, collect_gpu
+from evsmap.errors import InvalidDataError, UnknownNameError
 from evsmap.measure.contention import Probe, contention, describe
 from evsmap.measure.timing_policy import TimedPasses, TimingPolicy, time_until_precise
 from evsmap.models.module_utils import as_inputs, eval_mode, image_size
 
-BACKENDS = ("onnxruntime", "torch")
+BACKENDS = ("onnxruntime", "torch", "torch-compile")
+AUTOCASTS = ("fp16", "bf16")
+"""``autocast`` values: torch's mixed precision (``torch.autocast``) at this dtype."""
 ROOFLINE_SIZE = 4096
 
 
@@ -29,8 +41,9 @@ class SpeedRecord:
     """Timing of ``runs`` single forward passes (batch as given, usually 1).
 
     Attributes:
-        backend: ``"torch"`` (eager, ``inference_mode``) or ``"onnxruntime"`` (CPU provider,
-            all graph optimisations).
+        backend: ``"torch"`` (eager, ``inference_mode``), ``"torch-compile"`` (``torch.compile``,
+            TorchInductor, default mode) or ``"onnxruntime"`` (all graph optimisations, on
+            ``provider``).
         height, width: input image size.
         runs, warmup: timed forward passes, and untimed ones before them.
         threads: intra-op threads used (torch's after setting; onnxruntime's is set the same).
@@ -65,6 +78,15 @@ class SpeedRecord:
         session_s: seconds ONNX Runtime took to load and optimise the graph for this size
             (onnxruntime only; not cached across runs: it is a second or two even for the
             largest network here).
+        device: ``cpu`` or ``cuda:N`` (:mod:`evsmap.devices`).
+        timer: how a pass was timed: ``host clock`` or ``cuda events``.
+        autocast: torch's mixed precision the passes ran under (``fp16``, ``bf16``), or None.
+        provider: the ONNX Runtime execution provider the session ran with (onnxruntime only).
+        compile_s: seconds of the first call of a ``torch-compile`` module (the compilation).
+        settle: on a GPU, the warm-up until the speed settled (:class:`evsmap.devices.
+            Settled`'s fields).
+        gpu: the GPU's facts after the timed passes (:func:`evsmap.environment.collect_gpu`;
+            empty on the CPU).
     """
 
     backend: str
@@ -96,6 +118,13 @@ class SpeedRecord:
     timed_s: float | None = None
     policy: dict[str, Any] | None = None
     session_s: float | None = None
+    device: str = "cpu"
+    timer: str = "host clock"
+    autocast: str | None = None
+    provider: str | None = None
+    compile_s: float | None = None
+    settle: dict[str, Any] | None = None
+    gpu: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -114,14 +143,16 @@ class SpeedRecord:
 
 
 def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int = 1,
-                   backend: str = "torch") -> float:
+                   backend: str = "torch", device: str = "cpu") -> float:
     """fp32 matmul throughput of this machine, G MAC/s, with the given backend.
 
     Times the product of two ``size`` x ``size`` float32 matrices (``size**3`` MACs):
     ``warmup`` untimed products, then the median of ``repeats`` timed ones. ``"torch"`` uses
-    ``torch.matmul`` with torch's current thread count; ``"onnxruntime"`` runs a one-node
-    ``MatMul`` graph on the CPU execution provider with the same number of intra-op threads,
-    so a network is compared with the best its own runtime does on dense fp32 arithmetic.
+    ``torch.matmul`` with torch's current thread count, on ``device`` (a GPU's products timed
+    between CUDA events, with torch's TF32 setting, which the GPU record states);
+    ``"onnxruntime"`` runs a one-node ``MatMul`` graph on the CPU execution provider with the
+    same number of intra-op threads, so a network is compared with the best its own runtime
+    does on dense fp32 arithmetic.
     """
     if size < 1 or repeats < 1 or warmup < 0:
         raise ValueError("size and repeats must be >= 1, warmup >= 0")
@@ -130,8 +161,11 @@ def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int =
     gen = torch.Generator().manual_seed(0)
     a = torch.rand(size, size, generator=gen, dtype=torch.float32)
     b = torch.rand(size, size, generator=gen, dtype=torch.float32)
-    if backend == "torch":
-        out = torch.empty(size, size, dtype=torch.float32)
+    timer = PassTimer("cpu")
+    if backend != "onnxruntime":
+        dev = require_device(device)
+        a, b, timer = a.to(dev), b.to(dev), PassTimer(dev)
+        out = torch.empty(size, size, dtype=torch.float32, device=dev)
 
         def product() -> None:
             torch.matmul(a, b, out=out)
@@ -142,7 +176,7 @@ def roofline_gmacs(size: int = ROOFLINE_SIZE, *, repeats: int = 3, warmup: int =
         def product() -> None:
             session.run(None, feed)
     with torch.inference_mode():
-        times = _time_calls(product, repeats, warmup)
+        times = _time_calls(product, repeats, warmup, timer)
     return float(size) ** 3 / float(np.median(times)) / 1e9
 
 
@@ -185,6 +219,9 @@ def measure_speed(
     policy: TimingPolicy | None = None,
     roofline: float | None = None,
     free_dimensions: dict[str, int] | None = None,
+    device: str = "cpu",
+    autocast: str | None = None,
+    provider: str | None = None,
 ) -> SpeedRecord:
     """Time ``runs`` forward passes of ``module(*inputs)`` after ``warmup`` untimed ones.
 
@@ -219,13 +256,27 @@ def measure_speed(
             session (a size-free export timed at one size:
             :func:`~evsmap.models.speed_export.speed_export`).
 
-    Each sample is one forward pass timed with ``time.perf_counter``.
+        device: ``cpu`` or ``cuda[:N]`` (:func:`evsmap.devices.require_device`); on a GPU the
+            module is copied there, the warm-up runs until the speed settles (then ``warmup``
+            more passes) and cuDNN's autotuner is on.
+        autocast: ``fp16`` or ``bf16``: the torch backends run under ``torch.autocast`` at
+            that dtype; with the ``tensorrt`` provider, ``fp16`` builds fp16 engines.
+        provider: ONNX Runtime's execution provider (:data:`evsmap.models.ort_providers.
+            PROVIDERS`; default ``cpu`` on the CPU, ``cuda`` on a GPU).
+
+    Each sample is one forward pass timed with ``time.perf_counter`` on the CPU, between CUDA
+    events on a GPU (:class:`evsmap.devices.PassTimer`).
 
     Raises:
-        UnknownNameError: ``backend`` is not one of :data:`BACKENDS`.
+        UnknownNameError: ``backend``, ``autocast``, ``provider`` or ``device`` unknown.
+        DeviceUnavailableError: the device or provider is not on this machine.
+        InvalidDataError: settings that do not go together (a provider of another device,
+            mixed precision on ONNX Runtime's CPU or CUDA provider).
         OnnxExportError: the onnxruntime backend could not export the module.
     """
     _check_settings(backend, runs, warmup, threads, max_rounds)
+    dev = require_device(device)
+    provider = _check_device_settings(backend, dev, autocast, provider)
     inputs = as_inputs(inputs)
     size = image_size(inputs)
     if macs is None:
@@ -233,31 +284,87 @@ def measure_speed(
 
         macs = measure_complexity(module, inputs).flops
     previous_threads = torch.get_num_threads()
+    timer = PassTimer(dev)
     try:
         if threads is not None:
             torch.set_num_threads(threads)
         used_threads = torch.get_num_threads()
         first = Probe.take()  # the machine before the first timed pass
         t_session = time.perf_counter()
-        if backend == "torch":
-            call: Callable[[], object] = functools.partial(module, *inputs)
-            session_s = None
-        else:
-            call = _onnxruntime_forward(module, inputs, input_names, used_threads,
-                                        key or type(module).__name__, cache_dir, onnx_path,
-                                        free_dimensions)
+        session_s = compile_s = None
+        if backend == "onnxruntime":
+            call, provider = _onnxruntime_forward(
+                module, inputs, input_names, used_threads, key or type(module).__name__,
+                cache_dir, onnx_path, free_dimensions, provider=provider, device=dev,
+                fp16=autocast == "fp16")
             session_s = time.perf_counter() - t_session
-        context = functools.partial(_timing_context, module, backend)
-        timed = (_time_precisely(call, policy, first, context) if policy is not None
+            model = module
+        else:
+            model = _on_device(module, dev)
+            runnable = torch.compile(model) if backend == "torch-compile" else model
+            call = functools.partial(runnable, *(t.to(dev) for t in inputs))
+        context = functools.partial(_timing_context, model, backend, dev, autocast)
+        if backend == "torch-compile":
+            with context():
+                compile_s = timer(call)  # the first call compiles
+        settled = _settle(call, timer, context) if dev.type == "cuda" else None
+        timed = (_time_precisely(call, policy, first, context, timer) if policy is not None
                  else _time_in_rounds(call, runs, warmup, max_rounds, stable_rel_iqr, first,
-                                      context))
+                                      context, timer))
         if roofline is None:
-            roofline = roofline_gmacs(roofline_size)
+            roofline = roofline_gmacs(roofline_size, device=str(dev))
     finally:
         torch.set_num_threads(previous_threads)
-    return _speed_record(timed, backend=backend, size=size, threads=used_threads,
-                         macs=int(macs), roofline=roofline, stable_rel_iqr=stable_rel_iqr,
-                         calibration_log=calibration_log, session_s=session_s)
+    record = _speed_record(timed, backend=backend, size=size, threads=used_threads,
+                           macs=int(macs), roofline=roofline, stable_rel_iqr=stable_rel_iqr,
+                           calibration_log=calibration_log, session_s=session_s)
+    return dataclasses.replace(
+        record, device=str(dev), timer=timer.kind, autocast=autocast, provider=provider,
+        compile_s=compile_s, settle=settled.as_dict() if settled else None,
+        gpu=collect_gpu(dev))
+
+
+def _check_device_settings(backend: str, device: torch.device, autocast: str | None,
+                           provider: str | None) -> str | None:
+    """The ONNX Runtime provider to use (None for the torch backends), after refusing what
+    does not go together: an unknown autocast, a provider with a torch backend or of another
+    device, mixed precision on ONNX Runtime other than TensorRT's fp16."""
+    from evsmap.models.ort_providers import PROVIDERS, default_provider
+
+    if autocast is not None and autocast not in AUTOCASTS:
+        raise UnknownNameError(f"unknown autocast {autocast!r} (known: {', '.join(AUTOCASTS)})")
+    if backend != "onnxruntime":
+        if provider is not None:
+            raise InvalidDataError(f"provider {provider!r} is ONNX Runtime's: it needs backend "
+                                   f"onnxruntime (backend {backend!r} given)")
+        return None
+    provider = provider or default_provider(str(device))
+    if provider not in PROVIDERS:
+        raise UnknownNameError(f"unknown ONNX Runtime provider {provider!r} (known: "
+                               f"{', '.join(PROVIDERS)})")
+    if (provider == "cpu") != (device.type == "cpu"):
+        raise InvalidDataError(f"provider {provider} does not run on device {device}: the cpu "
+                               f"provider runs on the CPU, cuda and tensorrt on a GPU (pass "
+                               f"the device: --device cpu or cuda)")
+    if autocast is not None and (provider, autocast) != ("tensorrt", "fp16"):
+        raise InvalidDataError(f"{autocast} on ONNX Runtime: only TensorRT builds fp16 engines "
+                               f"(provider tensorrt); the {provider} provider runs the fp32 "
+                               f"export (use backend torch or torch-compile for {autocast})")
+    return provider
+
+
+def _on_device(module: torch.nn.Module, device: torch.device) -> torch.nn.Module:
+    """``module`` on ``device``: itself on the CPU, a copy on a GPU (the caller's module stays
+    where it was)."""
+    if device.type == "cpu":
+        return module
+    return copy.deepcopy(module).to(device)
+
+
+def _settle(call: Callable[[], object], timer: PassTimer,
+            context: Callable[[], contextlib.AbstractContextManager[None]]) -> Settled:
+    with context():
+        return settle(call, timer)
 
 
 def _check_settings(backend: str, runs: int, warmup: int, threads: int | None,
@@ -286,18 +393,20 @@ class _Timed:
 
 
 def _time_precisely(call: Callable[[], object], policy: TimingPolicy, first: Probe,
-                    context: Callable[[], contextlib.AbstractContextManager[None]]) -> _Timed:
-    """Time pass by pass (in ``context``) until ``policy`` is met; ``first`` is the machine
-    probe taken before, one more is taken after."""
+                    context: Callable[[], contextlib.AbstractContextManager[None]],
+                    timer: PassTimer) -> _Timed:
+    """Time pass by pass (in ``context``, each by ``timer``) until ``policy`` is met;
+    ``first`` is the machine probe taken before, one more is taken after."""
     with context():
-        passes = time_until_precise(call, policy)
+        passes = time_until_precise(call, policy, pass_timer=timer)
     return _Timed(passes.times_s, 1, _rel_iqr(passes.times_s), (first, Probe.take()),
                   passes.warmup_runs, passes)
 
 
 def _time_in_rounds(call: Callable[[], object], runs: int, warmup: int, max_rounds: int,
                     stable_rel_iqr: float | None, first: Probe,
-                    context: Callable[[], contextlib.AbstractContextManager[None]]) -> _Timed:
+                    context: Callable[[], contextlib.AbstractContextManager[None]],
+                    timer: PassTimer) -> _Timed:
     """Rounds of ``runs`` passes (each in ``context``; ``warmup`` untimed ones before the
     first) until one's IQR / median is at most ``stable_rel_iqr``, at most ``max_rounds``; the
     stable round, else the steadiest, with the machine probes just before and after it
@@ -307,7 +416,7 @@ def _time_in_rounds(call: Callable[[], object], runs: int, warmup: int, max_roun
     kept_rel, kept_round = float("inf"), 0
     for r in range(max_rounds):
         with context():
-            times = _time_calls(call, runs, warmup if r == 0 else 0)
+            times = _time_calls(call, runs, warmup if r == 0 else 0, timer)
         probes.append(Probe.take())
         rel = _rel_iqr(times)
         stable = stable_rel_iqr is not None and rel <= stable_rel_iqr
@@ -352,13 +461,33 @@ def _precision_fields(passes: TimedPasses) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
-def _timing_context(module: torch.nn.Module, backend: str) -> Iterator[None]:
-    """torch: the module in eval mode under ``inference_mode``; onnxruntime: nothing."""
-    if backend != "torch":
+def _timing_context(module: torch.nn.Module, backend: str, device: torch.device | None = None,
+                    autocast: str | None = None) -> Iterator[None]:
+    """The torch backends: the module in eval mode under ``inference_mode``, ``autocast`` at
+    its dtype, cuDNN's autotuner on a GPU (restored after); onnxruntime: nothing."""
+    if backend == "onnxruntime":
         yield
         return
-    with eval_mode(module), torch.inference_mode():
+    device = device or torch.device("cpu")
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(eval_mode(module))
+        stack.enter_context(torch.inference_mode())
+        if autocast is not None:
+            dtype = torch.float16 if autocast == "fp16" else torch.bfloat16
+            stack.enter_context(torch.autocast(device_type=device.type, dtype=dtype))
+        if device.type == "cuda":
+            stack.enter_context(_cudnn_benchmark())
         yield
+
+
+@contextlib.contextmanager
+def _cudnn_benchmark() -> Iterator[None]:
+    previous = torch.backends.cudnn.benchmark
+    torch.backends.cudnn.benchmark = True
+    try:
+        yield
+    finally:
+        torch.backends.cudnn.benchmark = previous
 
 
 def calibrated_ratio(fps_a: float, cal_a: float | None, fps_b: float,
@@ -377,15 +506,14 @@ def _rel_iqr(times: list[float]) -> float:
     return float((q75 - q25) / median) if median > 0 else float("inf")
 
 
-def _time_calls(forward: Callable[[], object], runs: int, warmup: int) -> list[float]:
+def _time_calls(forward: Callable[[], object], runs: int, warmup: int,
+                timer: Callable[[Callable[[], object]], float] | None = None) -> list[float]:
+    """``warmup`` untimed calls, then ``runs`` timed by ``timer`` (the host clock by
+    default)."""
+    timer = timer or PassTimer("cpu")
     for _ in range(warmup):
         forward()
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        forward()
-        times.append(time.perf_counter() - t0)
-    return times
+    return [timer(forward) for _ in range(runs)]
 
 
 def _onnxruntime_forward(
@@ -393,16 +521,25 @@ def _onnxruntime_forward(
     input_names: Sequence[str] | None,
     threads: int, key: str, cache_dir: str | os.PathLike[str] | None,
     onnx_path: str | os.PathLike[str] | None = None,
-    free_dimensions: dict[str, int] | None = None,
-) -> Callable[[], object]:
+    free_dimensions: dict[str, int] | None = None, *,
+    provider: str | None = "cpu", device: torch.device | None = None, fp16: bool = False,
+) -> tuple[Callable[[], object], str]:
+    """One pass of the module's (cached) ONNX export on ``provider``, from host arrays to host
+    arrays, and the provider the session runs with (checked: no silent fall-back)."""
     from evsmap.models.onnx_export import cached_onnx
+    from evsmap.models.ort_providers import check_used, provider_chain
     from evsmap.models.speed_export import session_for
 
+    provider = provider or "cpu"
+    index = (device.index or 0) if device is not None else 0
+    chain = provider_chain(provider, device_index=index, fp16=fp16)
     if input_names is None:
         input_names = [f"input{i}" for i in range(len(inputs))]
     path = onnx_path or cached_onnx(module, inputs, input_names, key=key, cache_dir=cache_dir)
-    session = session_for(path, threads=threads, free_dimensions=free_dimensions)
+    session = session_for(path, threads=threads, free_dimensions=free_dimensions,
+                          providers=chain)
+    used = check_used(session, provider)
     arrays = dict(zip(input_names, (t.detach().cpu().numpy() for t in inputs), strict=True))
     # the exporter drops inputs the graph does not use; feed only those it kept
     feeds = {i.name: arrays[i.name] for i in session.get_inputs()}
-    return lambda: session.run(None, feeds)
+    return (lambda: session.run(None, feeds)), used

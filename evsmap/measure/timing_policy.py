@@ -18,6 +18,7 @@ precision those passes give. Each record keeps the interval, the precision and w
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -129,12 +130,15 @@ def relative_half_width(median: float, low: float, high: float) -> float:
 
 def time_until_precise(call: Callable[..., object], policy: TimingPolicy, *,
                        clock: Callable[[], float] = time.perf_counter,
-                       setup: Callable[[int], Any] | None = None) -> TimedPasses:
+                       setup: Callable[[int], Any] | None = None,
+                       pass_timer: Callable[[Callable[[], object]], float] | None = None
+                       ) -> TimedPasses:
     """Warm up, then time ``call()`` pass by pass under ``policy`` (module docstring).
 
     With ``setup``, pass ``i`` times ``call(setup(i))`` and ``setup(i)`` is not timed (e.g.
     reading frame ``i`` of a sequence before a network segments it); warm-up passes use
-    ``setup(0)``."""
+    ``setup(0)``. With ``pass_timer`` (:class:`evsmap.devices.PassTimer`: CUDA events on a
+    GPU) a pass's time is what it returns; ``clock`` still keeps the budget."""
     start = clock()
     warm = 0
     first = setup(0) if setup is not None else None
@@ -149,9 +153,13 @@ def time_until_precise(call: Callable[..., object], policy: TimingPolicy, *,
     while not stopped:
         arg = setup(len(times)) if setup is not None else None
         t0 = clock()
-        call() if setup is None else call(arg)
-        t1 = clock()
-        times.append(t1 - t0)
+        if pass_timer is None:
+            call() if setup is None else call(arg)
+            t1 = clock()
+            times.append(t1 - t0)
+        else:
+            times.append(pass_timer(call if setup is None else functools.partial(call, arg)))
+            t1 = clock()
         n = len(times)
         if n < policy.min_runs:
             continue
@@ -159,7 +167,7 @@ def time_until_precise(call: Callable[..., object], policy: TimingPolicy, *,
             stopped = "max_runs"
         elif t1 - began >= policy.budget_s:
             stopped = "budget"
-        elif _check_due(n, checked_at, t1 - t0):
+        elif _check_due(n, checked_at, times[-1]):
             checked_at = n
             if relative_half_width(*median_ci(times, confidence=policy.confidence,
                                               resamples=policy.resamples)) \

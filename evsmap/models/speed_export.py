@@ -33,6 +33,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -278,9 +279,11 @@ def _verify(module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], names: li
 
 
 def session_for(path: str | os.PathLike[str], *, threads: int,
-                free_dimensions: Mapping[str, int] | None = None):
-    """An ONNX Runtime CPU session on ``path`` with all graph optimisations, ``threads``
-    intra-op threads and the free dimensions pinned (a size-specialised session)."""
+                free_dimensions: Mapping[str, int] | None = None,
+                providers: list[Any] | None = None):
+    """An ONNX Runtime session on ``path`` with all graph optimisations, ``threads``
+    intra-op threads and the free dimensions pinned (a size-specialised session), on the CPU
+    or on ``providers`` (:func:`evsmap.models.ort_providers.provider_chain`)."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
@@ -290,7 +293,7 @@ def session_for(path: str | os.PathLike[str], *, threads: int,
     for name, value in (free_dimensions or {}).items():
         options.add_free_dimension_override_by_name(name, int(value))
     return ort.InferenceSession(str(path), sess_options=options,
-                                providers=["CPUExecutionProvider"])
+                                providers=providers or ["CPUExecutionProvider"])
 
 
 def _write_json(path: Path, data: dict) -> None:

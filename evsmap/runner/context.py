@@ -71,6 +71,9 @@ class RunContext:
         scannet_scenes: the ScanNet scenes the semantic-detail section maps (empty: the first
             of the validation split found, :mod:`evsmap.runner.scannet`).
         scannet_step: every how many frames of a ScanNet scene are mapped (30 Hz recordings).
+        device: where the speed cells time the networks (``cpu``, ``cuda:N``; ``reproduce
+            --device``): on a GPU with the torch backend, each pass between CUDA events
+            (:func:`evsmap.measure.speed.measure_speed`); the map updates stay on the CPU.
     """
 
     out: str
@@ -93,6 +96,7 @@ class RunContext:
     oracle: dict[str, Any] = field(default_factory=lambda: {"seed": 0})
     scannet_scenes: tuple[str, ...] = ()
     scannet_step: int = 10
+    device: str = "cpu"
 
     @classmethod
     def create(cls, out: str | Path, *, data_root: str | Path | None = None,
@@ -119,6 +123,15 @@ class RunContext:
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def use_device(self, device: str) -> None:
+        """Time the networks on ``device``: on a GPU with the torch backend (CUDA events; ONNX
+        Runtime's CPU export is the CPU's method)."""
+        from evsmap.devices import device_name
+
+        self.device = device_name(device)
+        if self.device != "cpu":
+            self.speed_backend = "torch"
 
     def timing_policy(self) -> TimingPolicy:
         """The speed cells' timing rule."""

@@ -108,9 +108,9 @@ def run_complexity(spec: CellSpec, ctx: RunContext) -> CellRecord:
 
 
 def run_roofline(ctx: RunContext) -> float:
-    """The fp32 matmul roofline of this machine at the run's thread count (G MAC/s): measured
-    by the run's first speed cell, read from ``<run>/cache/roofline.json`` by the others (one
-    machine fact per run, not re-measured per cell)."""
+    """The fp32 matmul roofline of this machine at the run's thread count, or of the run's GPU
+    (G MAC/s): measured by the run's first speed cell, read from ``<run>/cache/roofline.json``
+    by the others (one machine fact per run, not re-measured per cell)."""
     import json
 
     from evsmap.fileio import atomic_write_text
@@ -122,12 +122,13 @@ def run_roofline(ctx: RunContext) -> float:
         known = json.loads(path.read_text())
     except (OSError, ValueError):
         known = {}
-    if str(ctx.threads) in known:
-        return float(known[str(ctx.threads)])
+    key = str(ctx.threads) if ctx.device == "cpu" else ctx.device
+    if key in known:
+        return float(known[key])
     with torch_threads(ctx.threads):
-        value = roofline_gmacs()
+        value = roofline_gmacs(device=ctx.device)
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, json.dumps({**known, str(ctx.threads): value}))
+    atomic_write_text(path, json.dumps({**known, key: value}))
     return value
 
 
@@ -166,7 +167,8 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
                              key=network.spec, calibration_log=log, policy=policy,
                              roofline=roofline,
                              onnx_path=export.path if export else None,
-                             free_dimensions=export.free_dimensions(h, w) if export else None)
+                             free_dimensions=export.free_dimensions(h, w) if export else None,
+                             device=ctx.device)
 
     rec = measure()
     if rec.contention.get("contended"):
@@ -181,7 +183,10 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
                                      f"({rec.flag}); rerun when it is idle",
                               details=rec.as_dict(), started=now())
     values = {col: float(rec.fps_median) for col in spec.metrics}
-    notes = [f"{ctx.speed_backend} on the CPU ({rec.threads} threads, {rec.cpu}), {w}x{h}, "
+    where = (f"on the CPU ({rec.threads} threads, {rec.cpu})" if not rec.gpu else
+             f"on {rec.device} ({rec.gpu['gpu']}, CUDA events, after a warm-up of "
+             f"{(rec.settle or {}).get('passes', 0)} passes until the speed settled)")
+    notes = [f"{ctx.speed_backend} {where}, {w}x{h}, "
              f"median of {rec.runs} passes after {rec.warmup} warm-up, "
              f"{precision_text(rec.as_dict())}; untrained weights (speed does not depend on "
              f"them)"]

@@ -13,6 +13,8 @@ made. How the cells are placed:
 * Timing nodes are the nodes like the head node (same CPU model and CPU count; without CPUs on
   the head, the largest such group), so every timed cell of a run is measured on the same kind
   of machine. The other nodes run only cells that are not timed.
+* With ``reproduce --device cuda``, timing nodes are chosen among the nodes with a GPU Ray can
+  reserve, alike by GPU model too, and a timed cell also reserves one GPU (``num_gpus=1``).
 * Each record says where it ran: ``environment["host"]`` is the node's host name and
   ``environment["executor"]`` = ``{"name": "ray", "node_id", "cpus" (reserved),
   "whole_node"}`` (records written before named the host ``executor["node"]`` too).
@@ -100,28 +102,37 @@ def _timed_call(fn: Callable[..., dict[str, Any]], args: tuple[Any, ...],
 
 def _probe(paths: list[str]) -> dict[str, Any]:
     """What the driver checks on each node: its host, CPU model and instruction set and git
-    commit (of :func:`~evsmap.environment.collect_environment`), evsmap version and which of
-    the run's ``paths`` it cannot see."""
+    commit (of :func:`~evsmap.environment.collect_environment`), its first GPU's model (empty
+    without one), evsmap version and which of the run's ``paths`` it cannot see."""
     from pathlib import Path
 
     from evsmap.environment import collect_environment
 
     env = collect_environment()
-    return {**{k: env[k] for k in ("host", "cpu", "instruction_set", "git_commit")},
+    gpu = ""
+    try:
+        import torch
+
+        if torch.cuda.is_available():
+            gpu = torch.cuda.get_device_name(0)
+    except Exception:  # noqa: BLE001 - a broken CUDA install is a node without a GPU
+        gpu = ""
+    return {**{k: env[k] for k in ("host", "cpu", "instruction_set", "git_commit")}, "gpu": gpu,
             "evsmap": env["versions"].get("evsmap", "unknown"),
             "missing": [p for p in paths if not Path(p).exists()]}
 
 
 # ------------------------------------------------------------------------------ the driver
 def timing_nodes(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The nodes that time: those with the head node's CPU model, instruction set and CPU
-    count; when the head is not among ``nodes`` (it has no CPUs), the largest group of alike
-    nodes (ties: the most CPUs, then the first listed). Each node: ``cpu``, ``cpus``,
-    ``head`` and (optional) ``instruction_set``."""
-    def kind(node: dict[str, Any]) -> tuple[str, str, int]:
-        return node["cpu"], node.get("instruction_set", ""), node["cpus"]
+    """The nodes that time: those with the head node's CPU model, instruction set, CPU count
+    and GPU model; when the head is not among ``nodes`` (it has no CPUs, or no GPU where the
+    run times on one), the largest group of alike nodes (ties: the most CPUs, then the first
+    listed). Each node: ``cpu``, ``cpus``, ``head`` and (optional) ``instruction_set`` and
+    ``gpu``."""
+    def kind(node: dict[str, Any]) -> tuple[str, str, int, str]:
+        return node["cpu"], node.get("instruction_set", ""), node["cpus"], node.get("gpu", "")
 
-    groups: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
+    groups: dict[tuple[str, str, int, str], list[dict[str, Any]]] = {}
     for node in nodes:
         groups.setdefault(kind(node), []).append(node)
     head = next((n for n in nodes if n["head"]), None)
@@ -189,6 +200,7 @@ class RayExecutor(CellExecutor):
         self._nodes: list[dict[str, Any]] = []
         self._max_cpus = 1
         self._prepared_for: list[str] | None = None
+        self._gpu = False
 
     # -- session ---------------------------------------------------------------------------
     def __enter__(self) -> RayExecutor:
@@ -263,10 +275,18 @@ class RayExecutor(CellExecutor):
         self._nodes = [
             {"node_id": n["NodeID"], "host": p["host"], "cpu": p["cpu"],
              "instruction_set": p["instruction_set"], "git_commit": p["git_commit"],
+             "gpu": p.get("gpu", ""), "gpus": int(n["Resources"].get("GPU", 0)),
              "cpus": int(n["Resources"]["CPU"]), "head": HEAD_RESOURCE in n["Resources"]}
             for n, p in zip(nodes, probes, strict=True)]
         self._max_cpus = max(n["cpus"] for n in self._nodes)
-        chosen = timing_nodes(self._nodes)
+        self._gpu = ctx.device != "cpu"
+        candidates = [n for n in self._nodes if n["gpus"] >= 1 and n["gpu"]] if self._gpu \
+            else self._nodes
+        if not candidates:
+            raise EvsmapError(f"--executor ray --device {ctx.device}: no node of the cluster "
+                              f"has a GPU Ray can reserve (start its nodes with GPUs, or time "
+                              f"on the CPU)")
+        chosen = timing_nodes(candidates)
         for node in self._nodes:
             node["times"] = node in chosen
         self._slots = [TimingSlot(name=n["host"], cpus=n["cpus"], node_id=n["node_id"])
@@ -296,7 +316,7 @@ class RayExecutor(CellExecutor):
         if slot.node_id is None or slot.cpus is None:
             raise ValueError(f"{slot.name}: not a Ray node")
         task = self._timed.options(
-            num_cpus=slot.cpus,
+            num_cpus=slot.cpus, num_gpus=1 if self._gpu else 0,
             scheduling_strategy=NodeAffinitySchedulingStrategy(slot.node_id, soft=False))
         return _RayTasks(self._ray, lambda fn, args: task.remote(fn, args, slot.cpus))
 
@@ -313,6 +333,7 @@ class RayExecutor(CellExecutor):
                                  else "the Ray this process had joined")
         first = timing[0] if timing else None
         kind = (f"{first['cpu']}, {first['instruction_set']}, {first['cpus']} CPUs"
+                + (f", {first['gpu']}" if self._gpu and first.get("gpu") else "")
                 if first else "none")
         return (f"ray ({where}): {len(self._nodes)} node(s), {cpus} CPUs; timed cells on "
                 f"{len(timing)} node(s) ({kind}), each alone on its node")

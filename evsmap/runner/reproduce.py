@@ -72,6 +72,7 @@ def reproduce(job: Reproduction) -> list[CellRecord]:
                             quick=s.quick, strict_timing=s.strict_timing, extended=s.extended)
     ctx.scannet_scenes = tuple(s.scannet_scenes or ())
     ctx.scannet_step = s.scannet_step
+    ctx.use_device(s.device)
     the_plan = plan(ctx, job.tables, job.systems, cells=s.cells)
     if not the_plan.keys:
         if created:

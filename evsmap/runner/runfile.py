@@ -24,7 +24,7 @@ RUN_FILE = "run.json"
 """The run's description, in its folder."""
 
 FIXED_SETTINGS = ("quick", "cells", "train", "proxy_models", "proxy_recipe", "precision",
-                  "extended", "scannet_scenes", "scannet_step")
+                  "extended", "scannet_scenes", "scannet_step", "device")
 """Settings that decide what a run measures: a resumed run may not change them (its records
 would be a mix); the others (where the data is, how many workers) may change."""
 
@@ -51,6 +51,7 @@ class RunSettings(BaseModel):
     extended: bool = False
     scannet_scenes: list[str] | None = None
     scannet_step: int = Field(default=10, gt=0)
+    device: str = "cpu"
 
     def stored(self) -> dict[str, Any]:
         """The settings the file held (by name): a run written before a setting existed does

@@ -35,7 +35,9 @@ if TYPE_CHECKING:
     from evsmap.segmenters.quantize import QuantizedModel
 
 BACKENDS = ("torch", "onnxruntime")
-PRECISIONS = ("fp32", "int8")
+PRECISIONS = ("fp32", "fp16", "bf16", "int8")
+AUTOCAST_PRECISIONS = ("fp16", "bf16")
+"""Precisions run by torch's mixed precision (``torch.autocast``), on the torch backend."""
 POSTPROCESSES = ("network", "fused", "stride")
 """How logits become the observation (``postprocess``): ``network`` - the network resizes its
 logits to the input size, then the top-k and softmax of every pixel (the faithful path);
@@ -127,9 +129,10 @@ class NetworkSegmenter(Segmenter):
         weights: optional state-dict file to load.
         input_size: (H, W) frames are resized to before the network (default ``default_size``).
         config: the factory's options (recorded, and part of the ONNX cache key).
-        precision: ``"fp32"`` or ``"int8"``. int8 runs only on ONNX Runtime (``backend=
-            "torch"`` with int8 is refused, not switched) and needs :meth:`calibrate` before
-            the first :meth:`predict`, which otherwise raises.
+        precision: ``"fp32"``, ``"fp16"`` or ``"bf16"`` (torch's autocast at that dtype, torch
+            backend only) or ``"int8"``. int8 runs only on ONNX Runtime (``backend="torch"``
+            with int8 is refused, not switched) and needs :meth:`calibrate` before the first
+            :meth:`predict`, which otherwise raises.
         int8_scheme: ``"auto"`` (default: the scheme exact on this machine's instruction
             set, :func:`evsmap.segmenters.quantize.auto_scheme`) or one of
             :data:`evsmap.segmenters.quantize.SCHEMES`, used by :meth:`calibrate`.
@@ -202,6 +205,8 @@ class NetworkSegmenter(Segmenter):
         if weights is not None:
             load_weights(self._module, weights)
         self._session = None
+        self.device = "cpu"
+        """Where the network runs (:meth:`place`): ``cpu`` or ``cuda:N``."""
         self._int8_size: tuple[int, int] | None = None
         self._ort_threads: int | None = None
         self._ort_spinning = True
@@ -234,14 +239,56 @@ class NetworkSegmenter(Segmenter):
 
     # -- inference -------------------------------------------------------------------------
 
+    def place(self, *, device: str = "cpu", precision: str | None = None) -> None:
+        """Run the network on ``device`` (``cpu``, ``cuda[:N]``; :mod:`evsmap.devices`) and,
+        with ``precision``, at that precision (``fp16``/``bf16``: autocast, torch backend).
+
+        On a GPU the torch backend's logits stay there and the faithful post-processing
+        (resize, softmax, top-k) runs there too, so only the top-k crosses to the host; the
+        ``fused`` and ``stride`` paths take the logits at the output stride to the host (a
+        sixteenth of the pixels) and run their CPU kernels. ONNX Runtime runs on its CUDA
+        provider there (``evsmap[gpu]``).
+
+        Raises:
+            UnknownNameError, DeviceUnavailableError: the device (:func:`evsmap.devices.
+                require_device`) or the CUDA provider is not there.
+            InvalidDataError: int8 on a GPU, autocast on ONNX Runtime.
+        """
+        from evsmap.devices import require_device
+
+        target = require_device(device)
+        if precision is not None:
+            self._check_precision(self.name, precision, self.int8_scheme)
+            self.precision = precision
+        if target.type == "cuda" and self.precision == "int8":
+            raise InvalidDataError(f"{self.name}: int8 here is ONNX Runtime's CPU quantisation; "
+                                   f"on a GPU use --precision fp16 or bf16")
+        if target.type == "cuda" and self.backend == "onnxruntime":
+            from evsmap.models.ort_providers import provider_chain
+
+            provider_chain("cuda", device_index=target.index or 0)  # refuses when absent
+        self._module.to(target)
+        self.device = str(target)
+        self._session = None
+
     def logits(self, inputs: tuple[torch.Tensor, ...]) -> torch.Tensor:
-        """Raw network output for preprocessed ``inputs`` with the configured backend."""
+        """Raw network output for preprocessed ``inputs`` with the configured backend (on
+        :attr:`device` for the torch backend; float32, or the autocast dtype)."""
         if self.backend == "torch":
-            with torch.inference_mode():
-                return self._module(*inputs)
+            with torch.inference_mode(), self._autocast():
+                return self._module(*(t.to(self.device, non_blocking=True) for t in inputs))
         session = self._ort_session(inputs)
         feed = {name: t.numpy() for name, t in zip(self.input_names, inputs, strict=True)}
         return torch.from_numpy(session.run(None, feed)[0])
+
+    def _autocast(self):
+        """``torch.autocast`` at the precision's dtype, or a context doing nothing."""
+        import contextlib
+
+        if self.precision not in AUTOCAST_PRECISIONS:
+            return contextlib.nullcontext()
+        dtype = torch.float16 if self.precision == "fp16" else torch.bfloat16
+        return torch.autocast(device_type=torch.device(self.device).type, dtype=dtype)
 
     def _check_precision(self, name: str, precision: str, scheme: str) -> None:
         from evsmap.segmenters.quantize import AUTO, SCHEMES
@@ -255,6 +302,9 @@ class NetworkSegmenter(Segmenter):
         if precision == "int8" and self.backend != "onnxruntime":
             raise InvalidDataError(f"{name}: int8 runs on ONNX Runtime only: pass "
                                    f"backend='onnxruntime' (backend {self.backend!r} given)")
+        if precision in AUTOCAST_PRECISIONS and self.backend != "torch":
+            raise InvalidDataError(f"{name}: {precision} is torch's autocast: it runs on the "
+                                   f"torch backend only (backend {self.backend!r} given)")
 
     def _fp32_onnx(self, inputs: tuple[torch.Tensor, ...],
                    cache_dir: str | PathLike[str] | None = None):
@@ -311,9 +361,11 @@ class NetworkSegmenter(Segmenter):
         return self.quantization
 
     def precision_record(self) -> dict:
-        """``precision``, ``postprocess`` (where not the faithful ``network``) and, for int8, the
-        scheme and how the model was made (for records)."""
+        """``precision``, ``postprocess`` (where not the faithful ``network``), ``device`` (where
+        not the CPU) and, for int8, the scheme and how the model was made (for records)."""
         post = {} if self.postprocess == "network" else {"postprocess": self.postprocess}
+        if self.device != "cpu":
+            post["device"] = self.device
         if self.precision != "int8":
             return {"precision": self.precision, **post}
         q = self.quantization
@@ -350,8 +402,13 @@ class NetworkSegmenter(Segmenter):
             options.intra_op_num_threads = self._ort_threads or torch.get_num_threads()
             options.add_session_config_entry("session.intra_op.allow_spinning",
                                              "1" if self._ort_spinning else "0")
-            self._session = ort.InferenceSession(str(path), options,
-                                                 providers=["CPUExecutionProvider"])
+            from evsmap.models.ort_providers import check_used, default_provider, provider_chain
+
+            provider = default_provider(self.device)
+            index = torch.device(self.device).index or 0
+            self._session = ort.InferenceSession(
+                str(path), options, providers=provider_chain(provider, device_index=index))
+            check_used(self._session, provider)
         return self._session
 
     def set_threads(self, threads: int | None = None, *, spinning: bool = True) -> dict:
@@ -382,6 +439,8 @@ class NetworkSegmenter(Segmenter):
         inputs = self.preprocess(frame)
         t1 = time.perf_counter()
         logits = self.logits(inputs)
+        if logits.is_cuda:  # the stage's time is the GPU's, not the launch's
+            torch.cuda.synchronize(logits.device)
         t2 = time.perf_counter()
         assert frame.rgb is not None  # preprocess checked that it is an image frame
         observation = self.top_k(logits, frame.rgb.shape[:2], k, pixels)
@@ -402,6 +461,9 @@ class NetworkSegmenter(Segmenter):
         from evsmap.segmenters import topk
 
         h, w = size
+        if logits.is_cuda and self.postprocess == "network":
+            return _top_k_on_device(logits, size, k, self.num_classes)
+        logits = logits.float().cpu()
         if self.postprocess == "stride":
             classes, probs = topk.nearest_observation(*topk.top_k_softmax(logits[0], k), size)
             return SemanticObservation.of_kernel(classes, probs, self.num_classes)
@@ -420,3 +482,20 @@ class NetworkSegmenter(Segmenter):
             logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
         classes, probs = topk.top_k_softmax(logits[0], k)
         return SemanticObservation.of_kernel(classes, probs, self.num_classes)
+
+
+def _top_k_on_device(logits: torch.Tensor, size: tuple[int, int], k: int,
+                     num_classes: int) -> SemanticObservation:
+    """The faithful post-processing on the logits' own device (a GPU): bilinear resize to
+    ``size`` where they differ, softmax over the classes, top-``k``; only the top-k (k values
+    and classes a pixel) cross to the host. The reference order of :func:`~evsmap.segmenters.
+    topk.top_k_softmax` (softmax, then top-k), in float32."""
+    with torch.inference_mode():
+        x = logits.float()
+        if tuple(x.shape[-2:]) != tuple(size):
+            x = F.interpolate(x, size=size, mode="bilinear", align_corners=False)
+        top_p, top_c = torch.softmax(x[0], dim=0).topk(k, dim=0)
+        classes = top_c.permute(1, 2, 0).to(torch.int16).cpu().numpy()
+        probs = top_p.permute(1, 2, 0).clamp(0.0, 1.0).cpu().numpy()
+    return SemanticObservation.of_kernel(np.ascontiguousarray(classes),
+                                         np.ascontiguousarray(probs), num_classes)

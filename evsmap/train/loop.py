@@ -43,8 +43,10 @@ resume, messages and progress bars, the final test pass, interruption).
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
+import torch
 import torch.distributed as dist
 
 from evsmap.train.checkpoint import BEST, CHECKPOINT, LAST, LOG, RUN
@@ -59,6 +61,9 @@ def train(opts: RunOptions) -> dict[str, Any]:
     """Run (or resume) a training run; returns a summary (rank 0's; other ranks' are equal
     but for the files they did not write)."""
     procs = start_processes(opts.device)
+    algorithms = _algorithm_settings()
+    if opts.deterministic:  # cuBLAS reads it when its handle is made, before the first matmul
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     try:
         run = set_up(opts, procs)
         trainer = EpochTrainer(run)
@@ -72,8 +77,24 @@ def train(opts: RunOptions) -> dict[str, Any]:
             dist.barrier()
         return summary
     finally:
+        _restore_algorithm_settings(algorithms)
         if procs.started and dist.is_initialized():
             dist.destroy_process_group()
+
+
+def _algorithm_settings() -> tuple[bool, bool, bool, bool]:
+    """torch's process-wide algorithm choices a run may change (--deterministic, cuDNN's
+    autotuner), to put back when it ends (a run called from Python leaves them as it found
+    them)."""
+    return (torch.are_deterministic_algorithms_enabled(),
+            torch.is_deterministic_algorithms_warn_only_enabled(),
+            torch.backends.cudnn.benchmark, torch.backends.cudnn.deterministic)
+
+
+def _restore_algorithm_settings(saved: tuple[bool, bool, bool, bool]) -> None:
+    enabled, warn_only, benchmark, deterministic = saved
+    torch.use_deterministic_algorithms(enabled, warn_only=warn_only)
+    torch.backends.cudnn.benchmark, torch.backends.cudnn.deterministic = benchmark, deterministic
 
 
 def _summary(trainer: EpochTrainer) -> dict[str, Any]:

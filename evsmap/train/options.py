@@ -25,6 +25,11 @@ class RunOptions:
         train_split, val_split: splits of readers that have them.
         limit: first N frames of each split.
         device: ``cpu``, ``cuda`` or ``cuda:N``; None: CUDA when available.
+        channels_last: the network and its inputs in channels-last memory format (NHWC; faster
+            convolutions on tensor cores, and on some CPUs).
+        deterministic: deterministic algorithms only (cuDNN's autotuner off; torch warns of an
+            operation that has no deterministic kernel), for a resume repeating a straight run
+            bit for bit on a GPU.
         resume: continue the run in ``out`` from its checkpoint.
         init: encoder weights to start from.
         stop_after: stop after this many epochs of this invocation.
@@ -43,6 +48,8 @@ class RunOptions:
     val_split: str | None = None
     limit: int | None = None
     device: str | None = None
+    channels_last: bool = False
+    deterministic: bool = False
     resume: bool = False
     init: Path | None = None
     stop_after: int | None = None

@@ -10,8 +10,6 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
-from evsmap.errors import EvsmapError
-
 
 @dataclass
 class Processes:
@@ -44,15 +42,9 @@ class Processes:
 def _device(text: str | None) -> torch.device:
     if text is None:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(text)
-    except (RuntimeError, ValueError):
-        raise EvsmapError(f"--device must be cpu, cuda or cuda:N, got {text!r}") from None
-    if device.type not in ("cpu", "cuda"):
-        raise EvsmapError(f"--device must be cpu, cuda or cuda:N, got {text!r}")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise EvsmapError("--device cuda: torch sees no CUDA device here (use --device cpu)")
-    return device
+    from evsmap.devices import require_device
+
+    return require_device(text)
 
 
 def start_processes(device: str | None) -> Processes:

@@ -20,6 +20,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader, DistributedSampler
 
+from evsmap.environment import collect_gpu
 from evsmap.errors import EvsmapError
 from evsmap.train.checkpoint import CHECKPOINT, load_checkpoint, seed_everything
 from evsmap.train.data import EpochKeys, Splits, TrainingFrames, open_splits
@@ -144,7 +145,8 @@ def set_up(opts: RunOptions, procs: Processes) -> TrainingRun:
     options = network_options(opts, saved)
     net = build_network(opts, recipe, options, resuming=saved is not None)
     data = open_data(opts, recipe, net, procs)
-    place_network(net.module, recipe, procs)
+    place_network(net.module, recipe, procs, channels_last=opts.channels_last,
+                  deterministic=opts.deterministic)
     optim = build_optimisation(net.module, recipe, procs, say)
     if saved is not None:
         if saved["run"].get("world_size") != procs.world:
@@ -274,12 +276,21 @@ def open_data(opts: RunOptions, recipe: Recipe, net: Network, procs: Processes) 
     return Data(splits, frames, sampler, loader, len(loader), per_process, crop, class_names)
 
 
-def place_network(module: nn.Module, recipe: Recipe, procs: Processes) -> None:
-    """The network on this process's device; cuDNN autotuning on CUDA; SyncBatchNorm in a DDP
-    run on CUDA when the recipe asks."""
+def place_network(module: nn.Module, recipe: Recipe, procs: Processes, *,
+                  channels_last: bool = False, deterministic: bool = False) -> None:
+    """The network on this process's device (channels-last where asked); cuDNN autotuning on
+    CUDA unless ``deterministic`` (then deterministic algorithms only; torch warns of an
+    operation without a deterministic kernel); SyncBatchNorm in a DDP run on CUDA when the
+    recipe asks."""
     module.to(procs.device)
+    if channels_last:
+        module.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
     cuda = procs.device.type == "cuda"
-    if cuda:
+    if deterministic:
+        torch.backends.cudnn.benchmark = False
+        torch.backends.cudnn.deterministic = True
+        torch.use_deterministic_algorithms(True, warn_only=True)
+    elif cuda:
         torch.backends.cudnn.benchmark = True
     if procs.world > 1 and cuda and recipe.sync_bn:
         converted = nn.SyncBatchNorm.convert_sync_batchnorm(module)
@@ -324,6 +335,8 @@ def run_record(opts: RunOptions, recipe: Recipe, options: dict[str, Any], net: N
         "device": procs.device.type, "batch_per_process": data.per_process,
         "steps_per_epoch": data.steps, "crop": list(data.crop),
         "input_size": list(net.segmenter.input_size), "amp": optim.amp, "init": init,
+        "channels_last": opts.channels_last, "deterministic": opts.deterministic,
+        "gpu": collect_gpu(procs.device),
     }
 
 

@@ -108,9 +108,10 @@ class EpochTrainer(TrainerBase):
     def run_step(self, batch: dict[str, torch.Tensor]) -> None:
         device, optim = self.run.procs.device, self.run.optim
         labels = batch["labels"].to(device, non_blocking=True)
-        inputs = [batch["rgb"].to(device, non_blocking=True)]
-        if "depth" in batch:
-            inputs.append(batch["depth"].to(device, non_blocking=True))
+        names = ("rgb", "depth") if "depth" in batch else ("rgb",)
+        memory = torch.channels_last if self.run.opts.channels_last else torch.contiguous_format
+        inputs = [batch[n].to(device, non_blocking=True).contiguous(memory_format=memory)
+                  for n in names]
         with torch.autocast(device.type, dtype=torch.float16, enabled=optim.amp):
             outputs = self.run.model(*inputs)
         loss = optim.criterion(outputs, labels)
