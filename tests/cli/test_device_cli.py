@@ -10,42 +10,13 @@ import json
 import pytest
 import torch
 
-import evsmap.measure.speed as speed_module
-from evsmap.cli.main import main
-from evsmap.registry import SEGMENTERS
-from tests.segmenters.int8_net import NAME, tiny_segmenter
+from tests.cli.test_int8_cli import one_line_error, run
+from tests.segmenters.int8_net import NAME
 
 SMALL_SYNTH = ["-r", "frames=2", "-r", "width=96", "-r", "height=64"]
+# the command-line helpers of the int8 tests; the tiny network: conftest.py's `tiny`
 pytestmark = pytest.mark.skipif(torch.cuda.is_available(), reason="tests the refusals where "
                                 "there is no GPU")
-
-
-@pytest.fixture
-def tiny(monkeypatch, tmp_path):
-    SEGMENTERS.add(NAME, tiny_segmenter)
-    monkeypatch.setenv("EVSMAP_CACHE_DIR", str(tmp_path / "cache"))
-    real = speed_module.roofline_gmacs
-    monkeypatch.setattr(speed_module, "roofline_gmacs", lambda size=0, **kw: real(64, **kw))
-    yield NAME
-    SEGMENTERS.unregister(NAME)
-
-
-def run(capsys, *argv):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line_error(code, err, *words):
-    assert code == 2, err
-    lines = [line for line in err.strip().splitlines() if ": warning: " not in line
-             and ": note: " not in line]
-    assert len(lines) == 1 and "error" in lines[0] and "Traceback" not in err, err
-    for w in words:
-        assert w in err, err
 
 
 @pytest.mark.parametrize("argv", [

@@ -7,26 +7,13 @@ import json
 
 import pytest
 
-import evsmap.measure.speed as speed_module
 from evsmap.cli.main import main
 from evsmap.environment import instruction_set
-from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.quantize import auto_scheme
-from tests.segmenters.int8_net import NAME, tiny_segmenter
 
 SMALL_SYNTH = ["-r", "frames=4", "-r", "width=96", "-r", "height=64"]
 INT8 = ["--precision", "int8", "--calibration-frames", "2"]
 pytestmark = pytest.mark.isa  # the scheme auto picks depends on the instruction set
-
-
-@pytest.fixture
-def tiny(monkeypatch, tmp_path):
-    SEGMENTERS.add(NAME, tiny_segmenter)
-    monkeypatch.setenv("EVSMAP_CACHE_DIR", str(tmp_path / "cache"))
-    real = speed_module.roofline_gmacs  # a small matmul keeps the test fast
-    monkeypatch.setattr(speed_module, "roofline_gmacs", lambda size=0, **kw: real(64, **kw))
-    yield NAME
-    SEGMENTERS.unregister(NAME)
 
 
 def run(capsys, *argv):
@@ -40,7 +27,8 @@ def run(capsys, *argv):
 
 def one_line_error(code, err, *words):
     assert code == 2, err
-    lines = [line for line in err.strip().splitlines() if ": warning: " not in line]
+    lines = [line for line in err.strip().splitlines() if ": warning: " not in line
+             and ": note: " not in line]
     assert len(lines) == 1 and ": error: " in lines[0] and "Traceback" not in err, err
     for w in words:
         assert w in err, err
