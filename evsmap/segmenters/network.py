@@ -267,7 +267,8 @@ class NetworkSegmenter(Segmenter):
             from evsmap.models.ort_providers import provider_chain
 
             provider_chain("cuda", device_index=target.index or 0)  # refuses when absent
-        self._module.to(target)
+        if self.backend == "torch":  # ONNX Runtime exports the module from the host
+            self._module.to(target)
         self.device = str(target)
         self._session = None
 
