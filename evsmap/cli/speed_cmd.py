@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     if args.precision == "int8":
         int8_path = segmenter.quantization.path
     autocast = args.precision if args.precision in ("fp16", "bf16") else None
+    if autocast:  # speed times a copy of the module under autocast (not the segmenter's own)
+        precision = {**precision, "precision": autocast}
     record = measure_speed(
         segmenter.module, inputs, backend=backend, runs=args.runs, warmup=args.warmup,
         threads=args.threads, macs=macs, input_names=segmenter.input_names, key=args.model,

@@ -71,6 +71,7 @@ def test_speed_bf16_on_the_cpu(capsys, tiny):
     r = json.loads(out)
     assert (r["autocast"], r["device"], r["timer"], r["backend"]) == ("bf16", "cpu",
                                                                       "host clock", "torch")
+    assert r["precision"] == "bf16"
     code, out, err = run(capsys, "speed", NAME, "--precision", "bf16", "--runs", "2",
                          "--warmup", "0", "--threads", "1")
     assert code == 0 and "bf16 autocast" in out, out
