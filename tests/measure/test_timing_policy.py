@@ -93,7 +93,7 @@ def test_bad_policies_are_refused(bad):
 def test_measure_speed_keeps_the_interval_and_why_it_stopped(monkeypatch):
     import evsmap.measure.speed as speed
 
-    monkeypatch.setattr(speed, "time_until_precise", lambda call, policy: _run(
+    monkeypatch.setattr(speed, "time_until_precise", lambda call, policy, **_: _run(
         itertools.repeat(0.004), policy)[0])
     rec = speed.measure_speed(torch.nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), macs=1,
                               policy=TimingPolicy(), roofline=10.0)
