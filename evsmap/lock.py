@@ -41,6 +41,22 @@ def _public(version: str) -> str:
     return version.split("+", 1)[0]  # 2.13.0+cpu satisfies ==2.13.0
 
 
+def installed_versions() -> dict[str, str]:
+    """The installed distributions' versions as Python resolves them: the first of a name on
+    the import path wins (what ``importlib.metadata.version`` returns), and the copies other
+    packages vendor are not installed distributions (setuptools puts its ``_vendor`` folder,
+    with the metadata of the wheel, zipp and platformdirs it bundles, on ``sys.path`` once it
+    is imported, as torch.compile's C++ builder does)."""
+    found: dict[str, str] = {}
+    for dist in metadata.distributions():
+        name = dist.metadata["Name"]
+        where = str(getattr(dist, "_path", ""))
+        if not name or "/_vendor/" in where.replace("\\", "/"):
+            continue
+        found.setdefault(normalize(name), dist.version)
+    return found
+
+
 def lock_status(path: Path = LOCK_FILE) -> dict[str, Any] | None:
     """The lock's sha256 and pin count, and the installed distributions that differ from it.
 
@@ -51,8 +67,7 @@ def lock_status(path: Path = LOCK_FILE) -> dict[str, Any] | None:
     if not path.is_file():
         return None
     pins = read_pins(path)
-    installed = {normalize(d.metadata["Name"] or ""): d.version
-                 for d in metadata.distributions() if d.metadata["Name"]}
+    installed = installed_versions()
     differs = {name: [pins[name], installed[name]] for name in sorted(pins)
                if name in installed and _public(installed[name]) != _public(pins[name])}
     return {"file": path.name, "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),

@@ -38,3 +38,29 @@ def test_the_installed_environment_matches_the_lock():
     assert status is not None
     if status["differs"]:
         missing(f"installed outside the lock: {status['differs']}")
+
+
+def test_the_installed_version_is_the_first_on_the_path_and_vendored_copies_do_not_count(
+        tmp_path, monkeypatch):
+    class Dist:
+        def __init__(self, name, version, where):
+            self.metadata, self.version = {"Name": name}, version
+            self._path = tmp_path / where / f"{name}-{version}.dist-info"
+
+    dists = [Dist("zipp", "9.0", "site-packages/setuptools/_vendor"),
+             Dist("Zipp", "4.1.2", "site-packages"), Dist("zipp", "1.0", "later/site-packages"),
+             Dist("wheel", "0.46.3", "site-packages/setuptools/_vendor")]
+    monkeypatch.setattr(lock.metadata, "distributions", lambda: iter(dists))
+    assert lock.installed_versions() == {"zipp": "4.1.2"}
+
+
+def test_importing_setuptools_does_not_change_what_counts_as_installed():
+    import sys
+    from importlib import metadata
+
+    import setuptools  # noqa: F401  (it puts its _vendor folder on sys.path)
+
+    installed = lock.installed_versions()
+    for name in ("importlib-metadata", "platformdirs", "wheel", "zipp"):
+        if name in installed:  # what Python resolves, not setuptools' vendored copy
+            assert installed[name] == metadata.version(name), (name, sys.path)
