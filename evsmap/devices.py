@@ -20,6 +20,7 @@ The GPU's facts (model, driver, CUDA, clocks) are machine facts and live in
 from __future__ import annotations
 
 import re
+import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -50,10 +51,6 @@ def device_name(text: str) -> str:
         raise UnknownNameError(f"unknown device {text!r} (known: {DEVICES_HELP})")
     kind, index = match.group(1), match.group(2)
     return "cpu" if kind == "cpu" else f"cuda:{int(index or 0)}"
-
-
-def is_cuda(device: str) -> bool:
-    return device_name(device).startswith("cuda")
 
 
 def require_device(text: str) -> torch.device:
@@ -153,10 +150,8 @@ def settle(call: Callable[[], object], timer: Callable[[Callable[[], object]], f
     previous: float | None = None
     passes = 0
     while True:
-        times = sorted(timer(call) for _ in range(window))
+        median = statistics.median(timer(call) for _ in range(window))
         passes += window
-        median = times[window // 2] if window % 2 else (times[window // 2 - 1]
-                                                        + times[window // 2]) / 2
         elapsed = clock() - start
         steady = previous is not None and abs(median - previous) <= tolerance * previous
         if (steady and elapsed >= min_s) or elapsed >= max_s:

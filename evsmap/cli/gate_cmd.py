@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.cli.options import nonnegative_int, positive_float, positive_int
-from evsmap.cli.precision import device_arg
+from evsmap.cli.precision import check_device, device_arg
 from evsmap.errors import EvsmapError
 
 
@@ -217,9 +217,7 @@ def run(args: argparse.Namespace) -> int:
         return _list(args.device)
     claim(args)
     if args.device != "cpu":
-        from evsmap.devices import require_device
-
-        require_device(args.device)
+        check_device(args.device, None)
         if args.against:
             raise EvsmapError(f"--against with --device {args.device}: a paired run measures "
                               f"the CPU workloads; a GPU kind compares with its stored figures "

@@ -100,17 +100,26 @@ def backend_for(args: argparse.Namespace, model: str | None = None) -> str | Non
     return "onnxruntime"
 
 
-def _check_device(args: argparse.Namespace) -> None:
-    """``--device`` is on this machine and goes with ``--precision`` (before any work)."""
-    device = getattr(args, "device", "cpu")
+def check_device(device: str, precision: str | None) -> None:
+    """``--device`` is on this machine and goes with ``--precision`` (before any work; the
+    commands with a network and ``reproduce`` alike).
+
+    Raises:
+        EvsmapError: a GPU that is not here, or int8 (ONNX Runtime's CPU quantisation) on one.
+    """
     if device == "cpu":
         return
     from evsmap.devices import require_device
 
     require_device(device)
-    if args.precision == "int8":
+    if precision == "int8":
         raise EvsmapError(f"--precision int8 --device {device}: int8 here is ONNX Runtime's CPU "
-                          f"quantisation; on a GPU use --precision fp16 or bf16")
+                          f"quantisation; on a GPU use --precision fp16 or bf16 (or time int8 "
+                          f"on the CPU)")
+
+
+def _check_device(args: argparse.Namespace) -> None:
+    check_device(getattr(args, "device", "cpu"), args.precision)
 
 
 def _require_network(model: str, option: str) -> None:

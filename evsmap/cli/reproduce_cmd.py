@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from evsmap.cli.options import positive_float, positive_int
 from evsmap.cli.outputs import Output, check_writable
-from evsmap.cli.precision import device_arg
+from evsmap.cli.precision import check_device, device_arg
 from evsmap.errors import DataFormatError, EvsmapError
 
 if TYPE_CHECKING:
@@ -289,13 +289,7 @@ def _check_machine(settings: RunSettings) -> None:
     idle."""
     if settings.data_root is not None and not settings.data_root.is_dir():
         raise EvsmapError(f"--data-root {settings.data_root}: no such folder")
-    if settings.device != "cpu":
-        from evsmap.devices import require_device
-
-        require_device(settings.device)
-        if settings.precision == "int8":
-            raise EvsmapError(f"--precision int8 --device {settings.device}: the int8 pass is "
-                              f"ONNX Runtime's CPU quantisation; time int8 on the CPU")
+    check_device(settings.device, settings.precision)
     if settings.strict_timing:
         import os
 
