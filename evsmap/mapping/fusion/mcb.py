@@ -57,13 +57,32 @@ MAX_LOGODDS = math.log(PROB_MAX / (1.0 - PROB_MAX))
 """+9.21"""
 
 
+CLASS_ID = np.int32
+"""The dtype of :attr:`MCBState.classes`."""
+
+
+def _class_ids(c: np.ndarray) -> np.ndarray:
+    """``c`` as :data:`CLASS_ID`; an id outside its range is an error (a narrowing cast would
+    wrap it onto another class without a word)."""
+    if not np.issubdtype(c.dtype, np.integer):
+        raise ValueError(f"MCBState class ids must be integers, got {c.dtype}")
+    if c.size and np.dtype(c.dtype).itemsize > np.dtype(CLASS_ID).itemsize:
+        info = np.iinfo(CLASS_ID)
+        if int(c.min()) < EMPTY or int(c.max()) > info.max:
+            raise ValueError(f"MCBState class ids must lie in [{EMPTY}, {info.max}]; got "
+                             f"[{int(c.min())}, {int(c.max())}]")
+    return c.astype(CLASS_ID, copy=False)
+
+
 @dataclass(frozen=True, eq=False)
 class MCBState:
     """Multi-class Bayesian semantics of M voxels (struct of arrays).
 
     Attributes:
-        classes: ``int16`` (M, 3) class ids, most likely first, -1 in empty slots (which come
-            last).
+        classes: ``int32`` (M, 3) class ids, most likely first, -1 in empty slots (which come
+            last). Ids are not only a label set's classes: the generator front end numbers the
+            distinct class colours of a tree level (tens of thousands, averaged colours
+            included), so ids are kept in 32 bits and a wider id is refused, never wrapped.
         logodds: ``float32`` (M, 3) log-odds of each class against free; 0 in empty slots.
         others: ``float32`` (M,) log-odds of all other classes against free; for a voxel without
             classes, its occupancy log-odds.
@@ -80,7 +99,7 @@ class MCBState:
         if c.ndim != 2 or lo.shape != c.shape or ot.shape != c.shape[:1]:
             raise ValueError(f"MCBState needs classes (M, S), logodds (M, S) and others (M,); got "
                              f"{c.shape}, {lo.shape}, {ot.shape}")
-        object.__setattr__(self, "classes", c.astype(np.int16, copy=False))
+        object.__setattr__(self, "classes", _class_ids(c))
         object.__setattr__(self, "logodds", lo.astype(np.float32, copy=False))
         object.__setattr__(self, "others", ot.astype(np.float32, copy=False))
 
@@ -101,7 +120,7 @@ class MCBState:
     @classmethod
     def empty(cls, m: int, others: float = 0.0) -> MCBState:
         """M voxels without classes whose occupancy log-odds is ``others`` (0 = unknown)."""
-        return cls(np.full((m, SLOTS), EMPTY, np.int16), np.zeros((m, SLOTS), np.float32),
+        return cls(np.full((m, SLOTS), EMPTY, CLASS_ID), np.zeros((m, SLOTS), np.float32),
                    np.full(m, others, np.float32))
 
     def take(self, index: np.ndarray) -> MCBState:
