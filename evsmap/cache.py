@@ -21,6 +21,9 @@ tables, plots and small artifacts:
 * ``explore/`` - the paired baseline maps of ``evsmap explore``'s trials (sizes and 3D quality,
   exact), keyed by the baseline, the shared settings, the observations and the code's digests
   (:mod:`evsmap.explore.bench`);
+* ``kernels/`` - numba's compiled kernels where evsmap's sources are read-only (otherwise they
+  sit beside the sources, in ``__pycache__``), keyed by their code and the code they import
+  (:mod:`evsmap.mapping.jit_cache`); ``evsmap cache clear kernels`` removes both;
 * ``calibration.json`` - the best calibration each machine has shown
   (:mod:`evsmap.measure.contention`).
 
@@ -35,7 +38,7 @@ import shutil
 from pathlib import Path
 
 CACHE_ENV = "EVSMAP_CACHE_DIR"
-KINDS = ("onnx", "complexity", "segmentation", "sequences", "gate", "explore")
+KINDS = ("onnx", "complexity", "segmentation", "sequences", "gate", "explore", "kernels")
 
 
 def cache_root() -> Path:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from evsmap.cache import KINDS, cache_dir, clear, folder_size, info
 from evsmap.errors import EvsmapError
@@ -11,7 +12,7 @@ from evsmap.errors import EvsmapError
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("cache", help="the cache shared across runs (ONNX exports, "
-                                     "segmentations, rendered sequences)",
+                                     "segmentations, rendered sequences, compiled kernels)",
                        description="The cache shared across runs: $EVSMAP_CACHE_DIR, else "
                                    "~/.cache/evsmap.")
     actions = p.add_subparsers(dest="action", required=True, metavar="info|clear")
@@ -35,9 +36,51 @@ def _check_root() -> None:
                           "or unset it for ~/.cache/evsmap)")
 
 
+def _kernels_beside_sources() -> list[Path]:
+    """numba's files of evsmap's and the plug-ins' kernels in their ``__pycache__`` folders:
+    part of the ``kernels`` kind (:mod:`evsmap.mapping.jit_cache`)."""
+    from evsmap.mapping.jit_cache import files_beside_sources
+
+    return files_beside_sources()
+
+
+def _with_kernels_beside_sources(data: dict) -> dict:
+    """:func:`evsmap.cache.info` with the kernels' files beside the sources counted in."""
+    paths = _kernels_beside_sources()
+    size = sum(_file_size(p) for p in paths)
+    kernels = data["kinds"]["kernels"]
+    kernels["beside_sources"] = {"files": len(paths), "bytes": size}
+    kernels["files"] += len(paths)
+    kernels["bytes"] += size
+    data["bytes"] += size
+    return data
+
+
+def _file_size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:  # removed meanwhile
+        return 0
+
+
+def _clear_kernels_beside_sources() -> tuple[int, list[Path]]:
+    """Remove the kernels' files beside the sources: (bytes freed, paths left)."""
+    freed, left = 0, []
+    for path in _kernels_beside_sources():
+        size = _file_size(path)
+        try:
+            path.unlink()
+            freed += size
+        except FileNotFoundError:
+            pass
+        except OSError:
+            left.append(path)
+    return freed, left
+
+
 def run_info(args: argparse.Namespace) -> int:
     _check_root()
-    data = info()
+    data = _with_kernels_beside_sources(info())
     if args.json:
         print(json.dumps(data, indent=2))
         return 0
@@ -60,6 +103,13 @@ def run_clear(args: argparse.Namespace) -> int:
     _check_root()
     kinds = list(KINDS) if args.all else list(dict.fromkeys(args.kinds))
     freed = clear(kinds)
+    if "kernels" in kinds:
+        beside, stuck = _clear_kernels_beside_sources()
+        freed += beside
+        if stuck:
+            raise EvsmapError(f"{stuck[0].parent}: {len(stuck)} compiled kernel files could not "
+                              f"be removed (check their permissions); {freed / 1e6:.1f} MB freed "
+                              f"before that")
     left = {k: folder_size(cache_dir(k)) for k in kinds}
     left = {k: v for k, v in left.items() if v[0]}
     if left:  # files that could not be removed (permissions, a busy file system)
