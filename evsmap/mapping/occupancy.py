@@ -181,10 +181,11 @@ class OccupancyMap:
         return pos, found
 
     # ------------------------------------------------------------------ updates
-    def insert_leaves(self, codes: np.ndarray) -> np.ndarray:
+    def insert_leaves(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Make sure leaves with the sorted unique ``codes`` exist (new ones at log-odds 0 and the
-        payload fills); returns their indices in the arrays after the insertion."""
-        return self._insert(np.asarray(codes, dtype=np.int64))[0]
+        payload fills); returns their indices in the arrays after the insertion and a mask
+        (aligned with ``codes``) of those it created."""
+        return self._insert(np.asarray(codes, dtype=np.int64))
 
     def _insert(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Insert the missing ones of the sorted unique ``codes``; their indices afterwards and a

@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit
 
 from evsmap.mapping.generator import WHITE
+from evsmap.mapping.ssmi_prune import expand, prune_up
 
 LOGINIT = np.float32(-0.1)
 """``Semantics.h``: an unset slot's and an unset others' log-odds."""
@@ -199,16 +200,37 @@ def free(cols, lo, others, value, rgb, n, phi, lmin, min_occupancy):
 
 @njit(cache=True, nogil=True)
 def frame_update(cols, lo, others, value, rgb, hit_index, hit_colour, hit_rgb, free_index,
-                 psi, phi, lmin, lmax, min_occupancy):
+                 psi, phi, lmin, lmax, min_occupancy, codes, level, pending, dirty, copies):
     """One frame as SSMI's generator applies it: every centroid's hit in order, then every key
-    of the free set. Returns the number of leaves changed by hits and by misses."""
+    of the free set. With ``copies`` (SSMI's tree), each update that passes
+    ``checkNeedsUpdate`` first expands a pruned block holding the leaf and then prunes its
+    ancestors where they collapse (:mod:`evsmap.mapping.ssmi_prune`: ``codes`` the sorted leaf
+    codes, ``level`` the pruned level holding each leaf, ``pending`` the leaves this frame
+    inserted that SSMI has not created yet). ``dirty`` marks the leaves whose semantics a hit
+    or a pruned node's copy changed. Returns the number of leaves changed by hits and by
+    misses."""
+    reps = np.empty(8, np.int64)
+    colour = np.empty(3, np.int64)
     changed_hits = 0
     for t in range(hit_index.shape[0]):
-        if hit(cols, lo, others, value, rgb, hit_index[t], hit_colour[t], hit_rgb[t, 0],
-               hit_rgb[t, 1], hit_rgb[t, 2], psi, phi, lmin, lmax):
+        n = hit_index[t]
+        pending[n] = False
+        if hit(cols, lo, others, value, rgb, n, hit_colour[t], hit_rgb[t, 0], hit_rgb[t, 1],
+               hit_rgb[t, 2], psi, phi, lmin, lmax):
             changed_hits += 1
+            dirty[n] = True
+            if copies:
+                expand(codes, level, n)
+                prune_up(codes, level, pending, n, value, cols, lo, others, rgb, dirty,
+                         min_occupancy, reps, colour)
     changed_free = 0
     for t in range(free_index.shape[0]):
-        if free(cols, lo, others, value, rgb, free_index[t], phi, lmin, min_occupancy):
+        n = free_index[t]
+        pending[n] = False
+        if free(cols, lo, others, value, rgb, n, phi, lmin, min_occupancy):
             changed_free += 1
+            if copies:
+                expand(codes, level, n)
+                prune_up(codes, level, pending, n, value, cols, lo, others, rgb, dirty,
+                         min_occupancy, reps, colour)
     return changed_hits, changed_free

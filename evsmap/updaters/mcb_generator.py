@@ -27,11 +27,17 @@ average of its children's. Pruning is SSMI's ``isNodeCollapsible``: 8 leaf child
 value and equal semantics, or equal value when the first child is free (``value <=
 minOccupancyLogOdds``); the pruned node is child 0's copy with the children's average colour.
 
-The map is kept as leaf arrays expanded to the finest level (evsmap's octree updaters); SSMI's
-tree expands a pruned node before updating one of its voxels, so the two agree, with one
-difference: when SSMI prunes 8 free leaves whose semantics differ it keeps child 0's, and a later
-hit on the block starts its 7 siblings from child 0's free semantics, where here each keeps its
-own (both free, their classes floored).
+The map is kept as leaf arrays expanded to the finest level (evsmap's octree updaters). SSMI
+prunes as it updates (``lazy_eval`` false) and expands a pruned node before updating one of its
+voxels, and both change leaves: the pruned node is child 0's copy with the children's average
+colour, and expanding it gives all 8 children that colour - and child 0's semantics, which for a
+block of free leaves need not be theirs. ``pruned_leaves="copies"`` (the default, SSMI's) does
+the same on the leaves (:mod:`evsmap.mapping.ssmi_prune`: after each update that passes
+``checkNeedsUpdate``, the ancestors that collapse copy their data into their leaves, and the
+``pruned_level`` column records which node holds each leaf); ``pruned_leaves="own"`` is
+evsmap's earlier reading, a named variant: every leaf keeps its own colour and free semantics
+whatever was pruned around it. The two differ only in the colours and the free semantics of
+leaves that were inside a pruned block (TUM fr1_xyz at 2 cm: 97 leaves' colours).
 
 Files: ``full`` keeps the whole node (value, colour, 3 x (class colour, log-odds), others) and
 restores; ``published`` is SSMI's ``writeData`` with its defaults (``use_semantic_color``,
@@ -46,6 +52,8 @@ two flags, 8-byte aligned).
 from __future__ import annotations
 
 from dataclasses import replace
+from os import PathLike
+from typing import Self
 
 import numpy as np
 
@@ -64,7 +72,7 @@ from evsmap.mapping.generator import (
     voc_colormap,
 )
 from evsmap.mapping.kernels import Kernels
-from evsmap.mapping.keys import pack
+from evsmap.mapping.keys import TREE_DEPTH, morton, pack, unpack
 from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
 from evsmap.mapping.raycast import octomap_keys, scan_keys
 from evsmap.mapping.sensor_model import OCTOMAP
@@ -98,12 +106,17 @@ SSMI's ``setClampingThresMin/Max`` also make the semantic log-odds' bounds). SSM
 max_range 15 and raycast_range 10 for 0.5 m outdoor maps."""
 
 
+PRUNED_LEAVES = ("copies", "own")
+"""What the leaves of a block SSMI prunes hold (:class:`GeneratorMultiClassBayesMap`)."""
+
+
 def _columns() -> tuple[Column, ...]:
     return (Column("rgb", np.uint8, (3,), fill=255),
             Column("sem_colors", np.uint32, (3,), fill=WHITE),
             Column("class_logodds", np.float32, (3,), fill=LOGINIT),
             Column("others", np.float32, (), fill=LOGINIT),
-            Column("classes", np.int16, (3,), fill=-1))
+            Column("classes", np.int16, (3,), fill=-1),
+            Column("pruned_level", np.uint8, (), fill=0))
 
 
 def _encode(columns, n: int) -> np.ndarray:
@@ -224,6 +237,9 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
         resolution: the leaf size; like every parameter it reaches the tree as a ``float``.
         kernels: the ray casting's (:class:`~evsmap.updaters.base.OctreeUpdater`); SSMI's node
             update is always the compiled :func:`~evsmap.mapping.ssmi_kernel.frame_update`.
+        pruned_leaves: ``copies`` (SSMI's tree: a pruned block's leaves become copies of the
+            pruned node, its colour the children's average) or ``own`` (each leaf keeps its
+            own colour and free semantics; see the module notes).
     """
 
     semantics_within_range = True
@@ -239,7 +255,11 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
                  clamp_min: float = ROS_DEFAULTS["clamp_min"],
                  clamp_max: float = ROS_DEFAULTS["clamp_max"],
                  occupancy_threshold: float = OCTOMAP.occupancy_threshold,
-                 kernels: Kernels = "compiled") -> None:
+                 kernels: Kernels = "compiled", pruned_leaves: str = "copies") -> None:
+        if pruned_leaves not in PRUNED_LEAVES:
+            raise InvalidDataError(f"multiclass-bayes: pruned_leaves must be one of "
+                                   f"{', '.join(PRUNED_LEAVES)}; got {pruned_leaves!r}")
+        self.pruned_leaves = pruned_leaves
         if pairing not in fusion.PAIRINGS:
             raise InvalidDataError(f"multiclass-bayes: pairing must be one of "
                                    f"{', '.join(fusion.PAIRINGS)}; got {pairing!r}")
@@ -290,23 +310,50 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
         hit_rgb = np.ascontiguousarray(cent_rgb[inside][hit_ok])
         keys = scan_keys(world[valid], origin.astype(np.float64), self.resolution,
                          max_range=self.raycast_range, discretize=True, kernels=self.kernels)
-        codes = np.union1d(hit_codes, keys.free)
-        index = self.map.insert_leaves(codes)
-        hit_index = index[np.searchsorted(codes, hit_codes)]
-        free_index = index[np.searchsorted(codes, keys.free)]
-        m = self.map
-        frame_update(m.payload("sem_colors"), m.payload("class_logodds"), m.payload("others"),
-                     m.logodds_for_writing(), m.payload("rgb"), hit_index, hit_colour, hit_rgb,
-                     free_index, self.psi, self.phi, self.min_logodds, self.max_logodds,
-                     self.min_occupancy)
-        touched = np.unique(hit_index)
-        m.payload("classes")[touched] = colour_classes(m.payload("sem_colors")[touched],
-                                                       self.num_classes)
-        self.count_front_end(centroids=len(cent), hits=len(hit_index),
+        self.apply_updates(hit_codes, hit_colour, hit_rgb, keys.free)
+        self.count_front_end(centroids=len(cent), hits=len(hit_codes),
                              rays=int(np.count_nonzero(valid)))
         self.frames += 1
 
+    def apply_updates(self, hit_codes: np.ndarray, hit_colour: np.ndarray, hit_rgb: np.ndarray,
+                      free_codes: np.ndarray) -> None:
+        """SSMI's node updates of one frame: ``updateNode(hit)`` for each voxel code of
+        ``hit_codes`` in order (a code may repeat) with its class colour (``uint32``) and colour
+        (``uint8`` r, g, b), then ``updateNode(free)`` for each of the sorted unique
+        ``free_codes``; the leaves they need are inserted first."""
+        codes = np.union1d(hit_codes, free_codes)
+        m = self.map
+        index, created = m.insert_leaves(codes)
+        hit_index = index[np.searchsorted(codes, hit_codes)]
+        free_index = index[np.searchsorted(codes, free_codes)]
+        pending = np.zeros(m.num_leaves, dtype=bool)
+        pending[index[created]] = True
+        dirty = np.zeros(m.num_leaves, dtype=bool)
+        frame_update(m.payload("sem_colors"), m.payload("class_logodds"), m.payload("others"),
+                     m.logodds_for_writing(), m.payload("rgb"), hit_index,
+                     np.ascontiguousarray(hit_colour, np.uint32),
+                     np.ascontiguousarray(hit_rgb, np.uint8), free_index, self.psi, self.phi,
+                     self.min_logodds, self.max_logodds, self.min_occupancy, m.codes,
+                     m.payload("pruned_level"), pending, dirty, self.pruned_leaves == "copies")
+        touched = np.flatnonzero(dirty)
+        m.payload("classes")[touched] = colour_classes(m.payload("sem_colors")[touched],
+                                                       self.num_classes)
+
     # ---- the tree
+    def restore(self, path: str | PathLike[str]) -> Self:
+        """:meth:`OctreeUpdater.restore`, then each leaf's ``pruned_level`` from the file's
+        pruned nodes (a leaf of the file at depth d holds its voxels 16 - d levels up)."""
+        super().restore(path)
+        if self.map.num_leaves:
+            tree = self.tree()
+            leaf = tree.child_mask == 0
+            start = tree.morton[leaf]
+            voxel = morton(unpack(self.map.codes)).astype(np.int64)
+            holder = np.searchsorted(start, voxel, side="right") - 1
+            depth = tree.depth[leaf][holder].astype(np.int64)
+            self.map.payload("pruned_level")[:] = (TREE_DEPTH - depth).astype(np.uint8)
+        return self
+
     def _equal_columns(self) -> list[np.ndarray]:
         """SSMI's ``isNodeCollapsible``: equal value and semantics, or equal value with the
         first child free - the semantics of free leaves are left out of the comparison."""

@@ -38,7 +38,8 @@ def multiclass_bayes(*, front_end: str, **options: Any) -> OctreeUpdater:
     SSMI's clamping 1e-4 / 0.9999); ``"direct"``:
     :class:`~evsmap.updaters.multiclass_bayes.MultiClassBayesMap` (every pixel, rays to
     ``max_range``, one observation per leaf and frame; ``leaf_update``, ``occupancy``,
-    ``discretize``, ``prob_hit`` / ``prob_miss``, OctoMap's clamping)."""
+    ``discretize``, ``prob_hit`` / ``prob_miss``, OctoMap's clamping). ``pruned_leaves`` is
+    the generator's: ``copies`` (SSMI's pruned blocks) or ``own``."""
     from evsmap.errors import InvalidDataError
     from evsmap.mapping.generator import check_front_end
 
@@ -53,13 +54,16 @@ def multiclass_bayes(*, front_end: str, **options: Any) -> OctreeUpdater:
         return GeneratorMultiClassBayesMap(**given(options, *_DIRECT_ONLY))
     from evsmap.updaters.multiclass_bayes import MultiClassBayesMap
 
-    return MultiClassBayesMap(**given(options, "raycast_range"))
+    if options["pruned_leaves"] != MULTICLASS_BAYES["pruned_leaves"]:
+        raise InvalidDataError("multiclass-bayes: pruned_leaves applies to the generator front "
+                               "end only (SSMI's pruned blocks)")
+    return MultiClassBayesMap(**given(options, "raycast_range", "pruned_leaves"))
 
 
 MULTICLASS_BAYES: dict[str, Any] = {
     "front_end": "generator", "raycast_range": 2.0, "psi": PSI, "phi": PHI, "theta": THETA,
     "leaf_update": "bayes", "pairing": "printed", "occupancy": "semantic",
-    "clamp_min": None, "clamp_max": None}
+    "clamp_min": None, "clamp_max": None, "pruned_leaves": "copies"}
 """What ``multiclass-bayes`` adds to the octree base's options (the clamping: the front end's
 own, SSMI's with the generator)."""
 
