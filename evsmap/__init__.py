@@ -1,4 +1,4 @@
-"""evsmap: the EVSMaP benchmark harness (docs/index.md)."""
+"""evsmap: the open benchmark harness of EVSMaP (README.md)."""
 
 from evsmap.mapping import jit_cache as _jit_cache
 

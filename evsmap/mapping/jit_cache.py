@@ -8,7 +8,7 @@ under a plug-in's (the ``evsmap.plugins`` entry points), is located by :class:`K
 whose stamp is the digest of its file *and of every evsmap or plug-in module that file imports,
 transitively* (:func:`closure_digest`): an edit to any of them recompiles the kernel.
 
-Where the files go (numba's places, in numba's order):
+Where the files go (numba's order, with evsmap's cache in place of numba's user-wide folder):
 
 * ``$NUMBA_CACHE_DIR`` when the user set it (then ``evsmap cache clear`` leaves it alone);
 * else beside the sources, in their ``__pycache__`` folders, as numba does and as Python keeps
@@ -103,7 +103,11 @@ def _imported_names(path: Path) -> Iterator[str]:
     package = _module_name(path)
     if path.name != "__init__.py":
         package = package.rpartition(".")[0]
-    for node in ast.walk(ast.parse(path.read_bytes(), str(path))):
+    try:
+        tree = ast.parse(path.read_bytes(), str(path))
+    except (SyntaxError, ValueError):  # its own import fails; its bytes still count
+        return
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             yield from (alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
