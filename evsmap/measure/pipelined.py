@@ -23,7 +23,10 @@ thread pools that busy-wait for a core are the enemy of overlap. numpy's OpenBLA
 the synthetic renderer's 307,200 x 3 by 3 x 3 ray product from 1 ms into 200 ms while the other
 stages held the cores, and torch's two intra-op threads made the top-k's softmax denominator 3x
 slower than one; both run on one thread in the pipeline (the same numbers: no reduction of
-theirs is split across threads).
+theirs is split across threads). The network itself runs at the sequential loop's thread count
+in both (:attr:`StageThreads.segment`): its logits depend on that count, so the pipeline keeps
+it and the observations, thus the map, are the same bytes with the pipeline on and off
+(``tests/cli/test_thread_independence.py``).
 
 A failure in a worker thread (a bad frame, a network error) is re-raised in the calling thread;
 leaving the loop early (an exception, Ctrl-C) stops both workers within one queue timeout.
@@ -172,12 +175,15 @@ class StageThreads:
     """The threads each stage of a mapping loop runs with (recorded beside its rates).
 
     Attributes:
-        segment: ONNX Runtime's intra-op threads for a network segmenter (``None``: torch's
-            thread count, the sequential default).
+        segment: a network segmenter's intra-op threads (ONNX Runtime's pool, or torch's
+            during the forward pass; ``None``: torch's thread count before the loop, the
+            sequential default). The only setting here the observations depend on: the
+            network's logits change with it in the last float32 bits (docs/cli.md, "Thread
+            independence").
         spinning: whether ONNX Runtime's idle workers busy-wait between operators (fast alone;
             in a pipeline they take the cores the reader and the update need).
         torch: torch's intra-op threads while the loop runs (a network's pre- and
-            post-processing; ``None``: unchanged).
+            post-processing, which give the same bits whatever it is; ``None``: unchanged).
         update: the update kernels' threads (:mod:`evsmap.mapping.threads`; ``None``: its
             default, ``EVSMAP_UPDATE_THREADS`` or all).
         blas: numpy's BLAS threads while the loop runs (``None``: unchanged).
@@ -230,9 +236,10 @@ SEQUENTIAL = StageThreads()
 """The sequential loop: every library's defaults (each stage alone has all the cores)."""
 
 PIPELINED = StageThreads(segment=None, spinning=False, torch=1, update=1, blas=1)
-"""The pipelined loop's threads, chosen for 2 cores (docs/realtime.md): ONNX Runtime keeps its
-threads but does not spin, torch's pre/post-processing and numpy's BLAS run on one thread each
-(their pools busy-wait for cores the other stages hold)."""
+"""The pipelined loop's threads, chosen for 2 cores (docs/realtime.md): the network keeps the
+sequential loop's threads (ONNX Runtime without spinning), so both loops segment every frame
+into the same bytes; torch's pre/post-processing and numpy's BLAS run on one thread each (their
+pools busy-wait for cores the other stages hold)."""
 
 
 def stage_threads_option(pairs: list[tuple[str, Any]], *, pipeline: bool) -> StageThreads:

@@ -29,6 +29,7 @@ from evsmap.segmenters.normalization import (  # noqa: F401  (re-exported)
     INDOOR,
     Normalization,
 )
+from evsmap.segmenters.resize import bilinear
 from evsmap.segmenters.weights import load_weights
 
 if TYPE_CHECKING:
@@ -52,8 +53,9 @@ def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Nor
     """Normalised network inputs (batch 1, float32) at ``size`` (H, W): ``(rgb,)`` or
     ``(rgb, depth)`` when ``depth`` is given.
 
-    ``rgb`` (``uint8`` HxWx3) is scaled to [0, 1], resized bilinearly and standardised per
-    channel; ``depth`` (in the normalisation's depth units - see
+    ``rgb`` (``uint8`` HxWx3) is scaled to [0, 1], resized bilinearly
+    (:func:`evsmap.segmenters.resize.bilinear`: the same bits whatever the thread count) and
+    standardised per channel; ``depth`` (in the normalisation's depth units - see
     :meth:`Normalization.encode_depth` - 0 = invalid) is resized by nearest neighbour and
     standardised, invalid pixels set to 0. What :meth:`NetworkSegmenter.preprocess` feeds the
     network, and what training feeds it at the randomly scaled size (:mod:`evsmap.train.data`).
@@ -61,10 +63,13 @@ def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Nor
     n = normalization
     height, width = size
     size = (height, width)
-    rgb_t = torch.from_numpy(np.array(rgb, copy=True)).permute(2, 0, 1)[None].float()
-    rgb_t = rgb_t / 255.0
-    if tuple(rgb_t.shape[-2:]) != size:
-        rgb_t = F.interpolate(rgb_t, size=size, mode="bilinear", align_corners=False)
+    # channels first and contiguous, scaled, then resized by evsmap's own kernel: torch's
+    # bilinear kernel rounds differently with one thread than with more (resize.py)
+    chw = np.ascontiguousarray(np.asarray(rgb).transpose(2, 0, 1), dtype=np.float32)
+    chw /= np.float32(255.0)
+    if chw.shape[-2:] != size:
+        chw = bilinear(chw, size)
+    rgb_t = torch.from_numpy(chw)[None]
     mean = torch.tensor(n.rgb_mean).view(1, 3, 1, 1)
     std = torch.tensor(n.rgb_std).view(1, 3, 1, 1)
     rgb_t = (rgb_t - mean) / std
@@ -208,7 +213,7 @@ class NetworkSegmenter(Segmenter):
         self.device = "cpu"
         """Where the network runs (:meth:`place`): ``cpu`` or ``cuda:N``."""
         self._int8_size: tuple[int, int] | None = None
-        self._ort_threads: int | None = None
+        self._threads: int | None = None
         self._ort_spinning = True
         self.last_timings: dict[str, float] = {}
         """Milliseconds of the last :meth:`predict`'s stages: ``preprocess`` (normalise,
@@ -276,11 +281,24 @@ class NetworkSegmenter(Segmenter):
         """Raw network output for preprocessed ``inputs`` with the configured backend (on
         :attr:`device` for the torch backend; float32, or the autocast dtype)."""
         if self.backend == "torch":
-            with torch.inference_mode(), self._autocast():
+            with self._torch_threads(), torch.inference_mode(), self._autocast():
                 return self._module(*(t.to(self.device, non_blocking=True) for t in inputs))
         session = self._ort_session(inputs)
         feed = {name: t.numpy() for name, t in zip(self.input_names, inputs, strict=True)}
         return torch.from_numpy(session.run(None, feed)[0])
+
+    def _torch_threads(self):
+        """torch's intra-op threads for the forward pass on the CPU: :meth:`set_threads`'s
+        count when one was set (torch's convolutions choose their algorithm and split their
+        work by the thread count, so the logits depend on it), else a context doing nothing."""
+        import contextlib
+
+        if self._threads is None or self.device != "cpu" \
+                or self._threads == torch.get_num_threads():
+            return contextlib.nullcontext()
+        from evsmap.models.module_utils import torch_threads
+
+        return torch_threads(self._threads)
 
     def _autocast(self):
         """``torch.autocast`` at the precision's dtype, or a context doing nothing."""
@@ -400,7 +418,7 @@ class NetworkSegmenter(Segmenter):
             path = self._model_path(inputs)
             options = ort.SessionOptions()
             options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-            options.intra_op_num_threads = self._ort_threads or torch.get_num_threads()
+            options.intra_op_num_threads = self._threads or torch.get_num_threads()
             options.add_session_config_entry("session.intra_op.allow_spinning",
                                              "1" if self._ort_spinning else "0")
             from evsmap.models.ort_providers import check_used, default_provider, provider_chain
@@ -413,18 +431,25 @@ class NetworkSegmenter(Segmenter):
         return self._session
 
     def set_threads(self, threads: int | None = None, *, spinning: bool = True) -> dict:
-        """ONNX Runtime's intra-op threads (``None``: torch's thread count, as before) and
-        spinning (``session.intra_op.allow_spinning``); the session is rebuilt on the next
-        call when either changes. The torch backend uses torch's own threads (returns ``{}``)."""
+        """The network's intra-op threads (``None``: torch's thread count at each call, as
+        before): ONNX Runtime's pool, with its spinning (``session.intra_op.allow_spinning``;
+        the session is rebuilt on the next call when either changes), or torch's threads for
+        the forward pass alone (set and restored around it; pre- and post-processing keep
+        torch's threads of the moment, and give the same bits whatever they are). The logits
+        depend on this count (docs/cli.md, "Thread independence"); nothing else does.
+
+        Returns what the network uses now: ``{"onnxruntime": n, "spinning": b}`` or
+        ``{"network": n}`` (the torch backend)."""
         if threads is not None and (isinstance(threads, bool) or int(threads) < 1):
             raise InvalidDataError(f"{self.name}: threads must be a positive integer, got "
                                    f"{threads!r}")
-        if (threads, spinning) != (self._ort_threads, self._ort_spinning):
-            self._ort_threads, self._ort_spinning = threads, bool(spinning)
+        threads = None if threads is None else int(threads)
+        if (threads, spinning) != (self._threads, self._ort_spinning):
+            self._threads, self._ort_spinning = threads, bool(spinning)
             self._session = None
         if self.backend != "onnxruntime":
-            return {}
-        return {"onnxruntime": self._ort_threads or torch.get_num_threads(),
+            return {"network": self._threads or torch.get_num_threads()}
+        return {"onnxruntime": self._threads or torch.get_num_threads(),
                 "spinning": self._ort_spinning}
 
     def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
@@ -454,7 +479,8 @@ class NetworkSegmenter(Segmenter):
               pixels: np.ndarray | None = None) -> SemanticObservation:
         """The per-pixel top-``k`` classes and softmax probabilities of ``logits`` (1, C, h, w,
         what :meth:`logits` returned) at the frame's ``size``, as :attr:`postprocess` says:
-        ``network`` - bilinear upsampling of the logits first when they differ from ``size``;
+        ``network`` - bilinear upsampling of the logits first when they differ from ``size``
+        (on the host by :func:`~evsmap.segmenters.resize.bilinear`, thread-independent);
         ``fused`` - the network's own resize to its input size inside the top-k
         (:func:`~evsmap.segmenters.topk.top_k_upsampled`, at ``pixels`` only, a bool mask;
         resized in two steps as ``network`` would when the input size is not the frame's);
@@ -476,13 +502,20 @@ class NetworkSegmenter(Segmenter):
                 index = None if pixels is None else np.flatnonzero(pixels)
                 classes, probs = topk.top_k_upsampled(logits[0], size, k, index)
                 return SemanticObservation.of_kernel(classes, probs, self.num_classes)
-            from evsmap.models.layers import resize_to
-
-            logits = resize_to(logits, self.input_size)
+            # the network's own final resize (align_corners, as models.layers.resize_to)
+            logits = _resized(logits, self.input_size, align_corners=True)
         if tuple(logits.shape[-2:]) != (h, w):
-            logits = F.interpolate(logits, size=(h, w), mode="bilinear", align_corners=False)
+            logits = _resized(logits, (h, w), align_corners=False)
         classes, probs = topk.top_k_softmax(logits[0], k)
         return SemanticObservation.of_kernel(classes, probs, self.num_classes)
+
+
+def _resized(logits: torch.Tensor, size: tuple[int, int], *, align_corners: bool
+             ) -> torch.Tensor:
+    """Host ``logits`` (1, C, h, w) resized bilinearly to ``size`` by evsmap's kernel
+    (:func:`evsmap.segmenters.resize.bilinear`: the same bits whatever torch's thread count,
+    which its own bilinear kernel does not promise)."""
+    return torch.from_numpy(bilinear(logits[0].numpy(), size, align_corners=align_corners))[None]
 
 
 def _top_k_on_device(logits: torch.Tensor, size: tuple[int, int], k: int,
