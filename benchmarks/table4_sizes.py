@@ -5,13 +5,15 @@ map's growth with the frames.
     python benchmarks/table4_sizes.py [--sequence tum|synthetic|synthetic-long]
         [--resolution 0.02 0.05] [--frames N] [--json FILE]
 
-Readings: the file each system itself publishes (semantic_slam's and ORGBMap's ColorOcTree, SSMI's
-``writeData`` with its semantics for multiclass-bayes), the colour-only ColorOcTree every system
-can write, and OctoMap's memory model over each system's C++ node. Labels: on ``tum`` (the real
-fr1_xyz sample) the seeded untrained FEAGNet-V1's, on the synthetic sequences the oracle's (ground
-truth with seeded noise), one set for every system, so TESAMap = TFEAGMap and MESAMap = EVSMap
-here (the paper's pairs differ only by the network). Also: the same two updaters on the direct
-front end, nodes, pruned share, 3D accuracy and mIoU where there is ground truth, update time.
+Readings: the file each system itself saves (a ColorOcTree for all three: SSMI's node turns its
+semantics off before saving), the full map as each ROS node sends it (``octomap_full``: SSMI's
+``writeData`` with its semantics, 36 B a node; the saved file for the others), the colour-only
+ColorOcTree every system can write, and OctoMap's memory model over each system's C++ node. Labels:
+on ``tum`` (the real fr1_xyz sample) the seeded untrained FEAGNet-V1's, on the synthetic sequences
+the oracle's (ground truth with seeded noise), one set for every system, so TESAMap = TFEAGMap and
+MESAMap = EVSMap here (the paper's pairs differ only by the network). Also: the same two updaters
+on the direct front end, nodes, pruned share, 3D accuracy and mIoU where there is ground truth,
+update time.
 """
 
 from __future__ import annotations
@@ -35,8 +37,8 @@ SYSTEMS = {
     "classic-semantic -o front_end=direct": ("classic-semantic", {"front_end": "direct"}),
     "multiclass-bayes -o front_end=direct": ("multiclass-bayes", {"front_end": "direct"}),
 }
-READINGS = {"published file": "published", "colour-only file": "colour",
-            "C++ memory": "memory"}
+READINGS = {"saved file": "published", "octomap_full message": "message",
+            "colour-only file": "colour", "C++ memory": "memory"}
 PAPER_SEQ1 = {"TESAMap / ORGBMap": 5.43 / 3.54, "MESAMap / TESAMap": 5.89 / 5.43,
               "EVSMap / TFEAGMap": 5.30 / 5.71}
 PAIRS = {"TESAMap / ORGBMap": ("TESAMap/TFEAGMap (classic-semantic)", "ORGBMap (orgb)"),
@@ -75,7 +77,7 @@ def measure(seq, frames, observations, resolution: float) -> list[dict]:
             in_memory(frames, seq.name),
             lambda n=name, o=options: UPDATERS.create(n, resolution=resolution, **o),
             observations=observations, measure_memory=False,
-            evaluators=[MapStatistics(), MapFiles(formats=("published", "colour"))],
+            evaluators=[MapStatistics(), MapFiles(formats=("published", "colour", "message"))],
             growth=MapGrowth(every=growth_every(len(frames))))
         m = mapped.updater
         stats, sizes = mapped.results["stats"], mapped.results["files"].sizes
@@ -83,6 +85,7 @@ def measure(seq, frames, observations, resolution: float) -> list[dict]:
                "frames": len(frames), "front_end": m.front_end, "nodes": stats.nodes,
                "leaves": stats.leaves, "pruned_share": pruned_share(m),
                "published": sizes["published"], "colour": sizes.get("colour"),
+               "message": sizes.get("message", sizes["published"]),
                "memory": stats.octomap_memory_bytes,
                "update_ms_median": float(np.median(mapped.update_ms)),
                "growth": mapped.results["growth"], "wall_s": time.perf_counter() - t0}
@@ -96,8 +99,9 @@ def measure(seq, frames, observations, resolution: float) -> list[dict]:
         acc = (f" acc {100 * row['semantic_accuracy']:5.1f} % mIoU {100 * row['map_miou']:5.1f} %"
                if "semantic_accuracy" in row else "")
         print(f"{resolution * 100:g} cm {label:<40} nodes {row['nodes']:>9,} pruned "
-              f"{100 * (row['pruned_share'] or 0):5.1f} %  published "
-              f"{row['published'] / 1e3:9.1f} KB  colour {(row['colour'] or 0) / 1e3:9.1f} KB  "
+              f"{100 * (row['pruned_share'] or 0):5.1f} %  saved "
+              f"{row['published'] / 1e3:9.1f} KB  message {row['message'] / 1e3:9.1f} KB  "
+              f"colour {(row['colour'] or 0) / 1e3:9.1f} KB  "
               f"memory {row['memory'] / 1e6:7.2f} MB  {row['update_ms_median']:7.1f} ms{acc}",
               flush=True)
     return rows

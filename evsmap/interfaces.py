@@ -134,10 +134,12 @@ class PointQuery:
     label: np.ndarray
 
 
-FILE_FORMATS = ("full", "published", "colour")
-"""A map's file formats: ``full`` - the resumable state; ``published`` - what the compared system
-itself writes; ``colour`` - a ``ColorOcTree`` (log-odds and one colour a node, the top class's
-colour for semantic maps) that any OctoMap tool opens (see
+FILE_FORMATS = ("full", "published", "colour", "message")
+"""A map's file formats: ``full`` - the resumable state; ``published`` - the file the compared
+system itself saves; ``colour`` - a ``ColorOcTree`` (log-odds and one colour a node, the top
+class's colour for semantic maps) that any OctoMap tool opens; ``message`` - the full map as the
+system's ROS node sends it (``octomap_full``), offered where that is not the saved file (SSMI's
+carries the semantics; its ``.ot`` takes a tree id of its own, see
 :meth:`~evsmap.updaters.base.OctreeUpdater.write`)."""
 
 
@@ -195,9 +197,10 @@ class MapUpdater(abc.ABC):
         """Write the map to ``path`` in ``file_format`` (one of :meth:`file_formats`); returns
         the file size in bytes (the paper's "Map Size").
 
-        ``"full"`` is the resumable state, ``"published"`` what the compared system itself
-        writes (the same file where the updater keeps one form), ``"colour"`` a
-        ``ColorOcTree`` (see :meth:`~evsmap.updaters.base.OctreeUpdater.write`).
+        ``"full"`` is the resumable state, ``"published"`` the file the compared system itself
+        saves (the same file where the updater keeps one form), ``"colour"`` a
+        ``ColorOcTree``, ``"message"`` the map as the system's ROS node sends it where that
+        differs (see :meth:`~evsmap.updaters.base.OctreeUpdater.write`).
 
         Raises:
             InvalidDataError: a format the updater does not write (:func:`check_file_format`).
@@ -235,19 +238,23 @@ class MapUpdater(abc.ABC):
 
     def size_readings(self) -> dict[str, int | None]:
         """The map's ``nodes``, ``leaves`` and its size under each reading:
-        ``published_bytes``, ``colour_bytes`` (None without a colour form) and
-        ``memory_bytes`` (OctoMap's model, None where the updater has none); files written to a
-        temporary folder (an octree updater computes them from one build of its tree)."""
+        ``published_bytes`` (the saved file), ``message_bytes`` (the ``octomap_full`` message:
+        the saved file where the system sends no other), ``colour_bytes`` (None without a
+        colour form) and ``memory_bytes`` (OctoMap's model, None where the updater has none);
+        files written to a temporary folder (an octree updater computes them from one build of
+        its tree)."""
         import tempfile
         from pathlib import Path
 
         stats = self.stats()
         with tempfile.TemporaryDirectory() as tmp:
             published = int(self.write(Path(tmp) / "published.ot", "published"))
+            message = (int(self.write(Path(tmp) / "message.ot", "message"))
+                       if "message" in self.file_formats() else published)
             colour = (int(self.write(Path(tmp) / "colour.ot", "colour"))
                       if "colour" in self.file_formats() else None)
         return {"nodes": int(stats.nodes), "leaves": int(stats.leaves),
-                "published_bytes": published, "colour_bytes": colour,
+                "published_bytes": published, "message_bytes": message, "colour_bytes": colour,
                 "memory_bytes": stats.octomap_memory_bytes}
 
     def memory_nbytes(self) -> int | None:

@@ -66,10 +66,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--file-format", choices=FILE_FORMATS, default="full",
                    metavar="|".join(FILE_FORMATS),
                    help="--out .ot content: full (the whole state; reloads and mapping "
-                        "continues), published (what the compared system itself writes: "
-                        "semantic_slam's ColorOcTree for classic-semantic, SSMI's writeData "
-                        "for multiclass-bayes) or colour (a ColorOcTree any OctoMap tool "
-                        "opens: one colour a node, the top class's); default full")
+                        "continues), published (the file the compared system itself saves: "
+                        "a ColorOcTree of the top class's colour for classic-semantic and "
+                        "multiclass-bayes), colour (a ColorOcTree any OctoMap tool opens: one "
+                        "colour a node, the top class's) or message (multiclass-bayes only: "
+                        "SSMI's octomap_full message nodes with their semantics, under the id "
+                        "SSMISemanticOcTreeMessage); default full")
     p.add_argument("--ply", type=Path, metavar="FILE",
                    help="also write the occupied voxel centres as a binary PLY point cloud")
     p.add_argument("--ply-color", choices=("rgb", "class"), metavar="rgb|class",

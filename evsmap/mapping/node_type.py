@@ -22,7 +22,9 @@ registered under the id its ``.ot`` files carry (``AbstractOcTree::createTree``)
   ``memoryUsage()`` model: ``MapStats.octomap_memory_bytes``);
 * ``label`` / ``colour``: the column holding the most likely class (first slot) and the RGB
   colour, for queries, evaluation and PLY export;
-* ``publish``: what the compared system itself writes (``--file-format published``), when that
+* ``publish``: the file the compared system itself saves (``--file-format published``), when
+  that is not the full state; ``message``: its full map as its ROS node sends it
+  (``--file-format message``), when that differs from the saved file;
   is not the full state;
 * ``uses_semantics``: whether ``update`` reads a segmenter's observation.
 
@@ -107,7 +109,11 @@ class NodeType:
         colour: column holding ``uint8`` r, g, b, or None.
         encode: ``encode(columns, n) -> records``; default by field name.
         decode: ``decode(records) -> {column: array}``; default by field name.
-        publish: the compared system's own file, or None (the full file is what it writes).
+        publish: the file the compared system itself saves, or None (the full file is what it
+            writes).
+        message: its full map as its ROS node publishes it (``octomap_full``), when that is not
+            the saved file, or None. Written to an ``.ot`` only under a tree id whose node
+            layout it has (an OctoMap tool must refuse it, not misread it).
         colour_only: its ``ColorOcTree`` form (log-odds and one colour a node), or None: the
             VOC colour of the label column's first slot for a semantic type, the colour column
             otherwise (:meth:`~evsmap.updaters.base.OctreeUpdater.colour_only`).
@@ -128,6 +134,7 @@ class NodeType:
     encode: Callable[[Mapping[str, np.ndarray], int], np.ndarray] | None = None
     decode: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None
     publish: PublishRule | None = None
+    message: PublishRule | None = None
     colour_only: PublishRule | None = None
     uses_semantics: bool = False
     description: str = ""

@@ -1,5 +1,6 @@
 """How a map grows with the frames integrated: its node count and its size under each reading
-(the published file, the colour-only file, OctoMap's memory model) every few frames.
+(the saved file, the octomap_full message, the colour-only file, OctoMap's memory model) every few
+frames.
 
 Pruning, and so any claim about map size, grows with repeated observations of the same space;
 :class:`MapGrowth` is handed to :func:`evsmap.measure.engine.run_mapping`, which calls it after

@@ -54,11 +54,15 @@ class MappingRecord:
             each stage.
         map_bytes: size of the written map file (the paper's "Map Size"), in ``file_format``.
         map_file: where it was written (``None`` when written to a temporary file).
-        file_format: ``"full"`` (the resumable state) or ``"published"`` (what the compared
-            system itself writes), see :meth:`OctreeUpdater.write`.
+        file_format: one of :data:`~evsmap.interfaces.FILE_FORMATS` (``"full"`` the resumable
+            state, ``"published"`` the file the compared system itself saves, ...), see
+            :meth:`OctreeUpdater.write`.
         map_bytes_full, map_bytes_published, map_bytes_colour: the ``.ot`` size in each format
             (always measured; full and published are equal where the system writes its full
             state; colour ``None`` for a map without a colour form).
+        map_bytes_message: the size of the map as the system's ROS node sends it
+            (``octomap_full``): the ``message`` file where the system sends another form than
+            it saves (SSMI), else the saved file's.
         front_end: how frames became hits and misses: ``name`` (``generator``, ``direct`` or
             ``None``) and, per frame, ``centroids``, ``hits`` and ``rays``
             (:meth:`~evsmap.interfaces.MapUpdater.front_end_counts`).
@@ -93,6 +97,7 @@ class MappingRecord:
     map_bytes_full: int | None = None
     map_bytes_published: int | None = None
     map_bytes_colour: int | None = None
+    map_bytes_message: int | None = None
     front_end: dict[str, Any] = field(default_factory=dict)
     stages_ms: dict[str, list[float]] = field(default_factory=dict)
     map_nbytes: int | None = None
@@ -125,6 +130,7 @@ class MappingRecord:
             leaves=stats.leaves, file_format=file_format,
             map_bytes_full=files.sizes["full"], map_bytes_published=files.sizes["published"],
             map_bytes_colour=files.sizes.get("colour"),
+            map_bytes_message=files.sizes.get("message", files.sizes["published"]),
             front_end={"name": the_map.front_end, **the_map.front_end_counts()},
             stages_ms=_record_stages(run.times.stages), map_nbytes=stats.map_nbytes,
             peak_rss_bytes=None if memory is None else memory.peak_rss_bytes,
@@ -141,9 +147,8 @@ class MappingRecord:
 
     def values(self) -> dict[str, float]:
         """The record's numbers as the runner stores them (a cell record's ``values``, base
-        units): frames, ``update_hz``, ``segment_update_hz``, ``map_bytes`` (the published
-        file: Table IV's "Map Size"), the other sizes, counts and memory readings that were
-        measured."""
+        units): frames, ``update_hz``, ``segment_update_hz``, ``map_bytes`` (the saved file,
+        ``published``), the other sizes, counts and memory readings that were measured."""
         published, full = self.map_bytes_published, self.map_bytes_full
         values = {"frames": float(self.frames), "update_hz": self.update_hz,
                   "segment_update_hz": self.segment_update_hz,
@@ -153,6 +158,7 @@ class MappingRecord:
         optional = {"peak_rss_bytes": self.peak_rss_bytes,
                     "rss_added_bytes": self.rss_added_bytes,
                     "map_bytes_colour": self.map_bytes_colour,
+                    "map_bytes_message": self.map_bytes_message,
                     "octomap_memory_bytes": self.octomap_memory_bytes,
                     "map_nbytes": self.map_nbytes}
         values.update({k: float(v) for k, v in optional.items() if v is not None})

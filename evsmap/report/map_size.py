@@ -1,12 +1,13 @@
 """Which "Map Size" did the paper measure, and does its size claim hold under each reading?
 
 Table IV prints one "Map Size (MB)" per system and sequence without saying what was measured. A
-map's size can be read three ways, all measured on every mapping run (:data:`READINGS`): the file
-the system itself publishes, the colour-only ``ColorOcTree`` every system can write, and OctoMap's
-memory model over the system's C++ node. The paper's own rows constrain the reading: on Seq.1
-(TUM) TESAMap / ORGBMap is 1.53, MESAMap / TESAMap 1.08 and EVSMap / TFEAGMap 0.93
-(:data:`PAIRS`). :func:`consistency_markdown` sets each reading's ratios beside the paper's, on
-every sequence and voxel size mapped, and names the reading that comes closest (the mean of
+map's size can be read four ways, all measured on every mapping run (:data:`READINGS`): the file
+the system itself saves, the map as its ROS node sends it (``octomap_full``: the saved file's bytes
+except SSMI's, which carries the semantics), the colour-only ``ColorOcTree`` every system can
+write, and OctoMap's memory model over the system's C++ node. The paper's own rows constrain the
+reading: on Seq.1 (TUM) TESAMap / ORGBMap is 1.53, MESAMap / TESAMap 1.08 and EVSMap / TFEAGMap
+0.93 (:data:`PAIRS`). :func:`consistency_markdown` sets each reading's ratios beside the paper's,
+on every sequence and voxel size mapped, and names the reading that comes closest (the mean of
 ``|log(measured / paper)|``); :func:`verdict_rows` checks "EVSMap's map is smaller", the paper's
 "up to 2.6x", under each reading.
 """

@@ -31,7 +31,8 @@ missing); the run failed; no record; a record without a value for the column; a 
 not implement."""
 
 EXTRA_VALUES = ("update_hz", "segment_update_hz", "map_bytes", "map_bytes_full",
-                "map_bytes_colour", "octomap_memory_bytes", "map_nbytes", "rss_added_bytes",
+                "map_bytes_colour", "map_bytes_message", "octomap_memory_bytes", "map_nbytes",
+                "rss_added_bytes",
                 "peak_rss_bytes", "nodes", "leaves", "pruned_share", "precision", "recall",
                 "semantic_accuracy", "semantic_accuracy_all", "map_miou", "frames", "miou")
 """Value keys of the ``extra`` records (docs/measurement.md, "Quantities";
@@ -40,7 +41,7 @@ EXTRA_VALUES = ("update_hz", "segment_update_hz", "map_bytes", "map_bytes_full",
 PROXY_SECTION = "Synthetic proxy (evsmap's synthrooms, not the paper's datasets)"
 """Title of the ``reproduce --train`` sections (``extra/proxy...`` records)."""
 
-EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "map_bytes_colour",
+EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "map_bytes_colour", "map_bytes_message",
                           "octomap_memory_bytes", "map_nbytes",
                           "rss_added_bytes", "peak_rss_bytes", "nodes", "leaves", "frames"})
 """Value keys that are counts (bytes, nodes, frames): integers in :func:`extra_frame`."""
@@ -498,7 +499,7 @@ SIZE_CLAIM = ("tfeagmap", "evsmap", 2.6)
 
 def size_claim_lines(recs: Iterable[CellRecord]) -> list[str]:
     """One paragraph on the paper's map-size claim for one sequence: the ratio of the two
-    published files and what makes it (bytes a node, nodes), when both rows were measured."""
+    saved files and what makes it (bytes a node, nodes), when both rows were measured."""
     by_row = {r.row: r for r in recs if r.status == "ok"}
     other, ours, factor = SIZE_CLAIM
     if other not in by_row or ours not in by_row:
@@ -513,7 +514,7 @@ def size_claim_lines(recs: Iterable[CellRecord]) -> list[str]:
                "does not reproduce" + (" (EVSMap's map is smaller, by less)" if ratio > 1 else
                                        ": EVSMap's map is the larger one"))
     label_a, label_b = by_row[other].label or other, by_row[ours].label or ours
-    return [f"Map size, {label_a} / {label_b} (each the file the system itself writes): "
+    return [f"Map size, {label_a} / {label_b} (each the file the system itself saves): "
             f"{ratio:.2f}x. The paper reports EVSMap's map up to {factor:g}x smaller; here "
             f"that {verdict}. Bytes a node in the file: {size_a / nodes_a:.1f} against "
             f"{size_b / nodes_b:.1f}; nodes: {int(nodes_a):,} against {int(nodes_b):,} "

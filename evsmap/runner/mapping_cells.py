@@ -31,11 +31,14 @@ from evsmap.tables.schema import CellSpec, Component, mapping_table
 MAPPING_WEIGHTS = "nyuv2"
 """The dataset the segmenters of the mapping systems are trained on (40 NYUv2 classes)."""
 
-READINGS = {"published file": "map_bytes", "colour-only file": "map_bytes_colour",
+READINGS = {"saved file": "map_bytes", "octomap_full message": "map_bytes_message",
+            "colour-only file": "map_bytes_colour",
             "C++ memory (model)": "octomap_memory_bytes"}
-"""The three readings of a map's size every mapping run records (reading -> its value): the file
-the system itself publishes, the colour-only ``ColorOcTree`` every system can write, OctoMap's
-memory model over the system's C++ node (:mod:`evsmap.report.map_size` compares them)."""
+"""The four readings of a map's size every mapping run records (reading -> its value): the file
+the system itself saves, the full map as its ROS node sends it (the saved file's bytes except
+SSMI's, whose message carries the semantics), the colour-only ``ColorOcTree`` every system can
+write, OctoMap's memory model over the system's C++ node (:mod:`evsmap.report.map_size` compares
+them)."""
 
 TABLE4_READING = "C++ memory (model)"
 """The reading Table IV's Map Size cells take: of the three, the one whose ratios come closest to
@@ -594,7 +597,7 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
                 return CellRecord(**base, status="na", reason=f"n/a - {spec.row} has no "
                                   f"{TABLE4_READING}", started=now())
             values[col] = source.values[value]
-            notes += [f"Map Size read as the {TABLE4_READING} (the published file: "
+            notes += [f"Map Size read as the {TABLE4_READING} (the saved file: "
                       f"{source.values['map_bytes'] / 1e6:.3f} MB)"] + source.notes
             details[col] = {"source": source.key}
         else:  # runtime_hz

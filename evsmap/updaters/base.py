@@ -321,7 +321,9 @@ class OctreeUpdater(MapUpdater):
     def file_formats(self) -> tuple[str, ...]:
         has_colour = (self.node_type.colour_only is not None or self.tree_id == "ColorOcTree"
                       or self.node_type.label is not None or self.node_type.colour is not None)
-        return FILE_FORMATS if has_colour else ("full", "published")
+        offered = ("full", "published") + (("colour",) if has_colour else ()) + (
+            ("message",) if self.node_type.message is not None else ())
+        return tuple(f for f in FILE_FORMATS if f in offered)
 
     def colour_only(self, tree: Tree) -> tuple[str, Tree, np.dtype | None]:
         """The map as a ``ColorOcTree``: the node type's rule, else the VOC colour of each node's
@@ -409,10 +411,11 @@ class OctreeUpdater(MapUpdater):
 
         Args:
             file_format: ``"full"`` - the whole state, which :meth:`restore` reads back so
-                mapping can continue; ``"published"`` - what the compared system itself writes
-                (the node type's ``publish``; the same as ``full`` where that is what it
-                writes); ``"colour"`` - a ``ColorOcTree`` (:meth:`colour_only`). ``.bt`` files
-                are the same in all.
+                mapping can continue; ``"published"`` - the file the compared system itself
+                saves (the node type's ``publish``; the same as ``full`` where that is what it
+                writes); ``"colour"`` - a ``ColorOcTree`` (:meth:`colour_only`); ``"message"``
+                - the node type's ``message``, the map as the system's ROS node sends it, under
+                the tree id of its node layout. ``.bt`` files are the same in all.
         """
         from evsmap.mapping.octree_io import write_bt, write_ot
 
@@ -437,6 +440,11 @@ class OctreeUpdater(MapUpdater):
                 raise InvalidDataError(f"{self.name}: its {self.tree_id} nodes have no colour "
                                        f"to write a colour file with")
             return self.colour_only(tree)
+        if file_format == "message":
+            if self.node_type.message is None:
+                raise InvalidDataError(f"{self.name}: sends no map message other than its saved "
+                                       f"file (--file-format published)")
+            return self.node_type.message(self, tree)
         if file_format == "published" and self.node_type.publish is not None:
             return self.node_type.publish(self, tree)
         return self.tree_id, tree, self.node_type.record
@@ -447,7 +455,7 @@ class OctreeUpdater(MapUpdater):
 
         tree = self.tree()
         sizes: dict[str, int | None] = {}
-        for fmt in ("published", "colour"):
+        for fmt in ("published", "colour", "message"):
             if fmt in self.file_formats():
                 tree_id, t, rec = self._file_tree(tree, fmt)
                 sizes[fmt] = len(ot_bytes(t, self.resolution, tree_id=tree_id,
@@ -455,7 +463,9 @@ class OctreeUpdater(MapUpdater):
             else:
                 sizes[fmt] = None
         return {"nodes": int(tree.num_nodes), "leaves": int(tree.num_leaves),
-                "published_bytes": sizes["published"], "colour_bytes": sizes["colour"],
+                "published_bytes": sizes["published"],
+                "message_bytes": sizes["message"] or sizes["published"],
+                "colour_bytes": sizes["colour"],
                 "memory_bytes": int(tree.memory_bytes(node_bytes=self.node_type.node_bytes,
                                                       base_bytes=OCTOMAP_BASE_BYTES))}
 

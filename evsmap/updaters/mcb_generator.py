@@ -40,11 +40,16 @@ whatever was pruned around it. The two differ only in the colours and the free s
 leaves that were inside a pruned block (TUM fr1_xyz at 2 cm: 97 leaves' colours).
 
 Files: ``full`` keeps the whole node (value, colour, 3 x (class colour, log-odds), others) and
-restores; ``published`` is SSMI's ``writeData`` with its defaults (``use_semantic_color``,
-``write_semantics``): value, the top semantic colour and the raw ``SemanticsLogOdds`` struct
-(28 bytes with its padding), 36 bytes a node with the child mask, under the id ``ColorOcTree``
-that SSMI's ``getTreeType`` reports (so OctoMap's own tools misread it); ``colour`` is the same
-without the semantics (``setWriteSemantics(false)``), a ``ColorOcTree`` any OctoMap tool opens.
+restores. ``published`` is the file SSMI saves: its ROS node calls ``setWriteSemantics(false)``
+at the end of every cloud callback (``octomap_generator_ros.cpp`` line 131) and writes the tree
+at shutdown, so ``writeData`` gives the value and the top semantic colour, 8 bytes a node, under
+the id ``ColorOcTree`` that ``getTreeType`` reports - a ``ColorOcTree`` any OctoMap tool opens,
+byte for byte the ``colour`` file. ``message`` is what the node sends on ``octomap_full``
+(``fullMapToMsg`` while the nodes still write their semantics): value, the top semantic colour and
+the raw ``SemanticsLogOdds`` struct (28 bytes with its padding), 36 bytes a node with the child
+mask. SSMI sends it under the id ``ColorOcTree`` too, which no OctoMap reader can parse (it reads
+8 bytes a node: octomap-python's ``ColorOcTree.read`` dies on such a file); as an ``.ot`` evsmap
+writes it under :data:`MESSAGE_TREE_ID`, which OctoMap's tools refuse as unknown and evsmap reads.
 In memory a node is 48 bytes (children pointer, float value, colour, the 28-byte semantics and
 two flags, 8-byte aligned).
 """
@@ -92,8 +97,13 @@ colours (``0x00RRGGBB``, white = unset), their log-odds and others."""
 SEMANTICS_STRUCT = np.dtype([("color", "u1", (3,)), ("pad", "u1"), ("logodds", "<f4")])
 PUBLISHED = np.dtype([("color", "u1", (3,)), ("slots", SEMANTICS_STRUCT, (3,)),
                       ("others", "<f4")])
-"""SSMI's ``writeData`` after the value: ``Color`` (3 bytes) and ``sizeof(SemanticsLogOdds)`` =
-3 x ``ColorWithLogOdds`` (3 colour bytes, 1 padding byte, float) + float others = 28 bytes."""
+"""SSMI's ``writeData`` with the semantics, after the value: ``Color`` (3 bytes) and
+``sizeof(SemanticsLogOdds)`` = 3 x ``ColorWithLogOdds`` (3 colour bytes, 1 padding byte, float)
++ float others = 28 bytes: the nodes of its ``octomap_full`` message."""
+
+MESSAGE_TREE_ID = "SSMISemanticOcTreeMessage"
+"""The ``.ot`` id of SSMI's message nodes as evsmap writes them (SSMI itself never writes them
+to a file, and the id it sends, ``ColorOcTree``, has another node layout)."""
 
 NODE_BYTES = 48
 """``sizeof(SemanticOcTreeNode<SemanticsLogOdds>)`` on x86-64: children pointer 8, value 4,
@@ -195,21 +205,23 @@ def _payload(tree: Tree) -> np.ndarray:
     return tree.payload
 
 
-def _publish(updater: GeneratorMultiClassBayesMap, tree: Tree
+def _message(updater: GeneratorMultiClassBayesMap, tree: Tree
              ) -> tuple[str, Tree, np.dtype | None]:
-    """SSMI's ``writeData`` (semantic colour and semantics) under ``getTreeType()``'s id."""
+    """SSMI's ``writeData`` with the semantics (the ``octomap_full`` message's nodes), under
+    :data:`MESSAGE_TREE_ID`."""
     rec = np.zeros(tree.num_nodes, dtype=PUBLISHED)
     pay = _payload(tree)
     rec["color"] = unpack_rgb(pay["colors"][:, 0])
     rec["slots"]["color"] = unpack_rgb(pay["colors"])
     rec["slots"]["logodds"] = pay["logodds"]
     rec["others"] = pay["others"]
-    return "ColorOcTree", replace(tree, payload=rec), PUBLISHED
+    return MESSAGE_TREE_ID, replace(tree, payload=rec), PUBLISHED
 
 
 def _colour_only(updater: GeneratorMultiClassBayesMap, tree: Tree
                  ) -> tuple[str, Tree, np.dtype | None]:
-    """``writeData`` with ``write_semantics`` off: value and the top semantic colour."""
+    """``writeData`` with ``write_semantics`` off: value and the top semantic colour (the file
+    SSMI saves, and its colour-only form)."""
     colours = unpack_rgb(_payload(tree)["colors"][:, 0])
     return "ColorOcTree", replace(tree, payload=colours), None
 
@@ -217,9 +229,15 @@ def _colour_only(updater: GeneratorMultiClassBayesMap, tree: Tree
 NODE_TYPE = NODE_TYPES.add(NodeType(
     TREE_ID, record=RECORD, columns=_columns(), inner=_inner, pruned=_pruned,
     prune_on=("sem_colors", "class_logodds", "others"), node_bytes=NODE_BYTES,
-    label="classes", colour="rgb", encode=_encode, decode=_decode, publish=_publish,
-    colour_only=_colour_only, uses_semantics=True,
+    label="classes", colour="rgb", encode=_encode, decode=_decode, publish=_colour_only,
+    message=_message, colour_only=_colour_only, uses_semantics=True,
     description="EVSMaP's node as SSMI keeps it: colour + 3 x (class colour, log-odds) + others"))
+
+
+NODE_TYPES.add(NodeType(
+    MESSAGE_TREE_ID, record=PUBLISHED, node_bytes=NODE_BYTES,
+    description="SSMI's octomap_full message nodes: value, top semantic colour, "
+                "SemanticsLogOdds (read only: it restores no map)"))
 
 
 class GeneratorMultiClassBayesMap(OctreeUpdater):

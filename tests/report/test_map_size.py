@@ -1,4 +1,4 @@
-"""Which Map Size: the three readings against the paper's Seq.1 ratios, the size verdicts, and
+"""Which Map Size: the four readings against the paper's Seq.1 ratios, the size verdicts, and
 the growth plot."""
 
 from __future__ import annotations
@@ -20,12 +20,14 @@ NODES = {"orgbmap": 1000, "tesamap": 1500, "tfeagmap": 1500, "mesamap": 1600, "e
 
 def _run(row: str, seq: str = "tum", voxel: float = 0.02, **override) -> CellRecord:
     n = NODES[row]
-    semantic_file = 36 if row in ("mesamap", "evsmap") else 8
-    values = {"map_bytes": 100 + semantic_file * n, "map_bytes_colour": 100 + 8 * n,
+    message_node = 36 if row in ("mesamap", "evsmap") else 8  # SSMI's message: semantics
+    values = {"map_bytes": 100 + 8 * n, "map_bytes_message": 100 + message_node * n,
+              "map_bytes_colour": 100 + 8 * n,
               "octomap_memory_bytes": 48 * n if row != "orgbmap" else 16 * n, "nodes": n}
     values.update(override)
     growth = [{"frames": f, "nodes": n * f // 4, "leaves": n * f // 5,
                "published_bytes": values["map_bytes"] * f // 4,
+               "message_bytes": values["map_bytes_message"] * f // 4,
                "colour_bytes": values["map_bytes_colour"] * f // 4,
                "memory_bytes": values["octomap_memory_bytes"] * f // 4} for f in (1, 2, 3, 4)]
     return CellRecord(key=f"extra/mapping/{row}/{seq}@{voxel:g}m", table="extra", row=row,
@@ -58,7 +60,7 @@ def test_the_table_marks_the_closest_reading_and_names_table4s():
     lines = consistency_markdown(records, "C++ memory (model)")
     text = "\n".join(lines)
     assert "Which \"Map Size\"" in text and "uses the C++ memory (model)" in text
-    assert text.count("| tum | 2 cm |") == 3 and text.count("| tum | 5 cm |") == 3
+    assert text.count("| tum | 2 cm |") == 4 and text.count("| tum | 5 cm |") == 4
     assert sum(1 for line in lines if "**" in line and "| tum |" in line) == 2  # one a block
     assert all(name in text for name in PAIRS)
     assert consistency_markdown([_run("evsmap")], "x") == []  # nothing to compare
@@ -66,9 +68,11 @@ def test_the_table_marks_the_closest_reading_and_names_table4s():
 
 def test_verdicts_under_every_reading():
     rows = verdict_rows([_run(r) for r in NODES])
-    assert len(rows) == 2 * 3  # two pairs, three readings
-    published = next(r for r in rows if r.startswith("| EVSMap") and "published" in r)
-    assert "does not hold" in published  # 36 B against 8 B a node
+    assert len(rows) == 2 * 4  # two pairs, four readings
+    message = next(r for r in rows if r.startswith("| EVSMap") and "message" in r)
+    assert "does not hold" in message  # 36 B against 8 B a node
+    saved = next(r for r in rows if r.startswith("| EVSMap") and "saved" in r)
+    assert "| holds |" in saved  # SSMI saves 8 B a node too
     memory = next(r for r in rows if r.startswith("| EVSMap") and "memory" in r)
     assert "| holds |" in memory  # fewer nodes, the same node size
 

@@ -131,11 +131,16 @@ def test_colour_file_opens_in_octomap_with_the_node_count(tmp_path):
     occupied = {tuple(int(v) for v in leaf.getColor()) for leaf in tree.begin_leafs()
                 if leaf.getValue() > 0}
     assert len(occupied & palette) >= 3  # class colours (and a few averaged ones)
-    # the published file is SSMI's: 36 B a node (35 + the child mask) under "ColorOcTree"
+    # the saved file is SSMI's: setWriteSemantics(false) before its shutdown write, so the
+    # colour file byte for byte
     pub = tmp_path / "published.ot"
-    n_bytes = m.write(pub, file_format="published")
-    header = pub.read_bytes().split(b"data\n", 1)[0]
-    assert b"id ColorOcTree" in header
+    m.write(pub, file_format="published")
+    assert pub.read_bytes() == path.read_bytes()
+    # the octomap_full message's nodes: 36 B a node (35 + the child mask), under its own id
+    msg = tmp_path / "message.ot"
+    n_bytes = m.write(msg, file_format="message")
+    header = msg.read_bytes().split(b"data\n", 1)[0]
+    assert b"id SSMISemanticOcTreeMessage" in header
     assert n_bytes - len(header) - 5 == 36 * stats.nodes
     assert stats.octomap_memory_bytes == 320 + 48 * stats.nodes + 64 * (stats.nodes
                                                                         - stats.leaves)
@@ -201,3 +206,39 @@ def test_a_mixed_leaf_keeps_its_averaged_colour_as_a_class():
     stored = set(m.map.payload("sem_colors")[:, 0].tolist()) - {WHITE}
     assert stored and not stored & {int(palette[5]), int(palette[12])}
     assert set(m.map.payload("classes")[:, 0].tolist()) <= {-1}
+
+
+_READ_IN_OCTOMAP = """
+import sys, octomap
+tree = octomap.ColorOcTree.read(sys.argv[1].encode())
+print("none" if tree is None else tree.size())
+"""
+
+
+def test_octomap_refuses_the_message_file_and_evsmap_reads_it(tmp_path):
+    """No .ot claims a tree id whose node layout it lacks: OctoMap's reader gets an id it does
+    not know (and says so) instead of 36-byte nodes under ``ColorOcTree`` (a crash)."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("octomap")
+    from evsmap.mapping.octree_io import read_ot
+    from evsmap.updaters.mcb_generator import MESSAGE_TREE_ID
+
+    m = UPDATERS.create("multiclass-bayes", resolution=0.05)
+    for f, o in _frames(2):
+        m.integrate(f, o)
+    path = tmp_path / "message.ot"
+    m.write(path, file_format="message")
+    run = subprocess.run([sys.executable, "-c", _READ_IN_OCTOMAP, str(path)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode >= 0, f"octomap's reader crashed (signal {-run.returncode})"
+    assert "none" in run.stdout or run.returncode != 0
+    tree_id, _, tree = read_ot(path)
+    assert tree_id == MESSAGE_TREE_ID and tree.num_nodes == m.stats().nodes
+
+
+def test_only_ssmi_sends_a_message_other_than_its_file(tmp_path):
+    m = UPDATERS.create("classic-semantic", resolution=0.05)
+    with pytest.raises(InvalidDataError, match="no map message"):
+        m.write(tmp_path / "m.ot", file_format="message")

@@ -83,7 +83,7 @@ def test_every_inner_node_of_a_map_with_over_65536_colours_is_algorithm1_of_its_
     keys = np.concatenate([keys, keys + [1, 0, 0]])
     codes = np.unique(pack(keys.astype(np.int64)))
     m = updater.map
-    index = m.insert_leaves(codes)
+    index, _ = m.insert_leaves(codes)
     rec = _records(len(codes), rng)
     m.payload("sem_colors")[index] = rec["colors"]
     m.payload("class_logodds")[index] = rec["logodds"]
