@@ -210,3 +210,15 @@ def test_cache_clear_kernels_removes_the_compiled_kernels_only(tmp_path):
     assert cleared.returncode == 0, cleared.stderr
     assert [p for p in compiled if p.exists()] == []
     assert all(p.exists() for p in kept)
+
+
+def test_a_numba_without_the_expected_locators_warns_and_evsmap_still_runs():
+    code = ("import warnings\nimport numba.core.caching as caching\ndel caching.CacheImpl\n"
+            "with warnings.catch_warnings(record=True) as caught:\n"
+            "    warnings.simplefilter('always')\n"
+            "    from evsmap.mapping import jit_cache, stdsort\n"
+            "print(jit_cache.KernelLocator, [str(w.message) for w in caught])")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("None ") and "evsmap cache clear kernels" in proc.stdout

@@ -5,8 +5,9 @@ compiled even after a jitted function, or a constant, it takes from another modu
 cached ``voxel_grid`` gave a centroid 1 ulp off after :mod:`evsmap.mapping.stdsort` changed,
 until its cache files were deleted). Here every kernel defined under evsmap's package folder, or
 under a plug-in's (the ``evsmap.plugins`` entry points), is located by :class:`KernelLocator`,
-whose stamp is the digest of its file *and of every evsmap or plug-in module that file imports,
-transitively* (:func:`closure_digest`): an edit to any of them recompiles the kernel.
+whose stamp is the digest of its file *and of every module of evsmap or of its own package that
+the file imports, transitively* (:func:`closure_digest`): an edit to any of them recompiles the
+kernel, an edit elsewhere recompiles nothing.
 
 Where the files go (numba's order, with evsmap's cache in place of numba's user-wide folder):
 
@@ -32,6 +33,7 @@ import hashlib
 import importlib.machinery
 import importlib.util
 import os
+import re
 import sys
 import warnings
 from collections.abc import Iterator
@@ -50,13 +52,18 @@ COMPILED_SUFFIXES = (".nbi", ".nbc")
 PLUGIN_GROUP = "evsmap.plugins"
 
 
+def evsmap_root() -> Path:
+    """evsmap's package folder."""
+    return Path(__file__).resolve().parents[1]
+
+
 @functools.cache
 def package_roots() -> dict[str, Path]:
     """evsmap's and its plug-ins' top-level packages: ``{name: folder}``, found without importing
     the plug-ins (their kernels are keyed like evsmap's)."""
     from importlib import metadata
 
-    roots = {"evsmap": Path(__file__).resolve().parents[1]}
+    roots = {"evsmap": evsmap_root()}
     for ep in metadata.entry_points(group=PLUGIN_GROUP):
         top = ep.module.split(".")[0]
         if top in roots:
@@ -67,17 +74,21 @@ def package_roots() -> dict[str, Path]:
     return roots
 
 
-def _root_of(path: Path) -> tuple[str, Path] | None:
+def _package_of(path: Path) -> tuple[str, Path] | None:
+    """The evsmap or plug-in package holding ``path`` (the plug-ins are looked up only for a file
+    outside evsmap: evsmap never imports them)."""
+    if path.is_relative_to(evsmap_root()):
+        return "evsmap", evsmap_root()
     for name, folder in package_roots().items():
         if path.is_relative_to(folder):
             return name, folder
     return None
 
 
-def _module_file(name: str) -> Path | None:
-    """The source of the evsmap or plug-in module ``name`` (``a.b.c``), None when it is not one."""
+def _module_file(name: str, roots: dict[str, Path]) -> Path | None:
+    """The source of module ``name`` (``a.b.c``) when its package is one of ``roots``."""
     top, *rest = name.split(".")
-    folder = package_roots().get(top)
+    folder = roots.get(top)
     if folder is None:
         return None
     base = folder.joinpath(*rest)
@@ -87,46 +98,53 @@ def _module_file(name: str) -> Path | None:
     return None
 
 
-def _module_name(path: Path) -> str:
-    found = _root_of(path)
-    assert found is not None, path
-    name, folder = found
-    parts = [name, *path.relative_to(folder).with_suffix("").parts]
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+(?P<base>\.*[\w.]*)[ \t]+import[ \t]+"
+                     r"(?P<names>\([^)]*\)|(?:[^\n\\]|\\\n)*)|import[ \t]+(?P<modules>[^\n]*))",
+                     re.MULTILINE)
+"""An import statement at the start of a line (in code or prose: a name too many only costs a
+needless recompilation). Faster than parsing: the stamps are computed at every start."""
 
 
-def _imported_names(path: Path) -> Iterator[str]:
-    """Every module name ``path`` may import (anywhere in it; ``from a import b``: ``a`` and
+def _names(listed: str) -> list[str]:
+    """``a as b, c`` (parenthesised, continued, commented) -> ``["a", "c"]``."""
+    listed = re.sub(r"#[^\n]*", "", listed)
+    words = (item.strip(" \t\n\\()").split(" as ")[0].strip() for item in listed.split(","))
+    return [w for w in words if w and w != "*"]
+
+
+def _imported_names(path: Path, package: str) -> Iterator[str]:
+    """Every module name ``path`` (in ``package``) may import (``from a import b``: ``a`` and
     ``a.b``), relative imports resolved."""
-    import ast
-
-    package = _module_name(path)
-    if path.name != "__init__.py":
-        package = package.rpartition(".")[0]
-    try:
-        tree = ast.parse(path.read_bytes(), str(path))
-    except (SyntaxError, ValueError):  # its own import fails; its bytes still count
-        return
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            yield from (alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parent = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
-                base = f"{parent}.{base}" if base else parent
-            yield base
-            yield from (f"{base}.{alias.name}" for alias in node.names)
+    text = path.read_text(encoding="utf-8", errors="replace")
+    for match in _IMPORT.finditer(text):
+        if match["modules"] is not None:
+            yield from _names(match["modules"].split(";")[0])
+            continue
+        base = match["base"]
+        level = len(base) - len(base.lstrip("."))
+        if level:
+            parent = package.rsplit(".", level - 1)[0] if level > 1 else package
+            base = f"{parent}.{base[level:]}" if base[level:] else parent
+        yield base
+        yield from (f"{base}.{name}" for name in _names(match["names"]))
 
 
 @functools.cache
 def _direct_imports(path: Path) -> frozenset[Path]:
-    files = (_module_file(name) for name in _imported_names(path))
+    """The evsmap modules, and those of ``path``'s own package, that ``path`` imports."""
+    found = _package_of(path)
+    assert found is not None, path
+    name, folder = found
+    roots = {"evsmap": evsmap_root(), name: folder}
+    parts = [name, *path.relative_to(folder).with_suffix("").parts]
+    package = ".".join(parts[:-1])  # a module's package; an __init__'s is itself
+    files = (_module_file(n, roots) for n in _imported_names(path, package))
     return frozenset(f.resolve() for f in files if f is not None)
 
 
 def closure(path: str | os.PathLike[str]) -> list[Path]:
-    """``path`` and every evsmap or plug-in module it imports, transitively, sorted."""
+    """``path`` and every module of evsmap or of its own package that it imports, transitively,
+    sorted."""
     start = Path(path).resolve()
     seen = {start}
     pending = [start]
@@ -143,7 +161,7 @@ def closure_digest(path: str | os.PathLike[str]) -> str:
     bytes): the stamp of the kernels defined in ``path``."""
     h = hashlib.sha256()
     for file in closure(path):
-        found = _root_of(file)
+        found = _package_of(file)
         assert found is not None, file
         h.update(file.relative_to(found[1].parent).as_posix().encode() + b"\0")
         h.update(hashlib.sha256(file.read_bytes()).digest())
@@ -152,7 +170,7 @@ def closure_digest(path: str | os.PathLike[str]) -> str:
 
 def is_kernel_source(path: str | os.PathLike[str]) -> bool:
     """Whether a function defined in ``path`` is evsmap's or a plug-in's (keyed here)."""
-    return os.path.exists(path) and _root_of(Path(path).resolve()) is not None
+    return os.path.exists(path) and _package_of(Path(path).resolve()) is not None
 
 
 def _places(py_file: str, subpath: str) -> list[str]:
@@ -204,14 +222,22 @@ KernelLocator: type[Any] | None = None
 
 
 def configure() -> None:
-    """Put :class:`KernelLocator` first in numba's locators (once; numba must be imported)."""
+    """Put :class:`KernelLocator` first in numba's locators (once; numba must be imported). On
+    a numba whose caching differs, a warning: evsmap still runs, keyed as numba keys."""
     global KernelLocator
     if KernelLocator is not None:
         return
-    from numba.core.caching import CacheImpl
+    try:
+        from numba.core.caching import CacheImpl
 
-    KernelLocator = _locator_class()
-    CacheImpl._locator_classes = [KernelLocator, *CacheImpl._locator_classes]
+        locator = _locator_class()
+        CacheImpl._locator_classes = [locator, *CacheImpl._locator_classes]
+    except (ImportError, AttributeError, TypeError) as exc:
+        warnings.warn(f"evsmap: compiled kernels keyed by their own file only, as numba does "
+                      f"({type(exc).__name__}: {exc}); after updating evsmap, run `evsmap cache "
+                      f"clear kernels`", RuntimeWarning, stacklevel=2)
+        return
+    KernelLocator = locator
 
 
 class _AfterNumba:
@@ -230,12 +256,7 @@ class _AfterNumba:
 
         def exec_then_configure(module: ModuleType) -> None:
             exec_module(module)
-            try:
-                configure()
-            except Exception as exc:  # a numba whose caching differs: evsmap still runs
-                warnings.warn(f"evsmap: compiled kernels keyed by their own file only, as numba "
-                              f"does ({type(exc).__name__}: {exc}); after updating evsmap, run "
-                              f"`evsmap cache clear kernels`", RuntimeWarning, stacklevel=2)
+            configure()
 
         setattr(spec.loader, "exec_module", exec_then_configure)  # noqa: B010 - this loader only
         return spec
