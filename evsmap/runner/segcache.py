@@ -3,6 +3,11 @@
 * Observations (per-frame top-k classes and probabilities) are computed once per (segmenter
   configuration, weights file, sequence, frames) and stored as one ``.npz`` per frame, so every
   updater of Table IV maps the same labels and none pays for segmentation again.
+* The observations' bytes depend on nothing but the frames, the segmenter's configuration and
+  weights and, for a network, its intra-op thread count (its logits change in their last bits
+  with it; docs/cli.md, "Thread independence"), recorded as ``network_threads`` in the entry's
+  ``meta.json``. The thread count is not part of the key: the first cell to compute an entry
+  fixes the bytes every later cell of the run maps, whichever machine or executor it runs on.
 * Segmentation times (ms per frame) of a network are stored next to them: when no trained weights
   are given, mapping uses the oracle's labels and the untrained network is only timed (its speed
   does not depend on its weights), which is what the end-to-end rate needs. It is timed on the
@@ -79,7 +84,8 @@ class SegmentationCache:
                                    evaluators=[KeepObservations(sink=store)])
             obs, times = seg.results["observations"], seg.predict_ms
             (tmp / "meta.json").write_text(json.dumps(
-                {"key": key, "indices": indices, "predict_ms": times}, default=str))
+                {"key": key, "indices": indices, "predict_ms": times,
+                 "network_threads": getattr(segmenter, "network_threads", None)}, default=str))
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -452,6 +452,12 @@ class NetworkSegmenter(Segmenter):
         return {"onnxruntime": self._threads or torch.get_num_threads(),
                 "spinning": self._ort_spinning}
 
+    @property
+    def network_threads(self) -> int:
+        """The intra-op threads the network's next forward pass runs with (:meth:`set_threads`,
+        else torch's count of the moment): the one setting its logits depend on."""
+        return self._threads or torch.get_num_threads()
+
     def predict(self, frame: Frame, *, k: int = 3) -> SemanticObservation:
         return self.predict_at(frame, None, k=k)
 

@@ -155,3 +155,24 @@ def test_the_gates_output_sha256_holds_across_thread_counts():
             labels = job.output[0].argmax(0).numpy().astype(np.int16)
             digests.add(gate_digest(labels))
     assert len(digests) == 1
+
+
+# -- the runner's segmentation cache -------------------------------------------------------------
+def test_the_segmentation_cache_records_the_networks_threads(tum_dir, tmp_path):
+    import json
+
+    from evsmap.runner.segcache import SegmentationCache
+
+    seq = READERS.create("tum", path=str(tum_dir))
+    torch.manual_seed(0)
+    seg = SEGMENTERS.create("feagnet-v1", input_size=(120, 160))
+    seg.set_threads(3)
+    cache = SegmentationCache(tmp_path)
+    with torch_threads(1):
+        obs, _, reused = cache.observations(seg, seq, [0], key={"segmenter": "v1"})
+    assert not reused
+    meta = json.loads(next(tmp_path.glob("obs-*/meta.json")).read_text())
+    assert meta["network_threads"] == 3
+    with torch_threads(2):  # a fresh prediction at other torch threads: the same bytes
+        fresh = seg.predict(seq.frame(0))
+    assert digest(obs[0].classes, obs[0].probs) == digest(fresh.classes, fresh.probs)
