@@ -109,23 +109,22 @@ CHUNK = 8
 """Channels exponentiated at a time for the softmax denominator (bounds the temporary)."""
 
 
-def _denominator(flat: np.ndarray, top: np.ndarray) -> np.ndarray:
+def _denominator(flat: torch.Tensor, top: torch.Tensor) -> torch.Tensor:
     """``sum_c exp(l_c - max)`` per pixel, shifted by the max so that large logits lose no
     precision, a few channels at a time (vectorised exp, no (C, N) temporary). One chunk buffer
     is reused in place: allocating a fresh 8 x N temporary per operation and chunk (the kernel
-    zero-fills every new page) cost three times the arithmetic. numpy's exponential and sums,
-    on the calling thread, as :func:`top_k_upsampled`: torch's split the pixels across its
-    intra-op threads, where the end of each thread's share may take the scalar exponential
-    instead of the vectorised one (no difference measured on torch 2.13's AVX-512 kernels,
-    none promised either)."""
+    zero-fills every new page) cost three times the arithmetic. torch's exponential and sum split
+    the pixels (never the channels of one pixel) across its intra-op threads: the same bits at
+    1, 2 and 4 threads (measured on torch 2.13's AVX-512 kernels, and held by
+    ``tests/segmenters/test_thread_independence.py``), where its bilinear resize was not."""
     c_count, n = flat.shape
-    total = np.zeros(n, dtype=np.float32)
-    buf = np.empty((min(CHUNK, c_count), n), dtype=np.float32)
+    total = torch.zeros(n, dtype=torch.float32)
+    buf = torch.empty((min(CHUNK, c_count), n), dtype=torch.float32)
     for start in range(0, c_count, CHUNK):
         chunk = buf[:min(CHUNK, c_count - start)]
-        np.subtract(flat[start:start + CHUNK], top, out=chunk)
-        np.exp(chunk, out=chunk)
-        total += chunk.sum(axis=0)
+        torch.sub(flat[start:start + CHUNK], top, out=chunk)
+        chunk.exp_()
+        total += chunk.sum(0)
     return total
 
 
@@ -150,8 +149,8 @@ def top_k_softmax(logits: torch.Tensor, k: int) -> tuple[np.ndarray, np.ndarray]
         vals, cls = vals[:k], cls[:k]
     else:
         vals, cls = _sweep(flat.numpy(), k)
-    total = _denominator(flat.numpy(), vals[0])
-    probs = np.clip(_probabilities(vals, total), 0.0, 1.0)
+    total = _denominator(flat, torch.from_numpy(vals[0]))
+    probs = np.clip(_probabilities(vals, total.numpy()), 0.0, 1.0)
     return np.ascontiguousarray(cls.T).reshape(h, w, k), probs.reshape(h, w, k)
 
 
