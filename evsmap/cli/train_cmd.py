@@ -40,10 +40,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "`torchrun --nproc-per-node N -m evsmap train ...` the run is distributed "
                     "(DDP). --epochs, --batch-size, --lr, --crop, --workers, --amp, "
                     "--eval-every, --seed and --set each override one recipe field.")
-    p.add_argument("model", metavar="MODEL", help="segmenter name (evsmap list)")
-    p.add_argument("--dataset", required=True, metavar="NAME-or-PATH",
+    p.add_argument("model", metavar="MODEL", nargs="?", default="",
+                   help="segmenter name (evsmap list); resuming: the run's")
+    p.add_argument("--dataset", default="", metavar="NAME-or-PATH",
                    help="labelled dataset: a folder, a prepared dataset's name, or a reader "
-                        "that needs no path")
+                        "that needs no path (required, but when resuming: the run's)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="the run's folder")
     p.add_argument("--recipe", metavar="NAME-or-FILE",
                    help="a shipped recipe (paper, synth-proxy) or a TOML file (default: paper; "
@@ -59,9 +60,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="deterministic algorithms only (cuDNN's autotuner off; torch warns of "
                         "an operation without a deterministic kernel): a resumed run repeats a "
                         "straight one bit for bit on a GPU as on the CPU")
+    p.add_argument("--threads", type=positive_int, metavar="N",
+                   help="torch's intra-op threads for the whole run (default: torch's count, "
+                        "recorded in run.json; the weights depend on it)")
     p.add_argument("--resume", action="store_true",
-                   help="continue the run in --out from its checkpoint (recipe, weights, "
-                        "optimizer, schedule and random states)")
+                   help="continue the run in --out from its checkpoint (weights, optimizer, "
+                        "schedule, AMP scaler, random states) with the settings recorded in "
+                        "its run.json: `evsmap train --out DIR --resume` needs no other flag, "
+                        "and a flag that conflicts with the run is refused")
     p.add_argument("--stop-after", type=positive_int, metavar="N",
                    help="stop after N epochs of this invocation (continue with --resume)")
     p.add_argument("--init", type=Path, metavar="FILE",
@@ -145,8 +151,8 @@ def run(args: argparse.Namespace) -> int:
         from evsmap.train.checkpoint import CHECKPOINT
 
         if (args.out / CHECKPOINT).is_file():
-            return (f"the last finished epoch is in {args.out / CHECKPOINT}: run the same "
-                    f"command with --resume to continue from it")
+            return (f"the last finished epoch is in {args.out / CHECKPOINT}: continue from it "
+                    f"with `evsmap train --out {args.out} --resume`")
         return f"no epoch had finished; run the same command again (nothing in {args.out} " \
                f"is half-written)"
 
@@ -159,8 +165,8 @@ def run(args: argparse.Namespace) -> int:
         overrides=overrides(args), options=dict(args.option), reader=args.reader,
         reader_options=list(args.reader_option), train_split=args.train_split,
         val_split=args.val_split, limit=args.limit, device=args.device,
-        channels_last=args.channels_last, deterministic=args.deterministic, resume=args.resume,
-        init=args.init, stop_after=args.stop_after,
+        channels_last=args.channels_last, deterministic=args.deterministic, threads=args.threads,
+        resume=args.resume, init=args.init, stop_after=args.stop_after,
         messages=sys.stderr if args.json else sys.stdout)
     summary = train(opts)
     if int(os.environ.get("RANK", "0")) != 0:
@@ -176,7 +182,8 @@ def run(args: argparse.Namespace) -> int:
     for name, path in summary["files"].items():
         print(f"  {name:<14} {path}")
     if "best.pt" in summary["files"]:
-        print(f"evaluate with: evsmap eval {args.model} --weights {summary['files']['best.pt']} "
-              f"--dataset {args.dataset}"
-              + "".join(f" -o {k}={v}" for k, v in dict(args.option).items()))
+        options = {k: v for k, v in summary["options"].items() if k != "weights"}
+        print(f"evaluate with: evsmap eval {summary['model']} --weights "
+              f"{summary['files']['best.pt']} --dataset {summary['dataset']}"
+              + "".join(f" -o {k}={v}" for k, v in options.items()))
     return 0

@@ -6,8 +6,9 @@ card, the log, random-number-generator states.
     {"format": "evsmap-train-checkpoint", "version": 1,
      "state_dict": {...},          # the model (DDP's "module." removed)
      "card": {...},                # as in last.pt: the file also loads through --weights
-     "optimizer": {...}, "scheduler": {...}, "scaler": {...} | None,
+     "optimizer": {...}, "scheduler": {...}, "scaler": {...} | None,   # AMP's GradScaler
      "rng": {"torch", "cuda", "numpy", "python"},   # of rank 0 after the epoch
+     "backends": {"cudnn_benchmark", ...},          # torch's algorithm flags (backend_flags)
      "epoch": N,                   # epochs completed
      "recipe": {...}, "run": {...}, "history": [row, ...], "best": {...} | None}
 
@@ -124,7 +125,7 @@ def _structure_problem(obj: dict[str, Any]) -> str | None:
         value = obj.get(key)
         if not isinstance(value, kind) or isinstance(value, bool):
             return f"{key!r} is {_kind(value)}"
-    for key in ("best", "scaler"):
+    for key in ("best", "scaler", "backends"):
         if obj.get(key) is not None and not isinstance(obj[key], dict):
             return f"{key!r} is {_kind(obj[key])}"
     if obj["epoch"] < 0:
@@ -132,6 +133,10 @@ def _structure_problem(obj: dict[str, Any]) -> str | None:
     if not all(isinstance(k, str) and isinstance(v, torch.Tensor)
                for k, v in obj["state_dict"].items()):
         return "'state_dict' is not a table of tensors"
+    backends = obj.get("backends")
+    if backends is not None and not all(
+            isinstance(backends.get(k), bool) for k in BACKEND_FLAGS):
+        return "'backends' lacks torch's algorithm flags"
     run = obj["run"]
     if not isinstance(run.get("model"), str) or not isinstance(run.get("options"), dict):
         return "'run' lacks the model name or its options"
@@ -199,6 +204,37 @@ def set_rng_state(state: dict[str, Any]) -> None:
     random.setstate((py[0], tuple(py[1]), py[2]))
 
 
+# -- torch's algorithm flags -----------------------------------------------------------------------
+
+BACKEND_FLAGS = ("cudnn_enabled", "cudnn_benchmark", "cudnn_deterministic", "cudnn_allow_tf32",
+                 "matmul_allow_tf32", "deterministic_algorithms", "deterministic_warn_only")
+"""torch's process-wide switches that choose the algorithms of a run (and so its bits on a GPU):
+cuDNN on or off, its autotuner, deterministic kernels, TF32 in convolutions and matmuls, torch's
+deterministic-algorithms mode."""
+
+
+def backend_flags() -> dict[str, bool]:
+    """The current values of :data:`BACKEND_FLAGS` (they exist on CPU builds too)."""
+    cudnn = torch.backends.cudnn
+    return {"cudnn_enabled": bool(cudnn.enabled), "cudnn_benchmark": bool(cudnn.benchmark),
+            "cudnn_deterministic": bool(cudnn.deterministic),
+            "cudnn_allow_tf32": bool(cudnn.allow_tf32),
+            "matmul_allow_tf32": bool(torch.backends.cuda.matmul.allow_tf32),
+            "deterministic_algorithms": torch.are_deterministic_algorithms_enabled(),
+            "deterministic_warn_only": torch.is_deterministic_algorithms_warn_only_enabled()}
+
+
+def set_backend_flags(flags: dict[str, bool]) -> None:
+    """Set what :func:`backend_flags` returned."""
+    cudnn = torch.backends.cudnn
+    cudnn.enabled, cudnn.benchmark = flags["cudnn_enabled"], flags["cudnn_benchmark"]
+    cudnn.deterministic, cudnn.allow_tf32 = flags["cudnn_deterministic"], \
+        flags["cudnn_allow_tf32"]
+    torch.backends.cuda.matmul.allow_tf32 = flags["matmul_allow_tf32"]
+    torch.use_deterministic_algorithms(flags["deterministic_algorithms"],
+                                       warn_only=flags["deterministic_warn_only"])
+
+
 def derived_seed(*parts: int) -> int:
     """A 63-bit seed from integers (the run's seed, an epoch, a rank), by numpy's SeedSequence."""
     words = np.random.SeedSequence([int(p) for p in parts]).generate_state(2, dtype=np.uint32)
@@ -212,6 +248,7 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-__all__ = ["BEST", "CHECKPOINT", "FORMAT", "LAST", "LOG", "LOG_COLUMNS", "RUN", "VERSION",
-           "atomic_save", "cpu_state", "derived_seed", "load_checkpoint", "log_csv",
-           "read_weights_file", "rng_state", "save_weights", "seed_everything", "set_rng_state"]
+__all__ = ["BACKEND_FLAGS", "BEST", "CHECKPOINT", "FORMAT", "LAST", "LOG", "LOG_COLUMNS", "RUN",
+           "VERSION", "atomic_save", "backend_flags", "cpu_state", "derived_seed",
+           "load_checkpoint", "log_csv", "read_weights_file", "rng_state", "save_weights",
+           "seed_everything", "set_backend_flags", "set_rng_state"]

@@ -37,14 +37,16 @@ from evsmap.train.checkpoint import (
     RUN,
     VERSION,
     atomic_save,
+    backend_flags,
     log_csv,
     rng_state,
     save_weights,
+    set_backend_flags,
     set_rng_state,
 )
 from evsmap.train.engine import HookBase
 from evsmap.train.evaluate import card_has_test, final_test, percent, validate
-from evsmap.train.setup import TrainingRun
+from evsmap.train.setup import Optimisation, TrainingRun
 from evsmap.train.trainer import EpochTrainer
 
 
@@ -121,9 +123,10 @@ class BestModel(HookBase[EpochTrainer]):
 
 class Checkpointer(HookBase[EpochTrainer]):
     """The resume point. When training starts: a resumed run's weights, optimiser, schedule,
-    AMP scaler, random states, history and best epoch come back from its checkpoint (all
-    ranks), and rank 0 creates the run's folder. After every epoch (rank 0): ``last.pt``,
-    ``log.csv``, ``run.json``, ``checkpoint.pt`` (see :mod:`evsmap.train.checkpoint`)."""
+    AMP scaler, random states, torch's algorithm flags, history and best epoch come back from
+    its checkpoint (all ranks), and rank 0 creates the run's folder. After every epoch (rank
+    0): ``last.pt``, ``log.csv``, ``run.json``, ``checkpoint.pt`` (see
+    :mod:`evsmap.train.checkpoint`)."""
 
     def before_train(self, trainer: EpochTrainer) -> None:
         run = trainer.run
@@ -150,25 +153,41 @@ class Checkpointer(HookBase[EpochTrainer]):
                             evsmap_version=last_card["evsmap_version"],
                             git_commit=last_card["git_commit"])
         write_run_json(run)
-        optim = run.optim
         atomic_save({
             "format": FORMAT, "version": VERSION, "state_dict": state, "card": last_card,
-            "optimizer": optim.optimizer.state_dict(), "scheduler": optim.schedule.state_dict(),
-            "scaler": optim.scaler.state_dict() if optim.amp else None, "rng": rng_state(),
-            "epoch": result.epoch, "recipe": run.recipe.as_dict(), "run": run.run_json,
-            "history": trainer.history, "best": trainer.best,
+            **carried_state(run.optim), "epoch": result.epoch, "recipe": run.recipe.as_dict(),
+            "run": run.run_json, "history": trainer.history, "best": trainer.best,
         }, run.out / CHECKPOINT)
+
+
+def carried_state(optim: Optimisation) -> dict[str, Any]:
+    """What a straight run carries into its next epoch besides the weights, for the
+    checkpoint: the optimiser (momentum buffers), the schedule, AMP's grad scaler (its scale and
+    growth tracker; None without AMP), torch's (CPU and CUDA), numpy's and Python's random
+    states, and torch's algorithm flags (cuDNN's autotuner and determinism, TF32,
+    deterministic algorithms)."""
+    return {"optimizer": optim.optimizer.state_dict(), "scheduler": optim.schedule.state_dict(),
+            "scaler": optim.scaler.state_dict() if optim.amp else None, "rng": rng_state(),
+            "backends": backend_flags()}
+
+
+def restore_carried_state(optim: Optimisation, saved: dict[str, Any]) -> None:
+    """Put back what :func:`carried_state` saved in checkpoint ``saved`` (a checkpoint from
+    before the algorithm flags were saved keeps the flags this run set)."""
+    optim.optimizer.load_state_dict(saved["optimizer"])
+    optim.schedule.load_state_dict(saved["scheduler"])
+    if optim.amp and saved.get("scaler"):
+        optim.scaler.load_state_dict(saved["scaler"])
+    set_rng_state(saved["rng"])
+    if saved.get("backends") is not None:
+        set_backend_flags(saved["backends"])
 
 
 def _restore(trainer: EpochTrainer, saved: dict[str, Any]) -> None:
     """A resumed run's states from its checkpoint ``saved``."""
     run = trainer.run
     run.net.module.load_state_dict(saved["state_dict"], strict=True)
-    run.optim.optimizer.load_state_dict(saved["optimizer"])
-    run.optim.schedule.load_state_dict(saved["scheduler"])
-    if run.optim.amp and saved.get("scaler"):
-        run.optim.scaler.load_state_dict(saved["scaler"])
-    set_rng_state(saved["rng"])
+    restore_carried_state(run.optim, saved)
     trainer.history, trainer.best = list(saved["history"]), saved["best"]
     trainer.last_val = trainer.history[-1]["val_miou"] if trainer.history else None
 
@@ -250,4 +269,5 @@ def default_hooks(run: TrainingRun) -> list[HookBase[EpochTrainer]]:
 
 
 __all__ = ["BestModel", "Checkpointer", "EpochLog", "Evaluator", "FinalTest", "Interrupt",
-           "ProgressBar", "default_hooks", "write_run_json"]
+           "ProgressBar", "carried_state", "default_hooks", "restore_carried_state",
+           "write_run_json"]

@@ -18,8 +18,12 @@ resume, messages and progress bars, the final test pass, interruption).
   with ``seed + epoch``, also with one process) and a ``DataLoader``; the recipe's batch is the
   global batch, split evenly over the processes.
 * **Determinism**: every epoch starts by seeding torch, numpy and Python from (seed, epoch,
-  rank), and samples draw their augmentation from (seed, epoch, frame); so a run stopped after
-  any epoch and resumed from its checkpoint repeats the straight run bit for bit on the CPU.
+  rank), and samples draw their augmentation from (seed, epoch, frame); the run keeps torch's
+  intra-op thread count fixed (recorded in ``run.json``: convolutions split their sums by it);
+  a resume takes the run's settings from its ``run.json`` (:mod:`evsmap.train.settings`) and
+  its optimiser, schedule, AMP scaler, random states and torch's algorithm flags from its
+  checkpoint. So a run stopped after any epoch and resumed repeats the straight run bit for
+  bit on the CPU, and on a GPU with ``--deterministic``.
 * **Validation** (every ``eval_every`` epochs and after the last): the network in eval mode
   predicts every frame of the validation split exactly as ``evsmap eval`` does
   (``NetworkSegmenter.predict``, at the segmenter's input size; on a GPU the same computation
@@ -43,25 +47,40 @@ resume, messages and progress bars, the final test pass, interruption).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import Any
 
 import torch
 import torch.distributed as dist
 
-from evsmap.train.checkpoint import BEST, CHECKPOINT, LAST, LOG, RUN
+from evsmap.train.checkpoint import (
+    BEST,
+    CHECKPOINT,
+    LAST,
+    LOG,
+    RUN,
+    backend_flags,
+    set_backend_flags,
+)
 from evsmap.train.hooks import default_hooks
 from evsmap.train.options import RunOptions
 from evsmap.train.processes import start_processes
+from evsmap.train.settings import with_recorded_settings
 from evsmap.train.setup import set_up
 from evsmap.train.trainer import EpochTrainer
 
 
 def train(opts: RunOptions) -> dict[str, Any]:
     """Run (or resume) a training run; returns a summary (rank 0's; other ranks' are equal
-    but for the files they did not write)."""
+    but for the files they did not write). torch's process-wide settings the run changes (its
+    thread count, the algorithm flags) are put back when it ends."""
+    opts = with_recorded_settings(opts)
     procs = start_processes(opts.device)
-    algorithms = _algorithm_settings()
+    flags, threads = backend_flags(), torch.get_num_threads()
+    pinned = opts.threads or threads
+    opts = dataclasses.replace(opts, threads=pinned)
+    torch.set_num_threads(pinned)
     if opts.deterministic:  # cuBLAS reads it when its handle is made, before the first matmul
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     try:
@@ -77,30 +96,17 @@ def train(opts: RunOptions) -> dict[str, Any]:
             dist.barrier()
         return summary
     finally:
-        _restore_algorithm_settings(algorithms)
+        set_backend_flags(flags)
+        torch.set_num_threads(threads)
         if procs.started and dist.is_initialized():
             dist.destroy_process_group()
-
-
-def _algorithm_settings() -> tuple[bool, bool, bool, bool]:
-    """torch's process-wide algorithm choices a run may change (--deterministic, cuDNN's
-    autotuner), to put back when it ends (a run called from Python leaves them as it found
-    them)."""
-    return (torch.are_deterministic_algorithms_enabled(),
-            torch.is_deterministic_algorithms_warn_only_enabled(),
-            torch.backends.cudnn.benchmark, torch.backends.cudnn.deterministic)
-
-
-def _restore_algorithm_settings(saved: tuple[bool, bool, bool, bool]) -> None:
-    enabled, warn_only, benchmark, deterministic = saved
-    torch.use_deterministic_algorithms(enabled, warn_only=warn_only)
-    torch.backends.cudnn.benchmark, torch.backends.cudnn.deterministic = benchmark, deterministic
 
 
 def _summary(trainer: EpochTrainer) -> dict[str, Any]:
     run, best = trainer.run, trainer.best
     return {
-        "out": str(run.out), "model": run.opts.model, "epochs": trainer.epoch,
+        "out": str(run.out), "model": run.opts.model, "dataset": run.opts.dataset,
+        "options": run.options, "threads": run.opts.threads, "epochs": trainer.epoch,
         "epochs_planned": run.recipe.epochs, "finished": trainer.epoch >= run.recipe.epochs,
         "best_epoch": best["epoch"] if best else None,
         "best_val_miou": best["val_miou"] if best else None, "last_val_miou": trainer.last_val,

@@ -14,8 +14,9 @@ class RunOptions:
     """What ``evsmap train`` was asked to do (see its ``--help``).
 
     Attributes:
-        model: registered segmenter name.
-        dataset: folder, prepared dataset name or path-less reader name.
+        model: registered segmenter name ("" when resuming: the run's).
+        dataset: folder, prepared dataset name or path-less reader name ("" when resuming: the
+            run's).
         out: the run's folder.
         recipe: shipped recipe name or TOML file; None: ``paper`` (or, resuming, the
             checkpoint's recipe).
@@ -30,7 +31,12 @@ class RunOptions:
         deterministic: deterministic algorithms only (cuDNN's autotuner off; torch warns of an
             operation that has no deterministic kernel), for a resume repeating a straight run
             bit for bit on a GPU.
-        resume: continue the run in ``out`` from its checkpoint.
+        threads: torch's intra-op threads for the whole run (None: torch's count when the run
+            starts; resuming: the run's). Convolutions split their sums by it, so it is part
+            of what a run computes.
+        resume: continue the run in ``out`` from its checkpoint, with the settings recorded in
+            its ``run.json`` wherever this invocation gives none
+            (:mod:`evsmap.train.settings`).
         init: encoder weights to start from.
         stop_after: stop after this many epochs of this invocation.
         messages: where rank 0 writes its lines (default stdout).
@@ -50,6 +56,7 @@ class RunOptions:
     device: str | None = None
     channels_last: bool = False
     deterministic: bool = False
+    threads: int | None = None
     resume: bool = False
     init: Path | None = None
     stop_after: int | None = None

@@ -36,6 +36,7 @@ from evsmap.train.recipe import (
     load_recipe,
     recipe_from_dict,
 )
+from evsmap.train.settings import settings_record
 
 RESUMABLE_CHANGES = ("epochs", "workers", "eval_every")
 """Recipe fields a resumed run may change (the others would make it another run)."""
@@ -336,7 +337,8 @@ def run_record(opts: RunOptions, recipe: Recipe, options: dict[str, Any], net: N
         "steps_per_epoch": data.steps, "crop": list(data.crop),
         "input_size": list(net.segmenter.input_size), "amp": optim.amp, "init": init,
         "channels_last": opts.channels_last, "deterministic": opts.deterministic,
-        "gpu": collect_gpu(procs.device),
+        "threads": torch.get_num_threads(), "gpu": collect_gpu(procs.device),
+        "settings": settings_record(opts, procs.device.type, torch.get_num_threads()),
     }
 
 
