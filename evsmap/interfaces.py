@@ -85,10 +85,12 @@ class Segmenter(abc.ABC):
 
     def set_threads(self, threads: int | None = None, *, spinning: bool = True
                     ) -> dict[str, Any]:
-        """Threads of the segmenter's own runtime (a network's ONNX Runtime intra-op pool;
-        ``None``: its default) and whether its idle workers may busy-wait (``spinning``: good
-        alone, bad when other stages of a pipeline need the cores). Returns what it uses now
-        (``{}`` for a segmenter without such a runtime)."""
+        """Threads of the segmenter's own runtime (a network's forward pass: ONNX Runtime's
+        intra-op pool, or torch's threads around the forward alone; ``None``: the runtime's
+        default) and whether ONNX Runtime's idle workers may busy-wait (``spinning``: good
+        alone, bad when other stages of a pipeline need the cores). A network's logits depend
+        on this count (docs/cli.md, "Thread independence"). Returns what it uses now (``{}``
+        for a segmenter without such a runtime)."""
         return {}
 
     def __call__(self, frame: Frame) -> SemanticObservation:
