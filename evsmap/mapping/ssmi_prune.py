@@ -52,19 +52,30 @@ def _same_semantics(cols, lo, others, a, b):
 
 
 @njit(cache=True, nogil=True)
-def _children(codes, level, pending, x, y, z, depth, reps):
+def _children(codes, level, pending, value, x, y, z, depth, v, reps):
     """The representative leaf (first corner) of each of the 8 children of the block of
     ``depth`` levels holding key (x, y, z), in OctoMap's child order, into ``reps``; False when
     a child does not exist as a childless node (a missing or pending leaf, or a block that is
-    not pruned at ``depth - 1``)."""
+    not pruned at ``depth - 1``) or its value is not ``v`` (the updated leaf's: collapsing
+    needs them equal, and most checks end there).
+
+    Children 4..7 lie ``2**(depth - 1)`` places after children 0..3 in the sorted codes when
+    both are whole pruned blocks (one run of ``z`` per ``(x, y)``), so only 4 are searched."""
     half = 1 << (depth - 1)
     bx = (x >> depth) << depth
     by = (y >> depth) << depth
     bz = (z >> depth) << depth
+    n = codes.shape[0]
     for c in range(8):
-        r = _find(codes, bx + (c & 1) * half, by + ((c >> 1) & 1) * half,
-                  bz + ((c >> 2) & 1) * half)
-        if r < 0 or pending[r] or level[r] != depth - 1:
+        cx, cy = bx + (c & 1) * half, by + ((c >> 1) & 1) * half
+        if c < 4:
+            r = _find(codes, cx, cy, bz)
+        else:
+            r = reps[c - 4] + half
+            want = (np.int64(cx) << 32) | (np.int64(cy) << 16) | np.int64(bz + half)
+            if r >= n or codes[r] != want:
+                return False
+        if r < 0 or pending[r] or level[r] != depth - 1 or value[r] != v:
             return False
         reps[c] = r
     return True
@@ -163,12 +174,13 @@ def prune_up(codes, level, pending, n, value, cols, lo, others, rgb, dirty, min_
     c = codes[n]
     x, y, z = (c >> 32) & 0xFFFF, (c >> 16) & 0xFFFF, c & 0xFFFF
     # the z sibling is next to n in the sorted codes: most updates stop at its value
-    sib = _find(codes, x, y, z ^ 1)
-    if sib < 0 or pending[sib] or value[sib] != value[n]:
+    sib = n + 1 if z & 1 == 0 else n - 1
+    if sib < 0 or sib >= codes.shape[0] or codes[sib] != c ^ 1 or pending[sib] \
+            or value[sib] != value[n]:
         return 0
     done = 0
     for depth in range(1, TREE_DEPTH + 1):
-        if not _children(codes, level, pending, x, y, z, depth, reps):
+        if not _children(codes, level, pending, value, x, y, z, depth, value[n], reps):
             break
         if not _collapsible(value, cols, lo, others, reps, min_occupancy):
             break
