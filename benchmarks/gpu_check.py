@@ -17,8 +17,10 @@ skipped):
 2. ``evsmap map`` EVSMap end to end (the built-in synthetic room, FEAGNet-V1 on the GPU, the
    multi-class Bayesian update on the CPU, pipelined) and its rate, beside the same on the CPU;
 3. ``evsmap train feagnet-v1 --device cuda --amp``: two straight runs of 2 epochs (their
-   difference is the GPU's run-to-run floor), 1 epoch + ``--resume`` + 1, and the same three
-   with ``--deterministic``: the resumed weights against the straight ones, bit for bit;
+   difference is the GPU's run-to-run floor), 1 epoch + ``--resume`` + 1 (the resume given
+   the same ``--amp``/``--deterministic``), and the same with ``--deterministic``, there also
+   resumed by ``evsmap train --out DIR --resume`` alone (the settings from its run.json): the
+   resumed weights, momentum buffers and AMP scaler against the straight run's, bit for bit;
    ``--channels-last`` beside it (seconds per epoch);
 4. ``evsmap speed --backend torch-compile`` beside eager (FEAGNet-V2 fp32);
 5. ``evsmap speed --backend onnxruntime`` on the CUDA provider (or its one-line refusal where
@@ -196,13 +198,17 @@ def train_steps(steps: Steps, args: argparse.Namespace, work: Path) -> None:
         for run in ("straight", "again"):
             steps.run(f"train/{tag}/{run}", evsmap(*common, *flags, "--out",
                                                    str(base / run)), timeout=150)
-        steps.run(f"train/{tag}/first-epoch", evsmap(*common, *flags, "--stop-after", "1",
-                                                     "--out", str(base / "resumed")),
-                  timeout=150)
-        steps.run(f"train/{tag}/resume", evsmap(
-            "train", "feagnet-v1", "--dataset", *dataset, *size[2:], "--device",
-            args.device, "--resume", "--out", str(base / "resumed"), "--json"), timeout=150)
-        steps.records[f"train/{tag}/compare"] = compare_runs(base)
+        # the resume given the flags of the run; with --deterministic also one given none
+        resumes = {"resumed": [*amp, *flags, "--device", args.device]}
+        if flags:
+            resumes["resumed-bare"] = []
+        for run, given in resumes.items():
+            steps.run(f"train/{tag}/{run}/first-epoch",
+                      evsmap(*common, *flags, "--stop-after", "1", "--out", str(base / run)),
+                      timeout=150)
+            steps.run(f"train/{tag}/{run}/resume", evsmap(
+                "train", *given, "--resume", "--out", str(base / run), "--json"), timeout=150)
+        steps.records[f"train/{tag}/compare"] = compare_runs(base, ("again", *resumes))
         steps.save()
     steps.run("train/channels-last", evsmap(*common, "--channels-last", "--out",
                                             str(work / "train-cl")), timeout=150)
@@ -211,27 +217,41 @@ def train_steps(steps: Steps, args: argparse.Namespace, work: Path) -> None:
         "channels_last": epoch_seconds(work / "train-cl")}
 
 
-def compare_runs(base: Path) -> dict[str, Any]:
-    """The straight run against its repeat and against the resumed run: equal bit for bit,
-    and the largest weight difference."""
+def compare_runs(base: Path, others: tuple[str, ...]) -> dict[str, Any]:
+    """The straight run (2 epochs) against each of ``others`` (its repeat, the 1 + resume + 1
+    runs): weights equal bit for bit and their largest difference, momentum buffers, AMP
+    scaler, and the settings the resumed run recorded."""
     import torch
 
     from evsmap.train.checkpoint import load_checkpoint
 
-    states = {}
-    for run in ("straight", "again", "resumed"):
+    saved = {}
+    for run in ("straight", *others):
         path = base / run / "checkpoint.pt"
         if not path.exists():
             return {"error": f"{path} missing"}
-        states[run] = load_checkpoint(path)["state_dict"]
+        saved[run] = load_checkpoint(path)
 
     def diff(a: dict, b: dict) -> dict[str, Any]:
         floats = [k for k in a if a[k].is_floating_point()]
         worst = max(float((a[k].double() - b[k].double()).abs().max()) for k in floats)
         return {"equal": all(torch.equal(a[k], b[k]) for k in a), "max_abs_diff": worst}
 
-    return {"repeat": diff(states["straight"], states["again"]),
-            "resume": diff(states["straight"], states["resumed"])}
+    def momentum(ckpt: dict) -> list:
+        return [s.get("momentum_buffer") for s in ckpt["optimizer"]["state"].values()]
+
+    straight = saved["straight"]
+    out: dict[str, Any] = {}
+    for run in others:
+        other = saved[run]
+        out[run] = {**diff(straight["state_dict"], other["state_dict"]),
+                    "epochs": other["epoch"],
+                    "momentum_equal": all(torch.equal(a, b) for a, b in zip(
+                        momentum(straight), momentum(other), strict=True)),
+                    "scaler_equal": straight.get("scaler") == other.get("scaler"),
+                    "scaler": other.get("scaler"),
+                    "settings": other["run"].get("settings")}
+    return out
 
 
 def epoch_seconds(run: Path) -> list[float] | None:
@@ -340,8 +360,13 @@ def summary(records: dict[str, Any], device: str) -> str:
     lines += ["", "## Training (evsmap train feagnet-v1, 16 synthetic frames, 2 epochs)", ""]
     for tag in ("default", "deterministic"):
         cmp_ = records.get(f"train/{tag}/compare", {})
-        lines.append(f"- {tag}: repeat {cmp_.get('repeat')}; resume {cmp_.get('resume')}"
-                     if "error" not in cmp_ else f"- {tag}: {cmp_['error']}")
+        if "error" in cmp_:
+            lines.append(f"- {tag}: {cmp_['error']}")
+            continue
+        for run, r in cmp_.items():
+            lines.append(f"- {tag}, straight against {run}: weights equal {r['equal']} (largest "
+                         f"difference {r['max_abs_diff']:.3g}), momentum equal "
+                         f"{r['momentum_equal']}, AMP scaler equal {r['scaler_equal']}")
     lines.append(f"- seconds per epoch: {records.get('train/epoch-seconds')}")
     ddp = records.get("train/torchrun", {})
     lines.append(f"- torchrun (1 process): exit {ddp.get('exit', ddp.get('skipped'))}")

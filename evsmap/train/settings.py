@@ -91,11 +91,18 @@ def with_recorded_settings(opts: RunOptions) -> RunOptions:
         if _unset(given):
             changes[key] = _as_option(key, value)
         elif not _same(key, given, value):
-            was = (f"without {flag}" if value is False else f"with {flag}") \
-                if isinstance(given, bool) else f"with {flag} {_shown(value)}, not {_shown(given)}"
-            raise EvsmapError(f"{opts.out} was trained {was}: a resumed run keeps its "
-                              f"settings (leave out {flag})")
+            raise EvsmapError(f"{opts.out} {_conflict(key, flag, given, value)}: a resumed run "
+                              f"keeps its settings (leave out {flag})")
     return dataclasses.replace(opts, **changes)
+
+
+def _conflict(key: str, flag: str, given: Any, value: Any) -> str:
+    """How a given setting contradicts the recorded one, in words."""
+    if key == "model":
+        return f"is a run of {value}, not {given}"
+    if isinstance(given, bool):
+        return f"was trained {'without' if value is False else 'with'} {flag}"
+    return f"was trained with {flag} {_shown(value)}, not {_shown(given)}"
 
 
 def _unset(value: Any) -> bool:
