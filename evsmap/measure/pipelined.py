@@ -26,7 +26,7 @@ slower than one; both run on one thread in the pipeline (the same numbers: no re
 theirs is split across threads). The network itself runs at the sequential loop's thread count
 in both (:attr:`StageThreads.segment`): its logits depend on that count, so the pipeline keeps
 it and the observations, thus the map, are the same bytes with the pipeline on and off
-(``tests/cli/test_thread_independence.py``).
+(``tests/cli/test_map_thread_independence.py``).
 
 A failure in a worker thread (a bad frame, a network error) is re-raised in the calling thread;
 leaving the loop early (an exception, Ctrl-C) stops both workers within one queue timeout.
