@@ -122,7 +122,7 @@ def test_mapping_makes_the_map_inside_its_memory_scope_and_evaluates_it(seq):
     assert run.memory is not None and run.memory.peak_rss_bytes >= run.memory.start_rss_bytes
     stats, files = run.results["stats"], run.results["files"]
     assert stats.nodes == run.updater.stats().nodes and stats.leaves > 0
-    assert set(files.sizes) == {"full", "published", "colour"} and files.file is None
+    assert set(files.sizes) == {"full", "published", "colour", "message"} and files.file is None
 
 
 def test_the_engine_builds_the_map_a_plain_loop_builds(seq, tmp_path):
