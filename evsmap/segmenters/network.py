@@ -29,7 +29,6 @@ from evsmap.segmenters.normalization import (  # noqa: F401  (re-exported)
     INDOOR,
     Normalization,
 )
-from evsmap.segmenters.resize import bilinear
 from evsmap.segmenters.weights import load_weights
 
 if TYPE_CHECKING:
@@ -68,6 +67,8 @@ def network_inputs(rgb: np.ndarray, depth: np.ndarray | None, normalization: Nor
     chw = np.ascontiguousarray(np.asarray(rgb).transpose(2, 0, 1), dtype=np.float32)
     chw /= np.float32(255.0)
     if chw.shape[-2:] != size:
+        from evsmap.segmenters.resize import bilinear  # numba: loaded only where a frame resizes
+
         chw = bilinear(chw, size)
     rgb_t = torch.from_numpy(chw)[None]
     mean = torch.tensor(n.rgb_mean).view(1, 3, 1, 1)
@@ -521,6 +522,8 @@ def _resized(logits: torch.Tensor, size: tuple[int, int], *, align_corners: bool
     """Host ``logits`` (1, C, h, w) resized bilinearly to ``size`` by evsmap's kernel
     (:func:`evsmap.segmenters.resize.bilinear`: the same bits whatever torch's thread count,
     which its own bilinear kernel does not promise)."""
+    from evsmap.segmenters.resize import bilinear
+
     return torch.from_numpy(bilinear(logits[0].numpy(), size, align_corners=align_corners))[None]
 
 
