@@ -27,6 +27,26 @@ runner's ``end_to_end_hz`` (which was the segmentation + update rate, not the wa
 record is read (:meth:`evsmap.runner.records.CellRecord.from_json`)."""
 
 
+def older_size_readings(values: Mapping[str, Any], inputs: Mapping[str, Any],
+                        details: Mapping[str, Any]) -> dict[str, Any]:
+    """A mapping record's ``values`` with the size readings as named since 2026-11-28, for a
+    record written before: its ``map_bytes`` was then the ``published`` file, which for
+    ``multiclass-bayes`` on SSMI's generator was SSMI's ``octomap_full`` message (36 B a node)
+    and not the file SSMI saves (its colour-only ``ColorOcTree``). So ``map_bytes_message`` is
+    that size for every system, and such a record's saved file is its ``map_bytes_colour``.
+    A record that has ``map_bytes_message`` is returned as it is."""
+    out = dict(values)
+    if "map_bytes" not in values or "map_bytes_message" in values:
+        return out
+    out["map_bytes_message"] = values["map_bytes"]
+    front_end = details.get("front_end")
+    generator = isinstance(front_end, Mapping) and front_end.get("name") == "generator"
+    if (generator and str(inputs.get("updater", "")).startswith("multiclass-bayes")
+            and values.get("map_bytes_colour") is not None):
+        out["map_bytes"] = values["map_bytes_colour"]
+    return out
+
+
 def renamed_keys(data: Mapping[str, Any]) -> dict[str, Any]:
     """``data`` with each key of :data:`OLD_KEYS` renamed
     (:func:`evsmap.fileio.renamed_keys`: a key already under its new name wins, order kept)."""

@@ -18,7 +18,7 @@ from typing import Any
 
 from evsmap.errors import DataFormatError
 from evsmap.fileio import atomic_write
-from evsmap.runner.record_keys import renamed_keys
+from evsmap.runner.record_keys import older_size_readings, renamed_keys
 
 STATUSES = ("ok", "na", "error")
 
@@ -140,6 +140,10 @@ class CellRecord:
                                       f"not {type(value).__name__})")
         data = {k: renamed_keys(v) if k in ("values", "details") else v  # old runs' rate keys
                 for k, v in data.items()}
+        if str(data.get("key", "")).startswith("extra/mapping/"):  # old runs' size readings
+            data["values"] = older_size_readings(data.get("values") or {},
+                                                 data.get("inputs") or {},
+                                                 data.get("details") or {})
         return cls.from_dict(data, source=source)
 
 

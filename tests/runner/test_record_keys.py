@@ -40,7 +40,7 @@ def test_a_stored_record_with_the_old_keys_loads_under_the_new_ones(tmp_path):
     rec = store.get(data["key"])
     assert rec is not None
     assert rec.values == {"frames": 8.0, "update_hz": 40.0, "segment_update_hz": 12.5,
-                          "map_bytes": 2.0e5}
+                          "map_bytes": 2.0e5, "map_bytes_message": 2.0e5}
     assert rec.details["segment_update_hz"] == 12.5 and "end_to_end_hz" not in rec.details
     assert rec.inputs == data["inputs"]  # only values and details hold rates
 
@@ -51,3 +51,22 @@ def test_an_old_run_fills_the_tables_as_before(tmp_path):
     rec = CellRecord.from_json(_old_mapping_record(), source="old.json")
     row = extra_frame([rec]).iloc[0]
     assert row["update_hz"] == 40.0 and row["segment_update_hz"] == 12.5
+
+
+def test_an_old_ssmi_record_reads_its_saved_file_and_its_message():
+    """Before 2026-11-28 ``map_bytes`` of multiclass-bayes on SSMI's generator was its
+    octomap_full message (36 B a node); the file SSMI saves is its colour-only ColorOcTree."""
+    data = _old_mapping_record()
+    data["values"].update(map_bytes=9.0e5, map_bytes_colour=2.0e5)
+    data["inputs"]["updater"] = "multiclass-bayes"
+    data["details"]["front_end"] = {"name": "generator"}
+    rec = CellRecord.from_json(data, source="old.json")
+    assert rec.values["map_bytes"] == 2.0e5 and rec.values["map_bytes_message"] == 9.0e5
+    # the direct front end (or a record from before the front end was recorded) saved its file
+    data["details"]["front_end"] = {"name": "direct"}
+    rec = CellRecord.from_json(data, source="old.json")
+    assert rec.values["map_bytes"] == 9.0e5 == rec.values["map_bytes_message"]
+    # a record of today is read as written
+    data["values"].update(map_bytes=2.0e5, map_bytes_message=9.0e5)
+    data["details"]["front_end"] = {"name": "generator"}
+    assert CellRecord.from_json(data, source="new.json").values["map_bytes_message"] == 9.0e5
