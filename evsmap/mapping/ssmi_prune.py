@@ -83,14 +83,13 @@ def _children(codes, level, pending, value, x, y, z, depth, v, reps):
 
 @njit(cache=True, nogil=True)
 def _collapsible(value, cols, lo, others, reps, min_occupancy):
-    """``isNodeCollapsible`` over the children's representatives."""
+    """``isNodeCollapsible`` over the children's representatives, whose values
+    :func:`_children` found equal: equal semantics too, unless child 0 is free."""
     first = reps[0]
-    free = value[first] <= min_occupancy
+    if value[first] <= min_occupancy:
+        return True
     for c in range(1, 8):
-        r = reps[c]
-        if value[r] != value[first]:
-            return False
-        if not free and not _same_semantics(cols, lo, others, r, first):
+        if not _same_semantics(cols, lo, others, reps[c], first):
             return False
     return True
 

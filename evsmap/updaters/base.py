@@ -464,7 +464,8 @@ class OctreeUpdater(MapUpdater):
                 sizes[fmt] = None
         return {"nodes": int(tree.num_nodes), "leaves": int(tree.num_leaves),
                 "published_bytes": sizes["published"],
-                "message_bytes": sizes["message"] or sizes["published"],
+                "message_bytes": (sizes["published"] if sizes["message"] is None
+                                  else sizes["message"]),
                 "colour_bytes": sizes["colour"],
                 "memory_bytes": int(tree.memory_bytes(node_bytes=self.node_type.node_bytes,
                                                       base_bytes=OCTOMAP_BASE_BYTES))}
