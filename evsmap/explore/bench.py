@@ -128,6 +128,7 @@ class Bench:
     def observations_key(self) -> dict[str, Any]:
         """The segmentation cache's key of the study's observations (the runner's keys: the
         same observations are shared with ``evsmap reproduce``'s mapping runs)."""
+        from evsmap.measure.engine import is_oracle
         from evsmap.runner.mapping_cells import observations_key, sequence_identity
 
         frames_id = sequence_identity(self.sequence)
@@ -136,6 +137,9 @@ class Bench:
                                    self.sequence.name)
         else:
             key = {"segmenter": self.inputs.segmenter, "sequence": self.sequence.name}
+            segmenter = self.segmenter()
+            if is_oracle(segmenter):  # its profile's settings and its code decide its output
+                key.update(segmenter.identity())
         return {**key, **self.inputs.segmenter_options, "frames": frames_id}
 
     def observations(self) -> list[SemanticObservation]:

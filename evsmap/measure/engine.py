@@ -30,7 +30,7 @@ import pickle
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
@@ -40,6 +40,9 @@ from evsmap.interfaces import MapUpdater, Segmenter
 from evsmap.measure.evaluators import MapEvaluator, SegmentationEvaluator
 from evsmap.measure.memory import PeakMemory
 from evsmap.readers.skipping import SkippedFrames, read_frames
+
+if TYPE_CHECKING:  # the oracle is imported where it is used
+    from evsmap.segmenters.oracle import OracleSegmenter
 
 ORACLE_STAGE = "oracle"
 """The stage of a segmenter that reads ground truth (no network): kept apart from ``predict``
@@ -93,7 +96,7 @@ def timed_update(updater: MapUpdater, frame: Frame, observation: SemanticObserva
     times.add("update", _ms_since(t0))
 
 
-def is_oracle(segmenter: Segmenter) -> bool:
+def is_oracle(segmenter: Segmenter) -> TypeGuard[OracleSegmenter]:
     """Whether ``segmenter`` reads the ground truth instead of running a network."""
     from evsmap.segmenters.oracle import OracleSegmenter
 

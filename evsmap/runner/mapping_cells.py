@@ -300,9 +300,11 @@ def _own_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indic
         return CellRecord(**run.base_fields(), status="na", needs=[f"labels:{run.sequence}"],
                           reason=f"n/a - {spec} reads ground-truth labels and {run.sequence} "
                                  f"has none", started=now())
-    observations, segment_ms, reused = caches.shared.observations(
-        own, sequence, indices, key={"segmenter": spec, "sequence": sequence.name,
-                                     "frames": caches.frames_id})
+    key = {"segmenter": spec, "sequence": sequence.name, "frames": caches.frames_id}
+    if is_oracle(own):  # its profile's settings and its code decide its output
+        key.update(own.identity(), segmenter=spec)
+    observations, segment_ms, reused = caches.shared.observations(own, sequence, indices,
+                                                                  key=key)
     timing = None
     if reused:
         timing = caches.timings(own, sequence, indices, {"segmenter": spec})
@@ -341,20 +343,23 @@ def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: 
                    indices: list[int]) -> Labels:
     """Labels from the oracle (ground truth with seeded noise); the segmentation time of the
     untrained network on the same frames."""
+    from evsmap.measure.engine import is_oracle
     from evsmap.registry import SEGMENTERS
 
     assert run.segmenter is not None
     spec = run.segmenter.spec
     oracle = SEGMENTERS.create("oracle", **ctx.oracle)
+    assert is_oracle(oracle)
     observations, _, _ = caches.shared.observations(
-        oracle, sequence, indices, key={"segmenter": "oracle", **ctx.oracle,
+        oracle, sequence, indices, key={**oracle.identity(), **ctx.oracle,
                                         "sequence": sequence.name, "frames": caches.frames_id})
     net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
     timing = caches.timings(net, sequence, indices,
                             {"segmenter": spec, "backend": ctx.speed_backend})
     segment_ms = timing["predict_ms"]
-    note = (f"labels from the oracle segmenter ({_options(ctx.oracle)}: ground truth with "
-            f"seeded noise), no trained weights; segmentation time of the untrained {spec} "
+    note = (f"labels from the oracle segmenter (profile {oracle.profile.name}; "
+            f"{_options(ctx.oracle)}: ground truth with seeded noise), no trained weights; "
+            f"segmentation time of the untrained {spec} "
             f"({ctx.speed_backend}) on the same frames in order, {len(segment_ms)} of them "
             f"(until its median was within +-{100 * timing['rel_ci']:.1f} %, "
             f"{timing['stopped']})")

@@ -1,0 +1,115 @@
+"""Spatially correlated uniform fields for the oracle's error draws.
+
+A network's errors come in patches, and a surface it gets wrong in one frame it tends to get
+wrong in the next (it sees nearly the same image). The oracle draws each pixel's "is it wrong"
+and "which wrong class" from uniforms that are correlated the same ways:
+
+* :func:`image_field`: white Gaussian noise smoothed by a Gaussian of standard deviation
+  ``sigma`` px (periodic boundaries, so every pixel has the same variance), scaled to unit
+  variance;
+* :func:`world_field`: a Gaussian value-noise field on a 3D lattice of spacing ``scale`` metres,
+  trilinearly interpolated at each pixel's back-projected point (world frame), scaled to unit
+  variance at every point; the lattice values are hashes of the lattice coordinates and the
+  seed, so every frame of a sequence reads the same field;
+* :func:`uniform_fields`: ``sqrt(w) * world + sqrt(1 - w) * image`` through the normal CDF, a
+  uniform on [0, 1) at every pixel whatever ``w`` and ``sigma`` (so the error rate stays the
+  profile's accuracy) with the two kinds of correlation mixed by ``w``. Pixels without a valid
+  depth read the image field alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage, special
+
+from evsmap.data import Frame
+
+_MIX = np.uint64(0x9E3779B97F4A7C15)
+
+
+def _splitmix(x: np.ndarray) -> np.ndarray:
+    """splitmix64's finaliser on uint64 arrays (wrapping arithmetic)."""
+    with np.errstate(over="ignore"):
+        x = x + _MIX
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return x ^ (x >> np.uint64(31))
+
+
+def _lattice_normals(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, key: int) -> np.ndarray:
+    """A standard normal per lattice point, a function of its coordinates and ``key`` alone."""
+    h = _splitmix(np.full(ix.shape, key, dtype=np.uint64))
+    for coord in (ix, iy, iz):
+        h = _splitmix(h ^ coord.astype(np.int64).view(np.uint64))
+    u = ((h >> np.uint64(11)).astype(np.float64) + 0.5) / float(1 << 53)
+    return special.ndtri(u)
+
+
+def image_field(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
+    """(H, W) unit-variance Gaussian field with correlation length ``sigma`` px (0: white)."""
+    noise = rng.standard_normal(shape)
+    if sigma <= 0:
+        return noise
+    smooth = ndimage.gaussian_filter(noise, sigma, mode="wrap")
+    # the variance of the filtered white noise is the kernel's sum of squares (separable)
+    radius = int(4.0 * sigma + 0.5)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    k = np.exp(-0.5 * (x / sigma) ** 2)
+    k /= k.sum()
+    return smooth / float((k ** 2).sum())
+
+
+def world_points(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W, 3) world points of the pixels and the (H, W) mask of valid depth."""
+    assert frame.depth is not None and frame.intrinsics is not None  # an image frame
+    depth = np.asarray(frame.depth, dtype=np.float64)
+    valid = np.isfinite(depth) & (depth > 0)
+    h, w = depth.shape
+    k = frame.intrinsics
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    z = np.where(valid, depth, 0.0)
+    cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=-1)
+    pose = np.asarray(frame.pose, dtype=np.float64)
+    return cam @ pose[:3, :3].T + pose[:3, 3], valid
+
+
+def world_field(points: np.ndarray, scale: float, key: int) -> np.ndarray:
+    """Unit-variance value noise at ``points`` (..., 3): lattice spacing ``scale`` m."""
+    p = points / scale
+    base = np.floor(p)
+    f = p - base
+    base = base.astype(np.int64)
+    total = np.zeros(points.shape[:-1])
+    weight2 = np.zeros(points.shape[:-1])
+    for corner in range(8):
+        d = [(corner >> a) & 1 for a in range(3)]
+        w = np.ones(points.shape[:-1])
+        for a in range(3):
+            w = w * (f[..., a] if d[a] else 1.0 - f[..., a])
+        n = _lattice_normals(base[..., 0] + d[0], base[..., 1] + d[1], base[..., 2] + d[2], key)
+        total += w * n
+        weight2 += w * w
+    return total / np.sqrt(weight2)
+
+
+def uniform_fields(rng: np.random.Generator, frame: Frame, n: int, *, sigma: float,
+                   world_share: float, world_scale: float, key: int) -> np.ndarray:
+    """(n, H, W) correlated uniforms (module notes); ``key`` picks the world field (the same
+    key, the same field in every frame)."""
+    assert frame.depth is not None  # an image frame
+    shape = frame.depth.shape
+    out = np.empty((n,) + shape)
+    points = valid = None
+    if world_share > 0:
+        points, valid = world_points(frame)
+    for i in range(n):
+        g = image_field(rng, shape, sigma)
+        if points is not None and valid is not None:
+            scene = world_field(points, world_scale, key * 8 + i)
+            mixed = np.sqrt(world_share) * scene + np.sqrt(1.0 - world_share) * g
+            g = np.where(valid, mixed, g)
+        out[i] = special.ndtr(g)
+    return np.minimum(out, np.nextafter(1.0, 0.0))
+
+
+__all__ = ["image_field", "uniform_fields", "world_field", "world_points"]
