@@ -78,6 +78,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                           "worker per timing node of the cluster, each alone on its node)")
     run.add_argument("--address", default=None, metavar="ADDR",
                      help="with --executor ray: the cluster to join (default: a local one)")
+    labels = p.add_argument_group(
+        "how the answer moves with the labels",
+        "after the trials, the answer's key points (the paper's point, the best trial within "
+        "the mIoU tolerance) and their baselines are mapped again with the oracle's per-pixel, "
+        "fitted and noise-free labels and a network's; on by default where the study's "
+        "segmenter is the oracle or a network and the sequence has ground truth; stored in "
+        "the study (docs/explore.md)")
+    labels.add_argument("--no-sensitivity", action="store_true",
+                        help="skip it (the report then has no such section)")
+    labels.add_argument("--sensitivity-weights", type=Path, default=None, metavar="FILE",
+                        help="a trained network whose labels are one more source (kept in the "
+                             "study: a resume uses it again)")
+    labels.add_argument("--sensitivity-segmenter", default=None, metavar="NAME",
+                        help="that network's segmenter (default: the model its card names)")
     p.set_defaults(run=run_command)
 
 
@@ -165,6 +179,51 @@ def _request(args: argparse.Namespace) -> Any:
                    space=space, inputs=inputs, inputs_given=given)
 
 
+def _sensitivity_network(args: argparse.Namespace) -> Any:
+    """The ``--sensitivity-weights`` network (``None``: none given), checked before a trial
+    runs."""
+    from evsmap.explore.sensitivity import check_network
+
+    given = [f for f, v in (("--sensitivity-weights", args.sensitivity_weights),
+                            ("--sensitivity-segmenter", args.sensitivity_segmenter)) if v]
+    if args.no_sensitivity and given:
+        raise EvsmapError(f"{given[0]}: not with --no-sensitivity")
+    if args.sensitivity_weights is None:
+        if args.sensitivity_segmenter is not None:
+            raise EvsmapError("--sensitivity-segmenter: only with --sensitivity-weights FILE")
+        return None
+    return check_network(args.sensitivity_segmenter, args.sensitivity_weights)
+
+
+def _sensitivity_reason(args: argparse.Namespace, bench: Any, network: Any) -> str | None:
+    """Why the study gets no sensitivity (``None``: it does); a network given for one that
+    cannot have it is a usage error."""
+    from evsmap.explore.sensitivity import applies
+
+    if args.no_sensitivity:
+        return "--no-sensitivity"
+    reason = applies(bench.inputs, bench.has_truth())
+    if reason is not None and network is not None:
+        raise EvsmapError(f"--sensitivity-weights: no label sensitivity here ({reason})")
+    return reason
+
+
+def _sensitivity(opened: Any, bench: Any, network: Any, reason: str | None) -> Any:
+    """The key points' records under each label source, and the header's line about them."""
+    from evsmap.explore.sensitivity import run_sensitivity
+
+    if reason is not None:
+        _say(f"label sensitivity: skipped ({reason})")
+        return None, f"skipped ({reason})"
+    start = time.monotonic()
+    records = run_sensitivity(opened.study, bench, network=network, say=_say)
+    mapped = sum(r["from"] == "mapped" for r in records)
+    took = time.monotonic() - start
+    _say(f"label sensitivity: {len(records)} records in {took:.0f} s")
+    return records, (f"{len(records)} records (key point x label source; {mapped} mapped "
+                     f"again, at one time or another); this command spent {took:.0f} s on it")
+
+
 def _listed(options: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in sorted(options.items()))
 
@@ -215,6 +274,7 @@ def _options(segmenter: str, given: dict[str, Any]) -> str:
 
 
 def run_command(args: argparse.Namespace) -> int:
+    from evsmap.explore.bench import Bench, Inputs
     from evsmap.explore.results import trial_rows
     from evsmap.explore.run import open_study, run_local, run_ray
     from evsmap.explore.workers import Worker, counts
@@ -222,18 +282,21 @@ def run_command(args: argparse.Namespace) -> int:
     from evsmap.report.explore import write_report
 
     request = _request(args)
+    network = _sensitivity_network(args)
     bench = None
     if args.executor == "ray":
         from evsmap.runner.ray_executor import import_ray
 
         import_ray()  # a missing Ray is a usage error, before the study is made
     if not request.resume:  # the sequence, segmenter and objectives, before the study is made
-        from evsmap.explore.bench import Bench
-
         bench = Bench(request.space, request.inputs, say=_say)
+        reason = _sensitivity_reason(args, bench, network)
     if args.storage is None:  # the study's SQLite file goes in the folder
         args.out.mkdir(parents=True, exist_ok=True)
     opened = open_study(request)
+    if bench is None:
+        bench = Bench(opened.space, Inputs(**opened.config.inputs), say=_say)
+        reason = _sensitivity_reason(args, bench, network)
     args.out.mkdir(parents=True, exist_ok=True)
     again = f"evsmap explore --out {args.out} --resume" + (
         f" --storage {args.storage}" if args.storage else "") + (
@@ -250,8 +313,10 @@ def run_command(args: argparse.Namespace) -> int:
     else:
         done = run_local(opened, say=say, run=run, bench=bench)
     elapsed = f"{done} trials in {(time.monotonic() - start) / 60:.1f} min"
+    records, said = _sensitivity(opened, bench, network, reason)
+    header = {**_header(opened, request, elapsed), "label sensitivity": said}
     index, line = write_report(args.out, trial_rows(opened.study), opened.space,
-                               header=_header(opened, request, elapsed))
+                               header=header, sensitivity=records)
     from evsmap.explore.latest import record_latest
 
     record_latest(index, line)

@@ -18,6 +18,7 @@ at a stated accuracy, a trained network, or a user's plug-in.
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import time
@@ -84,6 +85,10 @@ def open_inputs(inputs: Inputs) -> FrameSequence:
     return sequence
 
 
+UNTIMED_DROPS = ("update_hz", "rate_ratio", "cached")
+"""A map record's fields that are timings (or say where it came from), left out of an untimed
+record (:meth:`Bench.labelled_map`)."""
+
 QUALITY = ("precision", "recall", "semantic_accuracy", "map_miou", "scene_miou")
 """The map's 3D quality a trial records (:class:`~evsmap.metrics.mapping.MapQuality`)."""
 
@@ -114,7 +119,7 @@ class Bench:
                               f"[[objectives]])")
         self._observations: list[SemanticObservation] | None = None
         self._truth: dict[float, Any] = {}
-        self._identity: dict[str, Any] | None = None
+        self._identity: dict[str, dict[str, Any]] = {}
 
     # ---- what every trial shares
     def segmenter(self) -> Any:
@@ -168,6 +173,37 @@ class Bench:
             self._truth[resolution] = truth
         return self._truth[resolution]
 
+    def relabelled(self, inputs: Inputs) -> Bench:
+        """This bench with another segmenter's observations (``inputs`` differs from this
+        bench's in its segmenter only): the sequence, its frames and ground truth shared, the
+        observations and the cache identity its own."""
+        other = copy.copy(self)
+        other.inputs = inputs
+        other._observations, other._identity = None, {}
+        return other
+
+    def labelled_map(self, name: str, options: dict[str, Any],
+                     shared: dict[str, Any]) -> dict[str, Any]:
+        """``name`` mapping the frames with this bench's observations at ``options`` (the
+        shared settings among them): its sizes and 3D quality, exact, so kept in the shared
+        cache (``explore/labelled-*.json``; the paired baseline's own entry is read when one
+        was made with these observations). No rate: nothing is timed against a reference."""
+        from evsmap.fileio import atomic_write_text
+
+        config = {k: v for k, v in options.items() if k not in shared}
+        path = self._map_path("labelled", name, config, shared)
+        baseline = self._map_path("baseline", name, config, shared)
+        for cached in (path, baseline):
+            if cached.is_file():
+                record: dict[str, Any] = json.loads(cached.read_text())
+                return {k: v for k, v in record.items() if k not in UNTIMED_DROPS}
+        mapped = self._map(name, options, semantic=True)
+        record = {k: v for k, v in _sizes(mapped).items() if k not in UNTIMED_DROPS}
+        record.update(_quality(mapped.updater, self.truth(shared["resolution"])))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, json.dumps(record, sort_keys=True))
+        return record
+
     # ---- one trial
     def measure(self, params: dict[str, Any]) -> dict[str, Any]:
         """The trial at ``params`` (a plain record: :func:`trial_record`'s fields)."""
@@ -208,7 +244,7 @@ class Bench:
         if not self.space.baseline:
             return None
         component = baseline_updater(self.space.baseline)
-        path = self._baseline_path(component.name, component.config, shared)
+        path = self._map_path("baseline", component.name, component.config, shared)
         if path.is_file():
             record: dict[str, Any] = json.loads(path.read_text())
             return {**record, "cached": True}
@@ -225,26 +261,33 @@ class Bench:
         atomic_write_text(path, json.dumps(record, sort_keys=True))
         return {**record, "cached": False}
 
-    def _baseline_path(self, name: str, config: dict[str, Any], shared: dict[str, Any]) -> Path:
+    def _map_path(self, kind: str, name: str, config: dict[str, Any],
+                  shared: dict[str, Any]) -> Path:
+        """Where the shared cache keeps ``name``'s map at ``config`` and ``shared`` with this
+        bench's observations (``kind``: ``baseline``, a paired baseline's record; ``labelled``,
+        a map's untimed record)."""
         from evsmap.cache import cache_dir
         from evsmap.runner.segcache import cache_key
 
         key = cache_key(version=MAPS_VERSION, updater=name, config=config, shared=shared,
                         **self._baseline_identity(name))
-        return cache_dir("explore") / f"baseline-{key}.json"
+        return cache_dir("explore") / f"{kind}-{key}.json"
 
     def _baseline_identity(self, name: str) -> dict[str, Any]:
-        """What every baseline map of this bench shares in its cache key: the observations,
-        the frames, the code's digests (hashed once per process, not once per trial)."""
-        if self._identity is None:
-            from evsmap.cache import source_digest
-            from evsmap.registry import UPDATERS
+        """What every cached map of this bench shares in its cache key: the observations,
+        the frames, the code's digests (evsmap's and the updater's package: hashed once per
+        process and package, not once per trial)."""
+        from evsmap.registry import UPDATERS
 
-            package = UPDATERS.get(name).factory.__module__.split(".")[0]
-            self._identity = {"observations": self.observations_key(),
-                              "indices": len(self.indices),
-                              "code": [source_digest("evsmap"), source_digest(package)]}
-        return self._identity
+        package = UPDATERS.get(name).factory.__module__.split(".")[0]
+        if package not in self._identity:
+            from evsmap.cache import source_digest
+
+            self._identity[package] = {"observations": self.observations_key(),
+                                       "indices": len(self.indices),
+                                       "code": [source_digest("evsmap"),
+                                                source_digest(package)]}
+        return self._identity[package]
 
 
 def baseline_updater(row: str) -> Any:

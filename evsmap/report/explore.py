@@ -197,6 +197,98 @@ def _answer_section(found: Answer, space: Space) -> list[str]:
     return lines
 
 
+def _point_name(r: Mapping[str, Any]) -> str:
+    return f"trial {r['trial']} ({r['point']})"
+
+
+def _labels_name(r: Mapping[str, Any]) -> str:
+    return f"{r['source']} (the study's)" if r.get("study_labels") else str(r["source"])
+
+
+def _yes(value: Any) -> str:
+    return "yes" if value else "no"
+
+
+def _sensitivity_table(records: list[dict[str, Any]], space: Space) -> list[str]:
+    lines = [f"| key point | labels | size ratio | {space.updater} (MB) | {space.baseline} (MB) "
+             f"| scene mIoU (%) | {space.baseline}'s (%) | mIoU loss (pt) | smaller at <= "
+             f"{MIOU_LOSS_POINTS:g} pt lost |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---|"]
+    for r in records:
+        lines.append(f"| {_point_name(r)} | {_labels_name(r)} | {_ratio(r.get('size_ratio'))} "
+                     f"| {_mb(r.get('map_size'))} | {_mb(r.get('baseline_map_size'))} "
+                     f"| {_pct(r.get('scene_miou'))} | {_pct(r.get('baseline_scene_miou'))} "
+                     f"| {_signed(r.get('miou_loss'))} | {_yes(r.get('meets'))} |")
+    return lines
+
+
+CLAIMS = {"smaller": ("the map is smaller than {b}'s", "the map is not smaller than {b}'s"),
+          "within": (f"it loses no more than {MIOU_LOSS_POINTS:g} pt of scene mIoU",
+                     f"it loses more than {MIOU_LOSS_POINTS:g} pt of scene mIoU")}
+"""Each conclusion a key point gives, when true and when false."""
+
+
+def _by_point(records: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    points: dict[str, list[dict[str, Any]]] = {}
+    for r in records:
+        points.setdefault(_point_name(r), []).append(r)
+    return points
+
+
+def sensitivity_verdict(records: list[dict[str, Any]], space: Space) -> str:
+    """One sentence: the conclusions that hold under every label source, and those that
+    depend on the labels (with the sources on each side)."""
+    holds, depends = [], []
+    for point, rows in _by_point(records).items():
+        for claim, (yes, no) in CLAIMS.items():
+            values = [bool(r.get(claim)) for r in rows]
+            if all(values) or not any(values):
+                text = yes if all(values) else no
+                holds.append(f"at {point} {text.format(b=space.baseline)}")
+                continue
+            on = ", ".join(_labels_name(r) for r in rows if r.get(claim))
+            off = ", ".join(_labels_name(r) for r in rows if not r.get(claim))
+            depends.append(f"at {point} whether {yes.format(b=space.baseline)} (yes with "
+                           f"{on}; no with {off})")
+    said = "Under every label source, " + "; ".join(holds) if holds else \
+        "No conclusion holds under every label source"
+    if depends:
+        said += "; it depends on the labels " + "; ".join(depends)
+    return said + "."
+
+
+def _sizes_line(records: list[dict[str, Any]]) -> str:
+    """Whether the map sizes moved with the labels (checked, not assumed)."""
+    moved = [point for point, rows in _by_point(records).items()
+             if len({(r.get("map_size"), r.get("baseline_map_size")) for r in rows}) > 1]
+    if not moved:
+        return ("The map sizes are the same under every labelling (the trees prune on "
+                "occupancy): the size ratios do not move with the labels, the mIoU does.")
+    return (f"The map sizes move with the labels at {', '.join(moved)} (the updater's pruning "
+            f"reads the classes).")
+
+
+def sensitivity_section(records: list[dict[str, Any]], space: Space) -> list[str]:
+    """"How the answer moves with the labels": a table per key point and label source, the
+    sentence saying which conclusions hold under every source, and which labels the study's
+    own trials used."""
+    if not records:
+        return []
+    own = next((r for r in records if r.get("study_labels")), None)
+    used = "" if own is None else (
+        f"The study's own trials were labelled by **{own['source']}** (segmenter "
+        f"`{own.get('segmenter')}`"
+        + (f", weights `{own['weights']}`" if own.get("weights") else "")
+        + "); its row repeats the trial's own figures. ")
+    return ["## How the answer moves with the labels", "",
+            f"{used}Each other row maps the key point's settings and its paired {space.baseline} "
+            f"baseline again with that source's labels of the same frames (the oracle's "
+            f"profiles: docs/oracle.md). The study is not run again: a point that is not the "
+            f"best under the study's labels is not looked for under the others.", "",
+            *_sensitivity_table(records, space), "",
+            sensitivity_verdict(records, space), "", _sizes_line(records), ""]
+
+
 def study_markdown(study: Mapping[str, Any] | None, run_dir: Path) -> list[str]:
     """Table IV's link to a design-space study (``evsmap explore``'s latest record): where it
     is, relative to the run folder, and its answer; nothing without one."""
@@ -219,9 +311,12 @@ def study_markdown(study: Mapping[str, Any] | None, run_dir: Path) -> list[str]:
 
 
 def write_report(study_dir: Path, rows: list[dict[str, Any]], space: Space, *,
-                 header: dict[str, str]) -> tuple[Path, str]:
+                 header: dict[str, str],
+                 sensitivity: list[dict[str, Any]] | None = None) -> tuple[Path, str]:
     """``trials.csv``, the two front plots and ``index.md`` in ``study_dir``; the index's path
-    and the one-line answer. ``header``: the study's facts (label -> text) printed first."""
+    and the one-line answer. ``header``: the study's facts (label -> text) printed first;
+    ``sensitivity``: the key points' records under each label source
+    (:func:`evsmap.explore.sensitivity.run_sensitivity`), a section after the answer."""
     from evsmap.fileio import atomic_write_text
 
     study_dir.mkdir(parents=True, exist_ok=True)
@@ -241,6 +336,7 @@ def write_report(study_dir: Path, rows: list[dict[str, Any]], space: Space, *,
                  f"{sorted(walls)[len(walls) // 2]:.0f} s)" if walls else ""),
               f"- every trial: [{CSV_FILE}]({CSV_FILE})", ""]
     lines += _answer_section(found, space)
+    lines += sensitivity_section(sensitivity or [], space)
     lines += ["## Pareto fronts", "",
               "3D mIoU here is the scene mIoU: every observed ground-truth voxel scored by the map "
               "(one the map dropped is a miss); the mIoU of the leaves the map kept and the "
