@@ -107,6 +107,19 @@ def _add_what(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scannet-step", type=positive_int, default=None, metavar="N",
                    help="map every N-th frame of a ScanNet scene (default 10: 3 Hz of its "
                         "30 Hz)")
+    p.add_argument("--synthetic-labels", choices=("oracle", "network"), default=None,
+                   help="what labels Table IV's semantic rows map the synthetic room with where "
+                        "their network has no NYUv2 weights: oracle (default: ground truth with "
+                        "the --oracle-profile noise) or network (a trained proxy network's own: "
+                        "the first of feagnet-v1, feagnet-v2, fchardnet-70 with synthrooms "
+                        "weights in --weights, e.g. feagnet-v1@synthrooms.pt or from --train; "
+                        "n/a naming the weights without one). The semantic-detail section maps "
+                        "the room with every other source beside it (with --resume: the run's)")
+    p.add_argument("--oracle-profile", type=_oracle_profile, default=None,
+                   metavar="NAME|FILE",
+                   help="the oracle's profile where it stands in for a network: fitted "
+                        "(default), per-pixel, noise-free, or a profile file (`evsmap oracle "
+                        "fit`; docs/oracle.md) (with --resume: the run's)")
     p.add_argument("--budget", type=positive_float, default=None, metavar="MINUTES",
                    help="fit the run into this many minutes: a cell whose estimated time no "
                         "longer fits is not started and is recorded as not measured, with the "
@@ -117,6 +130,18 @@ def _add_what(p: argparse.ArgumentParser) -> None:
                         "e.g. 'table1/feagnet-*/complexity*' (keys as in records/*.json; a "
                         "Table IV cell brings its mapping runs); default: every cell of "
                         "--tables (with --resume: the run's)")
+
+
+def _oracle_profile(text: str) -> str:
+    """A shipped profile's name as given, a profile file as its absolute path (so a resumed
+    run finds it from anywhere); one line naming the problem when it is neither."""
+    from evsmap.segmenters.oracle_profile import PROFILE_NAMES, load_profile
+
+    try:
+        load_profile(text)
+    except EvsmapError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text if text in PROFILE_NAMES else str(Path(text).expanduser().resolve())
 
 
 def _scenes(text: str) -> list[str]:

@@ -47,8 +47,9 @@ EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "map_bytes_colour", "ma
 """Value keys that are counts (bytes, nodes, frames): integers in :func:`extra_frame`."""
 
 EXTRA_COLUMNS = ("key", "row", "label", "sequence", "voxel_size", "status", *EXTRA_VALUES,
-                 "note")
-"""Columns of :func:`extra_frame` (values in base units: Hz, bytes, fractions)."""
+                 "labels_from", "note")
+"""Columns of :func:`extra_frame` (values in base units: Hz, bytes, fractions; ``labels_from``:
+the labels a semantic map was made with, :func:`evsmap.report.detail.labels_text`)."""
 
 # (value key, header, divisor to printed unit, decimals)
 _EXTRA_PRINT = (
@@ -265,6 +266,7 @@ def extra_frame(records: Iterable[CellRecord]) -> pd.DataFrame:
             "sequence": str(rec.inputs.get("sequence", "")),
             "voxel_size": _number(rec.inputs.get("voxel_size")),
             "status": {"na": "n/a"}.get(rec.status, rec.status),
+            "labels_from": _labels_column(rec),
             "note": record_note(rec, sequence=False)}
         for key in EXTRA_VALUES:
             line[key] = _number(rec.values.get(key)) if rec.status == "ok" else None
@@ -275,6 +277,34 @@ def extra_frame(records: Iterable[CellRecord]) -> pd.DataFrame:
         kind = "Int64" if name in EXTRA_COUNTS else "float64"
         frame[name] = pd.to_numeric(frame[name]).astype(kind)
     return frame
+
+
+def _labels_column(rec: CellRecord) -> str | None:
+    """The labels a semantic map record was made with, in words; None for the others."""
+    from evsmap.report.detail import labels_of, labels_text
+
+    labels = labels_of(rec) if rec.inputs.get("segmenter") else None
+    return None if labels is None else labels_text(labels)
+
+
+_SEMANTIC_VALUES = ("semantic_accuracy", "semantic_accuracy_all", "map_miou")
+"""The extra table's semantic columns."""
+
+
+def labels_lines(recs: Iterable[CellRecord]) -> list[str]:
+    """Which labels the semantic columns of one extra table used: each source with its rows
+    (none where no row has a semantic figure)."""
+    sources: dict[str, list[str]] = {}
+    for rec in recs:
+        text = _labels_column(rec) if rec.status == "ok" else None
+        if text is not None and any(_number(rec.values.get(k)) is not None
+                                    for k in _SEMANTIC_VALUES):
+            sources.setdefault(text, []).append(rec.label or rec.row)
+    if not sources:
+        return []
+    parts = [f"{_md_escape(text)} ({', '.join(_md_escape(r) for r in rows)})"
+             for text, rows in sources.items()]
+    return ["Labels of the semantic columns: " + "; ".join(parts) + ".", ""]
 
 
 # ------------------------------------------------------------------------------- markdown
@@ -486,6 +516,7 @@ def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
                     cells.append(format_number(value / div, dec))
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
+        out += labels_lines(recs)
         out += size_claim_lines(recs)
         if notes.texts:
             out += notes.markdown() + [""]

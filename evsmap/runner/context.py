@@ -15,6 +15,10 @@ from typing import Any
 
 from evsmap.measure.timing_policy import QUICK_POLICY, TimingPolicy
 from evsmap.paths import REPO_ROOT, default_data_root
+from evsmap.segmenters.oracle_profile import DEFAULT_PROFILE
+
+SYNTHETIC_LABELS = ("oracle", "network")
+"""What labels the synthetic room's semantic runs (:attr:`RunContext.synthetic_labels`)."""
 
 SEGMENTATION_DATASETS = ("nyuv2", "sunrgbd", "cityscapes")
 """Datasets prepared with ``evsmap datasets prepare``, looked up as folders."""
@@ -74,6 +78,14 @@ class RunContext:
         device: where the speed cells time the networks (``cpu``, ``cuda:N``; ``reproduce
             --device``): on a GPU with the torch backend, each pass between CUDA events
             (:func:`evsmap.measure.speed.measure_speed`); the map updates stay on the CPU.
+        oracle: the oracle segmenter's options besides its profile (its seed).
+        oracle_profile: the oracle's profile where it stands in for a network (``reproduce
+            --oracle-profile``): a name of
+            :data:`~evsmap.segmenters.oracle_profile.PROFILE_NAMES` or a profile file.
+        synthetic_labels: what labels the semantic runs on the built-in synthetic sequences
+            where their network has no NYUv2 weights (``reproduce --synthetic-labels``):
+            ``oracle`` (with ``oracle_profile``) or ``network`` (a trained proxy network's own,
+            :func:`evsmap.runner.mapping_cells.proxy_source`).
     """
 
     out: str
@@ -97,6 +109,8 @@ class RunContext:
     scannet_scenes: tuple[str, ...] = ()
     scannet_step: int = 10
     device: str = "cpu"
+    oracle_profile: str = DEFAULT_PROFILE
+    synthetic_labels: str = "oracle"
 
     @classmethod
     def create(cls, out: str | Path, *, data_root: str | Path | None = None,

@@ -11,6 +11,16 @@ network, TESAMap and TFEAGMap are the same system (semantic_slam's update), as a
 EVSMap (the multi-class Bayesian update): the section has one row for each update, and ORGBMap
 for geometry. The records are ordinary mapping runs (``extra/mapping/detail-<row>/...``).
 
+How the synthetic room's semantic figures depend on the labels: besides the run's own labels,
+TESAMap and EVSMap map the synthetic room again (Table IV's voxel size, the same frames) with
+each other label source (:func:`label_sources`): the oracle under each shipped profile
+(``per-pixel``, ``fitted``, ``noise-free``) and a trained proxy network's own labels
+(:func:`evsmap.runner.mapping_cells.proxy_source`: the first of FEAGNet-V1, FEAGNet-V2,
+FCHarDNet-70 with synthrooms weights), one record each,
+``extra/mapping/detail-labels-<source>-<row>/synthetic@<voxel>m`` (``<source>``: the profile's
+name or ``network``); without proxy weights one n/a record, ``detail-labels-network``, says which
+weights are missing and how to get them.
+
 ScanNet scenes: :mod:`evsmap.runner.scannet`.
 """
 
@@ -22,7 +32,8 @@ from evsmap.runner.scannet import SCANNET, scannet_scenes, scannet_sequence
 
 if TYPE_CHECKING:  # the report imports this module's names: it stays light (no torch)
     from evsmap.runner.context import RunContext
-    from evsmap.runner.mapping_cells import MappingRun
+    from evsmap.runner.mapping_cells import LabelSource, MappingRun
+    from evsmap.tables.schema import Component
 
 DETAIL_PREFIX = "detail-"
 """What the section's row ids start with."""
@@ -39,6 +50,14 @@ SEMANTIC_DETAIL_TOLERANCE = 0.01
 most this much (1 point) below TESAMap's, on the same frames and labels."""
 
 
+SENSITIVITY_ROWS = ("tesamap", "evsmap")
+"""The rows mapped again with each label source (the two the claim compares)."""
+SENSITIVITY_SEQUENCE = "synthetic"
+"""The sequence the label sources are compared on (the one every run has)."""
+LABELS_PREFIX = DETAIL_PREFIX + "labels-"
+"""What the rows of the label-source runs start with."""
+
+
 def detail_row(row: str) -> str:
     return DETAIL_PREFIX + row
 
@@ -48,10 +67,81 @@ def is_detail(row: str) -> bool:
     return row.startswith(DETAIL_PREFIX)
 
 
+def sensitivity_row(slug: str, row: str | None = None) -> str:
+    """The row id of ``row`` mapped with the label source ``slug``
+    (:attr:`~evsmap.runner.mapping_cells.LabelSource.slug`), ``detail-labels-<slug>-<row>``;
+    without ``row``, the source's one n/a record, ``detail-labels-<slug>``."""
+    return LABELS_PREFIX + slug + ("" if row is None else f"-{row}")
+
+
+def is_sensitivity(row: str) -> bool:
+    """Whether a record's row is a label-source run (:func:`sensitivity_row`)."""
+    return row.startswith(LABELS_PREFIX)
+
+
+def sensitivity_system(row: str) -> str | None:
+    """The detail row (:data:`SENSITIVITY_ROWS`) a label-source run's row maps, None for a
+    source's n/a record."""
+    return next((r for r in SENSITIVITY_ROWS if row.endswith("-" + r)), None)
+
+
+def default_source(ctx: RunContext, segmenter: Component) -> LabelSource | None:
+    """The label source the section's own rows use on the synthetic room: None where the
+    network has NYUv2 weights (its labels), else the proxy network's
+    (``--synthetic-labels network``) or the oracle with the run's profile."""
+    from evsmap.runner.mapping_cells import MAPPING_WEIGHTS, LabelSource, proxy_source
+
+    if ctx.weights_choice(segmenter.spec, MAPPING_WEIGHTS) is not None:
+        return None
+    if ctx.synthetic_labels == "network":
+        return proxy_source(ctx)
+    return LabelSource.oracle(ctx.oracle_profile)
+
+
+def label_sources(ctx: RunContext, segmenter: Component) -> list[LabelSource]:
+    """The label sources the synthetic room is mapped with besides the run's own
+    (:func:`default_source`): the oracle under each shipped profile, then the proxy network."""
+    from evsmap.runner.mapping_cells import LabelSource, proxy_source
+    from evsmap.segmenters.oracle_profile import PROFILE_NAMES
+
+    own = default_source(ctx, segmenter)
+    sources = [LabelSource.oracle(name) for name in PROFILE_NAMES] + [proxy_source(ctx)]
+    return [s for s in sources if s != own]
+
+
+def sensitivity_runs(ctx: RunContext, segmenter: Component) -> list[MappingRun]:
+    """The synthetic room mapped by :data:`SENSITIVITY_ROWS` with each of
+    :func:`label_sources`, at Table IV's voxel size; a network source without weights is one
+    n/a run (:func:`evsmap.runner.mapping_cells.missing_network_record`) instead of two."""
+    from evsmap.runner.mapping_cells import MappingRun
+    from evsmap.tables.schema import mapping_table
+
+    rows = {r.id: r for r in mapping_table().rows}
+    runs = []
+    for source in label_sources(ctx, segmenter):
+        assert rows[NETWORK_ROW].updater is not None
+        if source.kind == "network" and ctx.weights_choice(
+                str(source.model), str(source.dataset)) is None:
+            runs.append(MappingRun(
+                sensitivity_row(source.slug), "TESAMap and EVSMap, a proxy network's labels",
+                segmenter, rows[NETWORK_ROW].updater, SENSITIVITY_SEQUENCE, ctx.voxel_size,
+                labels=source, views=False))
+            continue
+        for row_id in SENSITIVITY_ROWS:
+            updater = rows[row_id].updater
+            assert updater is not None
+            runs.append(MappingRun(sensitivity_row(source.slug, row_id),
+                                   f"{LABELS[row_id]}, labels: {source.slug}", segmenter,
+                                   updater, SENSITIVITY_SEQUENCE, ctx.voxel_size,
+                                   labels=source, views=False))
+    return runs
+
+
 def detail_runs(ctx: RunContext) -> list[MappingRun]:
     """The section's mapping runs: each of :data:`DETAIL_ROWS` on the synthetic room and on
     each ScanNet scene (one n/a run naming the dataset when it is not under the data root), at
-    Table IV's voxel size."""
+    Table IV's voxel size; then the synthetic room with the other label sources
+    (:func:`sensitivity_runs`)."""
     from evsmap.runner.mapping_cells import MappingRun
     from evsmap.tables.schema import mapping_table
 
@@ -68,8 +158,11 @@ def detail_runs(ctx: RunContext) -> list[MappingRun]:
             runs.append(MappingRun(detail_row(row_id), LABELS[row_id],
                                    segmenter if system.segmenter is not None else None,
                                    system.updater, seq, ctx.voxel_size))
-    return runs
+    assert segmenter is not None
+    return runs + sensitivity_runs(ctx, segmenter)
 
 
-__all__ = ["DETAIL_PREFIX", "DETAIL_ROWS", "LABELS", "NETWORK_ROW", "SEMANTIC_DETAIL_TOLERANCE",
-           "detail_row", "detail_runs", "is_detail"]
+__all__ = ["DETAIL_PREFIX", "DETAIL_ROWS", "LABELS", "LABELS_PREFIX", "NETWORK_ROW",
+           "SEMANTIC_DETAIL_TOLERANCE", "SENSITIVITY_ROWS", "SENSITIVITY_SEQUENCE",
+           "default_source", "detail_row", "detail_runs", "is_detail", "is_sensitivity",
+           "label_sources", "sensitivity_row", "sensitivity_runs", "sensitivity_system"]

@@ -10,7 +10,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -56,6 +56,66 @@ def mapping_key(row: str, sequence: str, voxel_size: float) -> str:
 REFERENCE_ROW = "octomap-cpp"
 """The C++ OctoMap (occupancy only) mapped beside Table IV's systems as a reference."""
 
+PROXY_DATASET = "synthrooms"
+"""The dataset a proxy network's weights are trained on (:mod:`evsmap.runner.proxy`)."""
+PROXY_LABEL_MODELS = ("feagnet-v1", "feagnet-v2", "fchardnet-70")
+"""The proxy networks whose labels a run can map with (``reproduce --train``'s), in the order
+tried: the first with synthrooms weights in the weights folder labels the run; with none,
+FEAGNet-V1's are the weights named as missing."""
+
+
+@dataclass(frozen=True)
+class LabelSource:
+    """Where a semantic mapping run's labels come from, when not the run's default rule
+    (its network's NYUv2 weights, else the oracle with the run's profile).
+
+    Attributes:
+        kind: ``oracle`` (ground truth with a profile's noise) or ``network`` (a trained
+            network's own predictions).
+        profile: the oracle's profile (a shipped name or a file).
+        model: the network (a segmenter spec).
+        dataset: the dataset the network's weights are trained on (its weights are
+            ``ctx.weights_choice(model, dataset)``).
+    """
+
+    kind: Literal["oracle", "network"]
+    profile: str | None = None
+    model: str | None = None
+    dataset: str | None = None
+
+    @classmethod
+    def oracle(cls, profile: str) -> LabelSource:
+        return cls("oracle", profile=profile)
+
+    @classmethod
+    def network(cls, model: str, dataset: str = PROXY_DATASET) -> LabelSource:
+        return cls("network", model=model, dataset=dataset)
+
+    @property
+    def slug(self) -> str:
+        """The source in a row id: the oracle's profile name, or ``network``."""
+        return "network" if self.kind == "network" else Path(str(self.profile)).stem
+
+    def as_dict(self) -> dict[str, Any]:
+        """The source as a record's ``inputs["labels"]`` holds it (only the fields set)."""
+        return {k: v for k, v in (("kind", self.kind), ("profile", self.profile),
+                                  ("model", self.model), ("dataset", self.dataset))
+                if v is not None}
+
+    def weights_need(self) -> str:
+        """A network source's requirement, ``weights:<model>@<dataset>``."""
+        return f"weights:{self.model}@{self.dataset}"
+
+
+def proxy_source(ctx: RunContext) -> LabelSource:
+    """The proxy network that labels a run's synthetic room (:data:`PROXY_LABEL_MODELS`): the
+    first with synthrooms weights (``ctx.weights_choice``), else FEAGNet-V1 (whose weights
+    its n/a record then names)."""
+    for model in PROXY_LABEL_MODELS:
+        if ctx.weights_choice(model, PROXY_DATASET) is not None:
+            return LabelSource.network(model)
+    return LabelSource.network(PROXY_LABEL_MODELS[0])
+
 
 @dataclass(frozen=True)
 class MappingRun:
@@ -70,6 +130,15 @@ class MappingRun:
     own_labels: bool = False
     """The segmenter is not a network: its own predictions are the labels (no weights, no
     oracle); a user's system (``--systems``) with such a segmenter."""
+    labels: LabelSource | None = None
+    """The labels to map with, in place of the default rule (:func:`run_labels`): the
+    semantic-detail section's label sources (each with a row id of its own, so its record's
+    key names it), and the synthetic room's network labels (``reproduce --synthetic-labels
+    network``, a setting of the whole run)."""
+    views: bool = True
+    """The run saves its map and one segmented frame for the report's views (the
+    semantic-detail section's label-source runs do not: they are a row's map again, with
+    other labels)."""
 
     @property
     def key(self) -> str:
@@ -77,11 +146,14 @@ class MappingRun:
 
     def base_fields(self) -> dict[str, Any]:
         """The fields every record of this run carries (key, row, inputs, ...)."""
+        inputs: dict[str, Any] = {
+            "segmenter": self.segmenter.spec if self.segmenter else None,
+            "updater": self.updater.spec, "sequence": self.sequence,
+            "voxel_size": self.voxel_size}
+        if self.labels is not None:
+            inputs["labels"] = self.labels.as_dict()
         return {"key": self.key, "table": "extra", "row": self.row, "label": self.label,
-                "kind": "mapping", "metrics": [],
-                "inputs": {"segmenter": self.segmenter.spec if self.segmenter else None,
-                           "updater": self.updater.spec, "sequence": self.sequence,
-                           "voxel_size": self.voxel_size}}
+                "kind": "mapping", "metrics": [], "inputs": inputs}
 
 
 VARIANT_ROWS = {
@@ -215,10 +287,46 @@ def observations_key(segmenter: str, weights: str | os.PathLike[str],
             "weights_id": weights_identity(weights), "sequence": sequence}
 
 
+def with_synthetic_labels(ctx: RunContext, runs: list[MappingRun]) -> list[MappingRun]:
+    """``runs`` with ``reproduce --synthetic-labels network`` applied: a semantic run on a
+    built-in synthetic sequence whose network has no NYUv2 weights (so the oracle would stand
+    in) maps with the proxy network's labels (:func:`proxy_source`) instead; the others as
+    they are. With ``oracle`` (the default), ``runs`` unchanged."""
+    if ctx.synthetic_labels != "network":
+        return runs
+    from dataclasses import replace
+
+    source = proxy_source(ctx)
+    return [replace(run, labels=source)
+            if run.labels is None and run.segmenter is not None and not run.own_labels
+            and run.sequence in SYNTHETIC_SEQUENCES
+            and ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS) is None else run
+            for run in runs]
+
+
+def missing_network_record(run: MappingRun) -> CellRecord:
+    """The n/a record of a run told to map with a proxy network's labels
+    (:attr:`MappingRun.labels`) whose weights are not in the weights folder: which weights, and
+    how to get them."""
+    assert run.labels is not None and run.labels.kind == "network"
+    need = run.labels.weights_need()
+    name = f"{run.labels.model}@{run.labels.dataset}.pt"
+    return CellRecord(
+        **run.base_fields(), status="na", needs=[need],
+        reason=f"{needs_text([need])}: no {run.labels.dataset} weights of "
+               f"{' or '.join(PROXY_LABEL_MODELS)} in the weights folder; `evsmap reproduce "
+               f"--train` trains them (then `evsmap reproduce --resume --out RUN` maps this "
+               f"run), or give --weights DIR holding {name}", started=now())
+
+
 def unlabelled_record(run: MappingRun) -> CellRecord:
     """The n/a record of a semantic run that cannot be mapped here: its network has no trained
-    weights and its sequence no ground-truth labels for the oracle to stand in."""
+    weights and its sequence no ground-truth labels for the oracle to stand in (or it is told
+    to map with a proxy network's labels and that network has no weights:
+    :func:`missing_network_record`)."""
     assert run.segmenter is not None
+    if run.labels is not None and run.labels.kind == "network":
+        return missing_network_record(run)
     need = f"weights:{run.segmenter.spec}@{MAPPING_WEIGHTS}"
     return CellRecord(**run.base_fields(), status="na", needs=[need],
                       reason=needs_text([need]) + f" ({run.sequence} has no ground-truth "
@@ -244,8 +352,12 @@ def _unlabelled(ctx: RunContext, sequence: str, cache: dict[str, bool]) -> bool:
 
 def lacks_labels(ctx: RunContext, run: MappingRun, cache: dict[str, bool] | None = None) -> bool:
     """A semantic run that cannot be mapped here (:func:`unlabelled_record`): no trained weights
-    for its network and no ground-truth labels on its sequence for the oracle to stand in."""
-    return (run.segmenter is not None and not run.own_labels
+    for its network and no ground-truth labels on its sequence for the oracle to stand in; or
+    told to map with a network's labels (:attr:`MappingRun.labels`) that has no weights."""
+    if run.labels is not None and run.labels.kind == "network":
+        assert run.labels.model is not None and run.labels.dataset is not None
+        return ctx.weights_choice(run.labels.model, run.labels.dataset) is None
+    return (run.segmenter is not None and not run.own_labels and run.labels is None
             and ctx.weights_path(run.segmenter.spec, MAPPING_WEIGHTS) is None
             and _unlabelled(ctx, run.sequence, {} if cache is None else cache))
 
@@ -262,6 +374,26 @@ class Labels:
     timing: dict[str, Any] | None = None
     notes: list[str] = field(default_factory=list)
     source: str = "oracle"
+    origin: dict[str, Any] = field(default_factory=dict)
+    """The source precisely, as the record's ``details["labels"]`` keeps it: ``kind``
+    (``oracle``, ``network``, ``segmenter``) and the oracle's ``profile`` and ``settings``
+    digest, or the network's ``model``, ``dataset`` and ``weights`` file."""
+
+    @property
+    def labels_from(self) -> str:
+        """The source in words (the record's ``details["labels_from"]``)."""
+        return labels_text(self.origin) if self.origin else self.source
+
+
+def labels_text(origin: dict[str, Any]) -> str:
+    """A :attr:`Labels.origin` in words: ``oracle (profile fitted)``, ``feagnet-v1 with weights
+    proxy/best.pt (synthrooms)``, or the segmenter's spec."""
+    if origin.get("kind") == "oracle":
+        return f"oracle (profile {origin.get('profile')})"
+    if origin.get("kind") == "network":
+        return (f"{origin.get('model')} with weights {origin.get('weights')} "
+                f"({origin.get('dataset')})")
+    return str(origin.get("model") or origin.get("kind"))
 
 
 class _Caches:
@@ -314,17 +446,21 @@ def _own_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indic
     note = (f"labels from {spec} (not a network: no weights"
             + ("; reads ground truth, so segmentation + update = update only)"
                if is_oracle(own) else ")"))
+    origin = ({"kind": "oracle", "profile": own.profile.name,
+               "settings": own.profile.digest()} if is_oracle(own)
+              else {"kind": "segmenter", "model": spec})
     return Labels(observations, segment_ms, timing, [note],
-                  source="oracle" if is_oracle(own) else spec)
+                  source="oracle" if is_oracle(own) else spec,
+                  origin=origin if is_oracle(own) else {})
 
 
-def _network_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, indices: list[int],
-                    choice: Any) -> Labels:
-    """Labels from the run's network with its trained weights (onnxruntime); its time from
-    this run, even where another run computed the observations."""
-    assert run.segmenter is not None
-    spec, weights = run.segmenter.spec, choice.path
-    net = build_segmenter(run.segmenter, backend="onnxruntime", weights=str(weights))
+def _network_labels(component: Component, caches: _Caches, sequence: FrameSequence,
+                    indices: list[int], choice: Any, dataset: str) -> Labels:
+    """Labels from the network ``component`` with its trained weights (``choice``, trained on
+    ``dataset``; onnxruntime); its time from this run, even where another run computed the
+    observations."""
+    spec, weights = component.spec, choice.path
+    net = build_segmenter(component, backend="onnxruntime", weights=str(weights))
     observations, segment_ms, reused = caches.shared.observations(
         net, sequence, indices,
         key={**observations_key(spec, weights, sequence.name), "frames": caches.frames_id})
@@ -336,23 +472,34 @@ def _network_labels(run: MappingRun, caches: _Caches, sequence: FrameSequence, i
         segment_ms = timing["predict_ms"]
     return Labels(observations, segment_ms, timing,
                   [f"labels from {spec} with weights {choice.file} (onnxruntime)",
-                   choice.note()], source=spec)
+                   choice.note()], source=spec,
+                  origin={"kind": "network", "model": spec, "dataset": dataset,
+                          "weights": choice.file})
+
+
+def oracle_observations_key(oracle: Any, ctx: RunContext, sequence: FrameSequence,
+                            frames_id: str) -> dict[str, Any]:
+    """The shared segmentation cache's key of the oracle's observations: what decides them
+    (:meth:`~evsmap.segmenters.oracle.OracleSegmenter.identity`: its profile's name and settings
+    digest, seed, k, classes, code), the run's oracle options and the frames; observations made
+    under another profile never share an entry."""
+    return {**ctx.oracle, **oracle.identity(), "sequence": sequence.name, "frames": frames_id}
 
 
 def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: FrameSequence,
-                   indices: list[int]) -> Labels:
-    """Labels from the oracle (ground truth with seeded noise); the segmentation time of the
-    untrained network on the same frames."""
+                   indices: list[int], profile: str) -> Labels:
+    """Labels from the oracle with ``profile`` (ground truth with seeded noise); the
+    segmentation time of the untrained network on the same frames."""
     from evsmap.measure.engine import is_oracle
     from evsmap.registry import SEGMENTERS
 
     assert run.segmenter is not None
     spec = run.segmenter.spec
-    oracle = SEGMENTERS.create("oracle", **ctx.oracle)
+    oracle = SEGMENTERS.create("oracle", **{**ctx.oracle, "profile": profile})
     assert is_oracle(oracle)
     observations, _, _ = caches.shared.observations(
-        oracle, sequence, indices, key={**oracle.identity(), **ctx.oracle,
-                                        "sequence": sequence.name, "frames": caches.frames_id})
+        oracle, sequence, indices, key=oracle_observations_key(oracle, ctx, sequence,
+                                                               caches.frames_id))
     net = build_segmenter(run.segmenter, backend=ctx.speed_backend)
     timing = caches.timings(net, sequence, indices,
                             {"segmenter": spec, "backend": ctx.speed_backend})
@@ -363,24 +510,57 @@ def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: 
             f"({ctx.speed_backend}) on the same frames in order, {len(segment_ms)} of them "
             f"(until its median was within +-{100 * timing['rel_ci']:.1f} %, "
             f"{timing['stopped']})")
-    return Labels(observations, segment_ms, timing, [note])
+    return Labels(observations, segment_ms, timing, [note],
+                  origin={"kind": "oracle", "profile": oracle.profile.name,
+                          "settings": oracle.profile.digest()})
+
+
+def _source_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: FrameSequence,
+                   indices: list[int], labelled: bool) -> Labels | CellRecord:
+    """Labels from the run's own :attr:`MappingRun.labels`: the oracle with its profile (on a
+    labelled sequence), or the network with its weights; else the n/a record saying what is
+    missing."""
+    from evsmap.runner.context import parse_spec
+
+    source = run.labels
+    assert source is not None
+    if source.kind == "oracle":
+        if not labelled:
+            return CellRecord(**run.base_fields(), status="na",
+                              needs=[f"labels:{run.sequence}"],
+                              reason=f"n/a - the oracle reads ground-truth labels and "
+                                     f"{run.sequence} has none", started=now())
+        assert source.profile is not None
+        return _oracle_labels(run, ctx, caches, sequence, indices, source.profile)
+    assert source.model is not None and source.dataset is not None
+    choice = ctx.weights_choice(source.model, source.dataset)
+    if choice is None:
+        return missing_network_record(run)
+    name, options = parse_spec(source.model)
+    return _network_labels(Component(name, tuple(sorted(options.items()))), caches, sequence,
+                           indices, choice, source.dataset)
 
 
 def run_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: FrameSequence,
                indices: list[int]) -> Labels | CellRecord:
     """The labels a run maps with (:class:`Labels`), or its n/a record: none for a
-    geometry-only system; a segmenter's own; a network's with trained weights; the oracle's on
-    a labelled sequence (the network timed apart); else n/a (:func:`unlabelled_record`)."""
+    geometry-only system; a segmenter's own; the run's own :attr:`MappingRun.labels`; a
+    network's with trained NYUv2 weights; the oracle's with the run's profile
+    (``ctx.oracle_profile``) on a labelled sequence (the network timed apart); else n/a
+    (:func:`unlabelled_record`)."""
     if run.segmenter is None:
         return Labels()
     labelled = bool(indices) and sequence.frame(0).labels is not None
     if run.own_labels:
         return _own_labels(run, caches, sequence, indices, labelled)
+    if run.labels is not None:
+        return _source_labels(run, ctx, caches, sequence, indices, labelled)
     choice = ctx.weights_choice(run.segmenter.spec, MAPPING_WEIGHTS)
     if choice is not None:
-        return _network_labels(run, caches, sequence, indices, choice)
+        return _network_labels(run.segmenter, caches, sequence, indices, choice,
+                               MAPPING_WEIGHTS)
     if labelled:
-        return _oracle_labels(run, ctx, caches, sequence, indices)
+        return _oracle_labels(run, ctx, caches, sequence, indices, ctx.oracle_profile)
     return unlabelled_record(run)
 
 
@@ -411,8 +591,10 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         mapped, updater=run.updater.spec, segmenter=None if run.segmenter is None
         else run.segmenter.spec, segment_ms=labels.segment_ms)
     values, details = _values_and_details(record, mapped, labels)
-    if run.segmenter is not None:
-        details["labels_from"] = labels.source  # "oracle", or the segmenter that labelled
+    if run.segmenter is not None:  # which labels the semantic figures used
+        details["labels_from"] = labels.labels_from
+        if labels.origin:
+            details["labels"] = labels.origin
     notes = labels.notes + [
         f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians over "
         f"frames (update only; segmentation + update = the median segmentation time + the "
@@ -421,7 +603,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
     truth = _ground_truth(run, ctx, sequence) if mapped.updater.has_leaf_map else None
     if truth is not None:
         _add_quality(truth, mapped.updater, values, details)
-    if run.sequence in SYNTHETIC_SEQUENCES and mapped.updater.has_leaf_map:
+    if run.sequence in SYNTHETIC_SEQUENCES and mapped.updater.has_leaf_map and run.views:
         _save_artifacts(run, ctx, mapped.updater, sequence, indices, labels)
     return CellRecord(**run.base_fields(), status="ok", values=values, notes=notes,
                       details=details)
@@ -515,7 +697,7 @@ def _save_artifacts(run: MappingRun, ctx: RunContext, updater: MapUpdater,
     if labels.observations is not None:
         middle = len(indices) // 2
         _save_segmentation_artifact(sequence, indices[middle], labels.observations[middle],
-                                    run, ctx, labels.source)
+                                    run, ctx, labels)
 
 
 def _options(config: dict[str, Any]) -> str:
@@ -538,15 +720,15 @@ def _save_map_artifact(updater: MapUpdater, run: MappingRun, ctx: RunContext) ->
 
 def _save_segmentation_artifact(sequence: FrameSequence, index: int,
                                 observation: SemanticObservation, run: MappingRun,
-                                ctx: RunContext, source: str) -> None:
+                                ctx: RunContext, labels: Labels) -> None:
     folder = Path(ctx.out) / "artifacts"
-    path = folder / f"seg-{source}-{run.sequence}.npz"
+    path = folder / f"seg-{labels.source}-{run.sequence}.npz"
     if path.exists():
         return
     folder.mkdir(parents=True, exist_ok=True)
     frame = sequence.frame(index)
-    title = (f"{source} on {sequence.name} frame {index}"
-             + (f" ({_options(ctx.oracle)})" if source == "oracle" else ""))
+    title = (f"{labels.labels_from} on {sequence.name} frame {index}"
+             + (f" ({_options(ctx.oracle)})" if labels.source == "oracle" else ""))
     arrays: dict[str, Any] = {"rgb": frame.rgb, "gt": frame.labels, "pred": observation.argmax,
                               "title": np.str_(title)}
     np.savez_compressed(path, **arrays)

@@ -62,7 +62,7 @@ from evsmap.runner.executors import (
     fresh_process,
     spawn_pool,
 )
-from evsmap.runner.mapping_cells import lacks_labels, unlabelled_record
+from evsmap.runner.mapping_cells import lacks_labels, unlabelled_record, with_synthetic_labels
 from evsmap.runner.records import CellRecord, RecordStore
 from evsmap.runner.systems import ExtraSystem
 from evsmap.tables.schema import CellSpec, expand, load_tables, mapping_table_id
@@ -127,6 +127,7 @@ def plan(ctx: RunContext, tables: Iterable[str] | None = None,
         from evsmap.runner.detail import detail_runs
 
         runs += detail_runs(ctx)
+    runs = with_synthetic_labels(ctx, runs)  # --synthetic-labels network
     if cells is not None:
         from fnmatch import fnmatchcase
 

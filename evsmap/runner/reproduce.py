@@ -72,6 +72,9 @@ def reproduce(job: Reproduction) -> list[CellRecord]:
                             quick=s.quick, strict_timing=s.strict_timing, extended=s.extended)
     ctx.scannet_scenes = tuple(s.scannet_scenes or ())
     ctx.scannet_step = s.scannet_step
+    ctx.synthetic_labels = s.synthetic_labels
+    if s.oracle_profile is not None:
+        ctx.oracle_profile = s.oracle_profile
     ctx.use_device(s.device)
     the_plan = plan(ctx, job.tables, job.systems, cells=s.cells)
     if not the_plan.keys:
@@ -95,7 +98,10 @@ def reproduce(job: Reproduction) -> list[CellRecord]:
 
 def run_file(ctx: RunContext, job: Reproduction, the_plan: Plan) -> RunFile:
     """``run.json`` of ``job`` as it starts (``finished`` not yet set)."""
-    sequences = {"synthetic": {**ctx.synthetic, "labels": "ground truth (oracle segmenter)"}}
+    labels = ("a trained proxy network's (--synthetic-labels network)"
+              if ctx.synthetic_labels == "network" else
+              f"ground truth (oracle segmenter, profile {ctx.oracle_profile})")
+    sequences = {"synthetic": {**ctx.synthetic, "labels": labels}}
     scenes = sorted({r.sequence for r in the_plan.runs
                      if is_scannet_sequence(r.sequence) and r.sequence != SCANNET})
     for name in [*the_plan.sequences, *scenes]:

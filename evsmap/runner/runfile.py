@@ -24,7 +24,8 @@ RUN_FILE = "run.json"
 """The run's description, in its folder."""
 
 FIXED_SETTINGS = ("quick", "cells", "train", "proxy_models", "proxy_recipe", "precision",
-                  "extended", "scannet_scenes", "scannet_step", "device")
+                  "extended", "scannet_scenes", "scannet_step", "device", "synthetic_labels",
+                  "oracle_profile")
 """Settings that decide what a run measures: a resumed run may not change them (its records
 would be a mix); the others (where the data is, how many workers) may change."""
 
@@ -52,6 +53,9 @@ class RunSettings(BaseModel):
     scannet_scenes: list[str] | None = None
     scannet_step: int = Field(default=10, gt=0)
     device: str = "cpu"
+    synthetic_labels: Literal["oracle", "network"] = "oracle"
+    oracle_profile: str | None = None
+    """None: the oracle's default profile."""
 
     def stored(self) -> dict[str, Any]:
         """The settings the file held (by name): a run written before a setting existed does

@@ -12,11 +12,13 @@ from evsmap.runner.context import RunContext
 from evsmap.runner.detail import DETAIL_ROWS, detail_row
 from evsmap.runner.mapping_cells import mapping_record
 from evsmap.runner.matrix import plan
+from evsmap.segmenters.oracle_profile import DEFAULT_PROFILE
 from tests.readers import scannet_scene as scene
 
 
 def _detail(runs):
-    return [r for r in runs if r.row.startswith("detail-")]
+    """The section's own rows (not the synthetic room's label-source runs)."""
+    return [r for r in runs if r.row.startswith("detail-") and r.labels is None]
 
 
 def test_without_scannet_the_section_names_the_dataset(tmp_path):
@@ -50,9 +52,11 @@ def test_scannet_scene_is_mapped_and_scored(tmp_path):
     diff = difference({r.row: r for r in records})
     assert np.isclose(diff, evsmap.values["scene_miou"] - tesamap.values["scene_miou"])
     assert records[0].details.get("labels_from") is None  # ORGBMap reads no labels
-    assert all(r.details["labels_from"] == "oracle" for r in records[1:])  # no weights here
+    # no weights here: the oracle, with its profile named
+    assert all(r.details["labels_from"] == f"oracle (profile {DEFAULT_PROFILE})"
+               for r in records[1:])
     text = "\n".join(detail_markdown(records))
-    assert text.count("oracle (ground truth, seeded noise)") == 2
+    assert text.count(f"| oracle, profile {DEFAULT_PROFILE} |") == 2
     assert "### scannet-scene0000_00 at 2 cm" in text and "ORGBMap" in text
     claim = verdict_rows(records)
     assert len(claim) == 1 and "scannet-scene0000_00" in claim[0]
