@@ -117,14 +117,15 @@ def sensitivity_runs(ctx: RunContext, segmenter: Component) -> list[MappingRun]:
     from evsmap.tables.schema import mapping_table
 
     rows = {r.id: r for r in mapping_table().rows}
+    evsmap_updater = rows[NETWORK_ROW].updater
+    assert evsmap_updater is not None
     runs = []
     for source in label_sources(ctx, segmenter):
-        assert rows[NETWORK_ROW].updater is not None
         if source.kind == "network" and ctx.weights_choice(
                 str(source.model), str(source.dataset)) is None:
             runs.append(MappingRun(
                 sensitivity_row(source.slug), "TESAMap and EVSMap, a proxy network's labels",
-                segmenter, rows[NETWORK_ROW].updater, SENSITIVITY_SEQUENCE, ctx.voxel_size,
+                segmenter, evsmap_updater, SENSITIVITY_SEQUENCE, ctx.voxel_size,
                 labels=source, views=False))
             continue
         for row_id in SENSITIVITY_ROWS:
