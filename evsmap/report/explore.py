@@ -258,14 +258,18 @@ def sensitivity_verdict(records: list[dict[str, Any]], space: Space) -> str:
 
 
 def _sizes_line(records: list[dict[str, Any]]) -> str:
-    """Whether the map sizes moved with the labels (checked, not assumed)."""
-    moved = [point for point, rows in _by_point(records).items()
-             if len({(r.get("map_size"), r.get("baseline_map_size")) for r in rows}) > 1]
+    """Whether the map sizes moved with the labels (checked, not assumed), and by how much."""
+    moved = []
+    for point, rows in _by_point(records).items():
+        if len({(r.get("map_size"), r.get("baseline_map_size")) for r in rows}) > 1:
+            ratios = [r["size_ratio"] for r in rows if r.get("size_ratio")]
+            spread = 100.0 * (max(ratios) - min(ratios)) / min(ratios)
+            moved.append(f"{point} (its size ratio by {spread:.3g} %)")
     if not moved:
         return ("The map sizes are the same under every labelling (the trees prune on "
                 "occupancy): the size ratios do not move with the labels, the mIoU does.")
-    return (f"The map sizes move with the labels at {', '.join(moved)} (the updater's pruning "
-            f"reads the classes).")
+    return (f"The map sizes move with the labels at {', '.join(moved)}: a map's pruning or "
+            f"merging reads the classes there.")
 
 
 def sensitivity_section(records: list[dict[str, Any]], space: Space) -> list[str]:

@@ -1,6 +1,6 @@
 """How a study's answer moves with the labels: one record per key point and label source, the
 study's own labels taken from its trials, noise-free labels scoring at least per-pixel's, the
-sizes checked (not assumed) to stay with the labels, the records stored in the study and read
+sizes measured under each labelling, the records stored in the study and read
 back on a re-report, a trained network as one more source, the report's section and the options'
 one-line errors."""
 
@@ -18,6 +18,8 @@ from evsmap.explore.sensitivity import (
     PAPER_POINT,
     Network,
     key_points,
+    label_sources,
+    measure_point,
     run_sensitivity,
 )
 from evsmap.explore.study import StudyConfig, create_study, load_study, open_storage
@@ -26,6 +28,7 @@ from tests.explore.conftest import SMALL_INPUTS
 
 TRIALS = 3
 PROFILES = {"oracle per-pixel", "oracle fitted", "oracle noise-free"}
+FIGURES = ("map_size", "baseline_map_size", "size_ratio", "scene_miou", "baseline_scene_miou")
 
 
 def _study(tmp_path: Path, space: Any) -> tuple[Any, Any, Bench]:
@@ -77,11 +80,16 @@ def test_records_per_point_and_source_stored_and_reused(tmp_path: Path, small_sp
         # exact labels score at least what per-pixel noise does, for both maps of the pair
         assert clean["scene_miou"] >= noisy["scene_miou"]
         assert clean["baseline_scene_miou"] >= noisy["baseline_scene_miou"]
-        # the trees prune on occupancy: no size moves with the labels
-        sizes = {(by[(p.trial, s)]["map_size"], by[(p.trial, s)]["baseline_map_size"])
-                 for s in PROFILES}
-        assert sizes == {(trials[p.trial]["map_size"],
-                          trials[p.trial]["baseline"]["map_size"])}
+        # the sizes are measured under each labelling, not copied from the study's trial
+        for s in PROFILES:
+            r = by[(p.trial, s)]
+            assert r["size_ratio"] == pytest.approx(r["baseline_map_size"] / r["map_size"])
+    # mapped again with the study's own labels, a key point gives the study's own figures
+    own = next(s for s in label_sources(bench) if s.study)
+    for p in points:
+        again = measure_point(bench, own, trials[p.trial])
+        fresh = by[(p.trial, "oracle fitted")]
+        assert {k: again[k] for k in FIGURES} == {k: fresh[k] for k in FIGURES}
     # stored in the study: a re-report in a new process maps nothing and reads the same
     assert len(study.user_attrs[ATTR]["records"]) == len(records)
     again = run_sensitivity(load_study(storage, "explore"), _NoMapping(small_space, SMALL_INPUTS))
@@ -142,9 +150,10 @@ def test_report_section_says_what_holds_and_what_depends(small_space) -> None:
             "than 1 pt of scene mIoU (yes with oracle fitted (the study's), feagnet-v1 "
             "(best.pt); no with oracle noise-free)") in verdict
     assert "The map sizes are the same under every labelling" in text
-    moved = [*records[:3], {**records[3], "map_size": 1e6}, *records[4:]]
-    assert "move with the labels at trial 7" in "\n".join(sensitivity_section(moved,
-                                                                                small_space))
+    moved = [*records[:3], {**records[3], "map_size": 1e6, "size_ratio": 2.4}, *records[4:]]
+    said = "\n".join(sensitivity_section(moved, small_space))
+    assert "move with the labels at trial 7 (the best within 1 pt) (its size ratio by 100 %)" \
+        in said
     assert sensitivity_section([], small_space) == []
 
 
