@@ -224,6 +224,7 @@ def run_sensitivity(study: optuna.Study, bench: Bench, *, network: Network | Non
         _save(study, data)
     network = stored_network(study) if network is None else network
     sources = label_sources(bench, network)
+    profiles = {s.name: _profile(bench, s) for s in sources}
     trials = {t.number: t for t in study.get_trials(deepcopy=False)}
     out = []
     for point in key_points(answer(trial_rows(study))):
@@ -234,7 +235,8 @@ def run_sensitivity(study: optuna.Study, bench: Bench, *, network: Network | Non
                 data["records"][key] = _measured(bench, source, record, point, say)
                 _save(study, data)
             out.append({**data["records"][key], "trial": point.trial, "point": point.role,
-                        "source": source.name, "study_labels": source.study})
+                        "source": source.name, "study_labels": source.study,
+                        "profile": profiles[source.name]})
     return out
 
 
@@ -248,6 +250,15 @@ def _measured(bench: Bench, source: Source, record: dict[str, Any], point: KeyPo
         figures = {**measure_point(bench, source, record), "from": "mapped"}
     return {**figures, "segmenter": source.segmenter, "options": dict(source.options),
             "weights": source.weights, "wall_s": time.perf_counter() - start}
+
+
+def _profile(bench: Bench, source: Source) -> str | None:
+    """The oracle profile's name (with the options it overrides) ``source``'s labels came
+    from, else ``None``."""
+    if source.segmenter != "oracle":
+        return None
+    profile = bench.relabelled(source.inputs(bench.inputs)).segmenter().profile
+    return str(profile.name)
 
 
 def check_network(segmenter: str | None, weights: Path) -> Network:

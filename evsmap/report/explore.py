@@ -282,6 +282,7 @@ def sensitivity_section(records: list[dict[str, Any]], space: Space) -> list[str
     used = "" if own is None else (
         f"The study's own trials were labelled by **{own['source']}** (segmenter "
         f"`{own.get('segmenter')}`"
+        + (f", profile `{own['profile']}`" if own.get("profile") else "")
         + (f", weights `{own['weights']}`" if own.get("weights") else "")
         + "); its row repeats the trial's own figures. ")
     return ["## How the answer moves with the labels", "",

@@ -68,7 +68,7 @@ def test_records_per_point_and_source_stored_and_reused(tmp_path: Path, small_sp
         assert r["study_labels"] == (r["source"] == "oracle fitted")
         if r["study_labels"]:
             trial = trials[r["trial"]]
-            assert r["from"] == "the study's trial"
+            assert r["from"] == "the study's trial" and r["profile"] == "fitted"
             assert r["size_ratio"] == trial["size_ratio"]
             assert r["miou_loss"] == pytest.approx(trial["miou_loss"])
         else:
@@ -131,7 +131,8 @@ def _record(trial: int, point: str, source: str, ratio: float, loss: float,
 def test_report_section_says_what_holds_and_what_depends(small_space) -> None:
     from evsmap.report.explore import sensitivity_section
 
-    records = [_record(0, PAPER_POINT, "oracle fitted", 0.6, 4.0, own=True),
+    records = [{**_record(0, PAPER_POINT, "oracle fitted", 0.6, 4.0, own=True),
+                "profile": "fitted"},
                _record(0, PAPER_POINT, "oracle noise-free", 0.6, 2.0),
                _record(0, PAPER_POINT, "feagnet-v1 (best.pt)", 0.6, 5.0),
                _record(7, BEST_POINT, "oracle fitted", 1.2, 0.5, own=True),
@@ -139,7 +140,7 @@ def test_report_section_says_what_holds_and_what_depends(small_space) -> None:
                _record(7, BEST_POINT, "feagnet-v1 (best.pt)", 1.2, 0.8)]
     text = "\n".join(sensitivity_section(records, small_space))
     assert text.startswith("## How the answer moves with the labels")
-    assert "labelled by **oracle fitted** (segmenter `oracle`)" in text
+    assert "labelled by **oracle fitted** (segmenter `oracle`, profile `fitted`)" in text
     assert text.count("\n| trial ") == 6
     assert "| trial 7 (the best within 1 pt) | oracle fitted (the study's) | 1.20x |" in text
     verdict = next(line for line in text.splitlines() if line.startswith("Under every"))
