@@ -37,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
         info_cmd,
         list_cmd,
         map_cmd,
+        oracle_cmd,
         predict_cmd,
         report_cmd,
         reproduce_cmd,
@@ -55,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd,
                    map_cmd, datasets_cmd, eval_cmd, report_cmd, weights_cmd,
-                   predict_cmd, train_cmd, cache_cmd, gate_cmd, explore_cmd):
+                   predict_cmd, train_cmd, cache_cmd, gate_cmd, explore_cmd, oracle_cmd):
         module.add_parser(sub)
     return parser
 

@@ -92,13 +92,58 @@ def _touching(labels: np.ndarray, c: int) -> np.ndarray:
     return contact | contact.T
 
 
+def matched_pixels(f0: Frame, f1: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """Flat pixel indices (in ``f0``, in ``f1``) of the same surface point: every
+    :data:`PAIR_STRIDE`-th labelled pixel of ``f1`` with depth, projected into ``f0``, kept where
+    it lands on a labelled pixel whose depth agrees within :data:`DEPTH_AGREEMENT`."""
+    assert f0.depth is not None and f0.intrinsics is not None and f0.labels is not None
+    assert f1.depth is not None and f1.intrinsics is not None and f1.labels is not None
+    s = PAIR_STRIDE
+    h1, w1 = f1.depth.shape
+    v, u = np.mgrid[0:h1:s, 0:w1:s]
+    depth1 = np.asarray(f1.depth, dtype=np.float64)[v, u]
+    ok = np.isfinite(depth1) & (depth1 > 0) & (f1.labels[v, u] != VOID)
+    k1, k0 = f1.intrinsics, f0.intrinsics
+    d, uu, vv = depth1[ok], u[ok].astype(np.float64), v[ok].astype(np.float64)
+    cam = np.stack([(uu - k1.cx) / k1.fx * d, (vv - k1.cy) / k1.fy * d, d], -1)
+    world = cam @ np.asarray(f1.pose)[:3, :3].T + np.asarray(f1.pose)[:3, 3]
+    inv = np.linalg.inv(np.asarray(f0.pose, dtype=np.float64))
+    c0 = world @ inv[:3, :3].T + inv[:3, 3]
+    z = c0[:, 2]
+    h0, w0 = f0.depth.shape
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = np.round(np.where(z > 0, c0[:, 0] / z * k0.fx + k0.cx, -1.0))
+        y = np.round(np.where(z > 0, c0[:, 1] / z * k0.fy + k0.cy, -1.0))
+    inside = (z > 0) & (x >= 0) & (x < w0) & (y >= 0) & (y < h0)
+    x, y, z = x[inside].astype(np.int64), y[inside].astype(np.int64), z[inside]
+    d0 = np.asarray(f0.depth, dtype=np.float64)[y, x]
+    seen = (d0 > 0) & (np.abs(d0 - z) <= DEPTH_AGREEMENT * z) & (f0.labels[y, x] != VOID)
+    flat1 = (v[ok] * w1 + u[ok])[inside][seen]
+    return y[seen] * w0 + x[seen], flat1
+
+
 class LabelErrorStats:
     """Accumulates the error figures of one segmenter over frames (module notes)."""
 
-    def __init__(self, num_classes: int, *, radius: int = 3) -> None:
+    def __init__(self, num_classes: int, *, radius: int = 3,
+                 memo: dict[tuple[object, ...], Any] | None = None) -> None:
         self.c = int(num_classes)
         self.radius = int(radius)
+        self.memo = memo
+        """Per-frame geometry kept across instances (boundary bands, matched pixels): for a
+        caller that measures the same frames many times (the oracle's fit)."""
         self.reset()
+
+    def band(self, frame: Frame) -> np.ndarray:
+        """The frame's boundary band (:func:`boundary_band`), from the memo when kept."""
+        assert frame.labels is not None
+        key = ("band", frame.name, frame.timestamp, self.radius)
+        if self.memo is not None and key in self.memo:
+            return self.memo[key]
+        band, _ = boundary_band(frame.labels, self.radius)
+        if self.memo is not None:
+            self.memo[key] = band
+        return band
 
     def reset(self) -> None:
         c = self.c
@@ -114,6 +159,10 @@ class LabelErrorStats:
         self.second = np.zeros(2, dtype=np.int64)  # wrong pixels with k >= 2, true second
         self.frames = 0
         self._previous: tuple[Frame, np.ndarray] | None = None
+
+    def new_sequence(self) -> None:
+        """The next frame starts another sequence: it is not paired with the previous one."""
+        self._previous = None
 
     # -- per frame ------------------------------------------------------------------------------
     def add(self, frame: Frame, observation: SemanticObservation, *,
@@ -140,11 +189,30 @@ class LabelErrorStats:
         touch = _touching(labels, self.c)
         ok = top1[inner_wrong] < self.c
         self.interior_touching += int(touch[true[inner_wrong][ok], top1[inner_wrong][ok]].sum())
-        self._add_space(wrong, ~void)
         self._add_probs(p1, void, band, wrong)
         if observation.classes.shape[-1] > 1:
             self.second[0] += int(np.count_nonzero(wrong))
             self.second[1] += int(np.count_nonzero(wrong & (observation.classes[..., 1] == true)))
+        self._add_pattern(frame, wrong, same_world)
+
+    def add_errors(self, frame: Frame, wrong: np.ndarray, *, same_world: bool = False) -> None:
+        """Only where a frame's errors lie (``wrong``: the labelled pixels whose top-1 is
+        wrong): the error rates, their autocorrelation, patches and persistence, without an
+        observation (the other figures stay as they are)."""
+        labels = frame.labels
+        if labels is None:
+            raise ValueError(f"frame {frame.name!r} has no labels")
+        void = labels == VOID
+        true = np.where(void, 0, labels).astype(np.intp)
+        band = self.band(frame)
+        for i, region in enumerate((~void & ~band, band)):
+            self.n[i] += np.bincount(true[region], minlength=self.c)[: self.c]
+            self.err[i] += np.bincount(true[region & wrong], minlength=self.c)[: self.c]
+        self._add_pattern(frame, wrong & ~void, same_world)
+
+    def _add_pattern(self, frame: Frame, wrong: np.ndarray, same_world: bool) -> None:
+        assert frame.labels is not None
+        self._add_space(wrong, frame.labels != VOID)
         if same_world and self._previous is not None:
             self._add_persistence(self._previous, (frame, wrong))
         self._previous = (frame, wrong)
@@ -176,28 +244,14 @@ class LabelErrorStats:
     def _add_persistence(self, previous: tuple[Frame, np.ndarray],
                          current: tuple[Frame, np.ndarray]) -> None:
         (f0, wrong0), (f1, wrong1) = previous, current
-        assert f0.depth is not None and f0.intrinsics is not None and f0.labels is not None
-        assert f1.depth is not None and f1.intrinsics is not None and f1.labels is not None
-        s = PAIR_STRIDE
-        depth1 = np.asarray(f1.depth, dtype=np.float64)[::s, ::s]
-        v, u = np.mgrid[0:f1.depth.shape[0]:s, 0:f1.depth.shape[1]:s].astype(np.float64)
-        k1, k0 = f1.intrinsics, f0.intrinsics
-        ok = np.isfinite(depth1) & (depth1 > 0) & (f1.labels[::s, ::s] != VOID)
-        cam = np.stack([(u - k1.cx) / k1.fx * depth1, (v - k1.cy) / k1.fy * depth1, depth1], -1)
-        world = cam[ok] @ np.asarray(f1.pose)[:3, :3].T + np.asarray(f1.pose)[:3, 3]
-        inv = np.linalg.inv(np.asarray(f0.pose, dtype=np.float64))
-        c0 = world @ inv[:3, :3].T + inv[:3, 3]
-        z = c0[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x = np.round(c0[:, 0] / z * k0.fx + k0.cx).astype(np.int64, copy=False)
-            y = np.round(c0[:, 1] / z * k0.fy + k0.cy).astype(np.int64, copy=False)
-        h0, w0 = f0.depth.shape
-        inside = (z > 0) & (x >= 0) & (x < w0) & (y >= 0) & (y < h0)
-        x, y, z = x[inside], y[inside], z[inside]
-        d0 = np.asarray(f0.depth, dtype=np.float64)[y, x]
-        seen = (d0 > 0) & (np.abs(d0 - z) <= DEPTH_AGREEMENT * z) & (f0.labels[y, x] != VOID)
-        a = wrong0[y[seen], x[seen]]
-        b = np.asarray(wrong1[::s, ::s][ok])[inside][seen]
+        key = (f0.name, f0.timestamp, f1.name, f1.timestamp)
+        if self.memo is None or key not in self.memo:
+            pairs = matched_pixels(f0, f1)
+            if self.memo is not None:
+                self.memo[key] = pairs
+        else:
+            pairs = self.memo[key]
+        a, b = wrong0.ravel()[pairs[0]], wrong1.ravel()[pairs[1]]
         self.persist += [a.size, a.sum(), b.sum(), (a & b).sum()]
 
     # -- result ---------------------------------------------------------------------------------
@@ -251,4 +305,4 @@ def _moments(n: float, s: float, s2: float) -> dict[str, float | None]:
     return {"pixels": int(n), "mean": float(mean), "var": float(max(s2 / n - mean * mean, 0.0))}
 
 
-__all__ = ["LAGS", "LabelErrorStats", "boundary_band", "window_extreme"]
+__all__ = ["LAGS", "LabelErrorStats", "boundary_band", "matched_pixels", "window_extreme"]

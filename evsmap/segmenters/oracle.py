@@ -57,7 +57,7 @@ from evsmap.errors import InvalidDataError
 from evsmap.interfaces import Segmenter
 from evsmap.metrics.label_errors import boundary_band
 from evsmap.registry import SEGMENTERS
-from evsmap.segmenters.oracle_field import uniform_fields
+from evsmap.segmenters.oracle_field import FieldMemo, uniform_fields
 from evsmap.segmenters.oracle_profile import (
     DEFAULT_PROFILE,
     REFERENCE_WIDTH,
@@ -109,7 +109,8 @@ class OracleSegmenter(Segmenter):
     its errors to the scene."""
 
     def __init__(self, *, profile: str | Path | OracleProfile = DEFAULT_PROFILE,
-                 num_classes: int = 40, seed: int = 0, k: int = 3, **overrides: Any) -> None:
+                 num_classes: int = 40, seed: int = 0, k: int = 3,
+                 memo: FieldMemo | None = None, **overrides: Any) -> None:
         if isinstance(num_classes, bool) or not isinstance(num_classes, (int, np.integer)) \
                 or not 2 <= num_classes <= 255:
             raise InvalidDataError(f"oracle: num_classes must be in [2, 255], got {num_classes!r}")
@@ -127,6 +128,8 @@ class OracleSegmenter(Segmenter):
         self.error_block = int(p.error_block)
         self.seed = int(seed)
         self.k = int(k)
+        self.memo = memo
+        """Fields kept across calls (the fit draws the same frames under many settings)."""
         self.confusers, self.confuser_weights = self._seeded_confusers()
         if p.confusion == "fitted":
             self.confusers, self.confuser_weights = self._fitted_confusers()
@@ -239,15 +242,35 @@ class OracleSegmenter(Segmenter):
         return grid[:, gy[:, None], gx[None, :]]
 
     def _uniforms(self, rng: np.random.Generator, frame: Frame,
-                  shape: tuple[int, int]) -> np.ndarray:
-        """The three correlated uniforms of the error draws (module notes)."""
+                  shape: tuple[int, int], n: int = 3) -> np.ndarray:
+        """The correlated uniforms of the error draws (module notes): "is it wrong", "which
+        confuser", "which second class"; the first ``n`` of them (the squares always draw
+        three, so the main generator's later draws do not depend on ``n``)."""
         p = self.profile
         if p.error_scale <= 0 and p.world_share <= 0:
-            return self._block_uniform(rng, shape, 3)
+            return self._block_uniform(rng, shape, 3)[:n]
         field_rng = np.random.default_rng(_frame_seed(self.seed, frame, _FIELD_SALT))
         sigma = p.error_scale * shape[1] / REFERENCE_WIDTH
-        return uniform_fields(field_rng, frame, 3, sigma=sigma, world_share=p.world_share,
-                              world_scale=p.world_scale, key=self.seed)
+        return uniform_fields(field_rng, frame, n, sigma=sigma, world_share=p.world_share,
+                              world_scale=p.world_scale, key=self.seed, memo=self.memo)
+
+    def _correct(self, u_err: np.ndarray, labels: np.ndarray, band: np.ndarray) -> np.ndarray:
+        """Which labelled pixels keep their true class as top-1."""
+        void = labels == VOID
+        true = np.where(void, 0, labels).astype(np.intp)
+        acc = np.where(band, self.class_boundary_accuracy[true], self.class_accuracy[true])
+        return (u_err < acc) & ~void
+
+    def error_mask(self, frame: Frame, band: np.ndarray | None = None) -> np.ndarray:
+        """The labelled pixels whose top-1 :meth:`predict` gets wrong, without the rest of the
+        prediction (the same draws: what the fit of the error field simulates); ``band``: the
+        frame's boundary band at ``boundary_blur`` when the caller has it."""
+        labels = self._check_frame(frame, self.k)
+        rng = np.random.default_rng(_frame_seed(self.seed, frame))
+        if band is None:
+            band, _ = boundary_band(labels, self.boundary_blur)
+        (u_err,) = self._uniforms(rng, frame, labels.shape, 1)
+        return ~self._correct(u_err, labels, band) & (labels != VOID)
 
     def _check_frame(self, frame: Frame, k: int) -> np.ndarray:
         if not 1 <= k <= self.num_classes:
@@ -283,8 +306,7 @@ class OracleSegmenter(Segmenter):
         # Top-1: correct or a wrong class. Confuser j of the true class is picked when the
         # uniform falls in [cum_{j-1}, cum_j) of its weights.
         u_err, u_pick, u_second = self._uniforms(rng, frame, labels.shape)
-        acc = np.where(band, self.class_boundary_accuracy[true], self.class_accuracy[true])
-        correct = (u_err < acc) & ~void
+        correct = self._correct(u_err, labels, band)
         cum = np.cumsum(weights, axis=1)[true]  # (H, W, m)
         options = table.astype(np.int32)[true]  # (H, W, m)
         pick = np.minimum((u_pick[..., None] >= cum).sum(axis=2), m - 1)

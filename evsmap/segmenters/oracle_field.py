@@ -45,20 +45,6 @@ def _lattice_normals(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, key: int) -
     return special.ndtri(u)
 
 
-def image_field(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
-    """(H, W) unit-variance Gaussian field with correlation length ``sigma`` px (0: white)."""
-    noise = rng.standard_normal(shape)
-    if sigma <= 0:
-        return noise
-    smooth = ndimage.gaussian_filter(noise, sigma, mode="wrap")
-    # the variance of the filtered white noise is the kernel's sum of squares (separable)
-    radius = int(4.0 * sigma + 0.5)
-    x = np.arange(-radius, radius + 1, dtype=np.float64)
-    k = np.exp(-0.5 * (x / sigma) ** 2)
-    k /= k.sum()
-    return smooth / float((k ** 2).sum())
-
-
 def world_points(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
     """(H, W, 3) world points of the pixels and the (H, W) mask of valid depth."""
     assert frame.depth is not None and frame.intrinsics is not None  # an image frame
@@ -92,8 +78,43 @@ def world_field(points: np.ndarray, scale: float, key: int) -> np.ndarray:
     return total / np.sqrt(weight2)
 
 
+def _smoothed(noise: np.ndarray, sigma: float) -> np.ndarray:
+    """White noise smoothed to a unit-variance field of correlation length ``sigma`` px."""
+    if sigma <= 0:
+        return noise
+    smooth = ndimage.gaussian_filter(noise, sigma, mode="wrap")
+    # the variance of the filtered white noise is the kernel's sum of squares (separable)
+    radius = int(4.0 * sigma + 0.5)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    k = np.exp(-0.5 * (x / sigma) ** 2)
+    k /= k.sum()
+    return smooth / float((k ** 2).sum())
+
+
+def image_field(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
+    """(H, W) unit-variance Gaussian field with correlation length ``sigma`` px (0: white)."""
+    return _smoothed(rng.standard_normal(shape), sigma)
+
+
+class FieldMemo:
+    """Fields already computed, for a caller that draws the same frames' fields under many
+    settings (the oracle's fit): the smoothed image field by (frame, field, sigma), the world
+    field and its points by (frame, field, scale). The random draws are made every time, so a
+    memo never changes a value."""
+
+    def __init__(self) -> None:
+        self.image: dict[tuple[object, ...], np.ndarray] = {}
+        self.world: dict[tuple[object, ...], np.ndarray] = {}
+        self.points: dict[tuple[object, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _frame_key(frame: Frame) -> tuple[str, float]:
+    return frame.name, frame.timestamp
+
+
 def uniform_fields(rng: np.random.Generator, frame: Frame, n: int, *, sigma: float,
-                   world_share: float, world_scale: float, key: int) -> np.ndarray:
+                   world_share: float, world_scale: float, key: int,
+                   memo: FieldMemo | None = None) -> np.ndarray:
     """(n, H, W) correlated uniforms (module notes); ``key`` picks the world field (the same
     key, the same field in every frame)."""
     assert frame.depth is not None  # an image frame
@@ -101,15 +122,33 @@ def uniform_fields(rng: np.random.Generator, frame: Frame, n: int, *, sigma: flo
     out = np.empty((n,) + shape)
     points = valid = None
     if world_share > 0:
-        points, valid = world_points(frame)
+        if memo is None:
+            points, valid = world_points(frame)
+        else:
+            if _frame_key(frame) not in memo.points:
+                memo.points[_frame_key(frame)] = world_points(frame)
+            points, valid = memo.points[_frame_key(frame)]
     for i in range(n):
-        g = image_field(rng, shape, sigma)
+        noise = rng.standard_normal(shape)
+        ikey = (*_frame_key(frame), i, sigma, key)
+        if memo is None:
+            g = _smoothed(noise, sigma)
+        else:
+            if ikey not in memo.image:
+                memo.image[ikey] = _smoothed(noise, sigma)
+            g = memo.image[ikey]
         if points is not None and valid is not None:
-            scene = world_field(points, world_scale, key * 8 + i)
+            wkey = (*_frame_key(frame), i, world_scale, key)
+            if memo is None:
+                scene = world_field(points, world_scale, key * 8 + i)
+            else:
+                if wkey not in memo.world:
+                    memo.world[wkey] = world_field(points, world_scale, key * 8 + i)
+                scene = memo.world[wkey]
             mixed = np.sqrt(world_share) * scene + np.sqrt(1.0 - world_share) * g
             g = np.where(valid, mixed, g)
         out[i] = special.ndtr(g)
     return np.minimum(out, np.nextafter(1.0, 0.0))
 
 
-__all__ = ["image_field", "uniform_fields", "world_field", "world_points"]
+__all__ = ["FieldMemo", "image_field", "uniform_fields", "world_field", "world_points"]
