@@ -225,12 +225,13 @@ def run_sensitivity(study: optuna.Study, bench: Bench, *, network: Network | Non
     network = stored_network(study) if network is None else network
     sources = label_sources(bench, network)
     profiles = {s.name: _profile(bench, s) for s in sources}
+    ids = {s.name: labels_id(bench, s) for s in sources}  # once: the code may change meanwhile
     trials = {t.number: t for t in study.get_trials(deepcopy=False)}
     out = []
     for point in key_points(answer(trial_rows(study))):
         record = trials[point.trial].user_attrs["record"]
         for source in sources:
-            key = f"{point.trial}:{labels_id(bench, source)}"
+            key = f"{point.trial}:{ids[source.name]}"
             if key not in data["records"]:
                 data["records"][key] = _measured(bench, source, record, point, say)
                 _save(study, data)
