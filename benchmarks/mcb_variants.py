@@ -1,6 +1,7 @@
 """Compare multiclass-bayes's leaf updates with classic-semantic on the built-in synthetic room:
 3D semantic accuracy and mIoU against the room's ground-truth voxels, nodes and the pruned share
-of the leaves, at several oracle accuracies. The same observations feed every updater.
+of the leaves, at several accuracies of the oracle's `per-pixel` profile. The same observations
+feed every updater.
 
     python benchmarks/mcb_variants.py [--resolution 0.05] [--frames 60] [--json FILE]
 """
@@ -38,7 +39,7 @@ def main() -> None:
     truth = seq.ground_truth(args.resolution)
     rows = []
     for acc in (float(a) for a in args.accuracies.split(",")):
-        oracle = SEGMENTERS.create("oracle", accuracy=acc)
+        oracle = SEGMENTERS.create("oracle", profile="per-pixel", accuracy=acc)
         obs = [oracle.predict(f) for f in frames]
         for label, (name, options) in SYSTEMS.items():
             m = UPDATERS.create(name, resolution=args.resolution, max_range=5.0, **options)
