@@ -217,9 +217,17 @@ class Bench:
         trial.update(_quality(mapped.updater, self.truth(shared["resolution"]))
                      if self.has_truth() else {})
         baseline = self.baseline(shared, ref["update_hz"])
-        return trial_record(trial, reference=ref, baseline=baseline,
-                            params=params, shared=shared, threads=update_threads(),
-                            wall_s=time.perf_counter() - start)
+        record = trial_record(trial, reference=ref, baseline=baseline,
+                              params=params, shared=shared, threads=update_threads(),
+                              wall_s=time.perf_counter() - start)
+        return {**record, "labels": self.labels_id()}
+
+    def labels_id(self) -> str:
+        """16 hex digits naming the labels every map of this bench reads (the observations'
+        cache key: the segmenter, its profile's settings or weights, the code, the frames)."""
+        from evsmap.runner.segcache import cache_key
+
+        return cache_key(observations=self.observations_key())
 
     def _map(self, name: str, options: dict[str, Any], *, semantic: bool) -> Any:
         """``name`` mapping the frames with the options it takes (timed per update)."""

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 
 ATTR = "evsmap_sensitivity"
 """The study's user attribute holding the sensitivity's network and its records."""
-VERSION = 1
+VERSION = 2
 """Bumped when what a stored record holds changes (older records are measured again)."""
 ORACLE_CARRIED = ("seed", "k", "num_classes")
 """The study's oracle options every profile source keeps (the rest are the noise model's, which
@@ -155,10 +155,27 @@ def _own_name(bench: Bench) -> str:
 
 
 def labels_id(bench: Bench, source: Source) -> str:
-    """16 hex digits naming ``source``'s labels of the study's frames."""
-    from evsmap.runner.segcache import cache_key
+    """16 hex digits naming ``source``'s labels of the study's frames (a trial records its
+    own: :meth:`~evsmap.explore.bench.Bench.labels_id`)."""
+    return bench.relabelled(source.inputs(bench.inputs)).labels_id()
 
-    return cache_key(version=VERSION, observations=_key(bench, source))
+
+def point_sources(sources: list[Source], ids: dict[str, str],
+                  made_with: str | None) -> list[tuple[Source, str]]:
+    """A key point's sources and their labels' ids. The study's labels are those its trial
+    recorded (``made_with``): where no source gives them today (the profile, the weights or the
+    segmenters' code changed since), they are one more source, read from the trial. A trial
+    that recorded none (a study made before it did) takes today's match (``sources``'s mark)."""
+    if made_with is None:
+        return [(s, ids[s.name]) for s in sources]
+    out = [(dataclasses.replace(s, study=ids[s.name] == made_with), ids[s.name])
+           for s in sources]
+    if not any(s.study for s, _ in out):
+        own = next((s for s in sources if s.study), sources[0])
+        then = dataclasses.replace(own, name=f"the study's labels ({own.name}, when its "
+                                             f"trials ran)", study=True)
+        out.insert(0, (then, made_with))
+    return out
 
 
 # ---- stored in the study
@@ -224,20 +241,19 @@ def run_sensitivity(study: optuna.Study, bench: Bench, *, network: Network | Non
         _save(study, data)
     network = stored_network(study) if network is None else network
     sources = label_sources(bench, network)
-    profiles = {s.name: _profile(bench, s) for s in sources}
     ids = {s.name: labels_id(bench, s) for s in sources}  # once: the code may change meanwhile
     trials = {t.number: t for t in study.get_trials(deepcopy=False)}
     out = []
     for point in key_points(answer(trial_rows(study))):
         record = trials[point.trial].user_attrs["record"]
-        for source in sources:
-            key = f"{point.trial}:{ids[source.name]}"
+        for source, labels in point_sources(sources, ids, record.get("labels")):
+            key = f"{point.trial}:{labels}"
             if key not in data["records"]:
                 data["records"][key] = _measured(bench, source, record, point, say)
                 _save(study, data)
             out.append({**data["records"][key], "trial": point.trial, "point": point.role,
                         "source": source.name, "study_labels": source.study,
-                        "profile": profiles[source.name]})
+                        "profile": _profile(bench, source)})
     return out
 
 
@@ -288,4 +304,5 @@ def check_network(segmenter: str | None, weights: Path) -> Network:
 
 __all__ = ["ATTR", "KeyPoint", "Network", "SensitivityError", "Source", "applies",
            "check_network", "key_points", "label_sources", "labels_id", "measure_point",
+           "point_sources",
            "point_record", "run_sensitivity", "stored", "stored_network"]

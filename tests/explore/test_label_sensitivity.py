@@ -68,6 +68,7 @@ def test_records_per_point_and_source_stored_and_reused(tmp_path: Path, small_sp
         assert r["study_labels"] == (r["source"] == "oracle fitted")
         if r["study_labels"]:
             trial = trials[r["trial"]]
+            assert trial["labels"] == bench.labels_id()  # the trial recorded its labels
             assert r["from"] == "the study's trial" and r["profile"] == "fitted"
             assert r["size_ratio"] == trial["size_ratio"]
             assert r["miou_loss"] == pytest.approx(trial["miou_loss"])
@@ -117,6 +118,26 @@ def test_a_trained_network_is_one_more_source(tmp_path: Path, small_space) -> No
     # the network is kept with the study: a re-report without it still has its records
     again = run_sensitivity(load_study(storage, "explore"), _NoMapping(small_space, SMALL_INPUTS))
     assert again == records
+
+
+def test_the_study_s_labels_are_those_its_trial_recorded() -> None:
+    from evsmap.explore.sensitivity import Source, point_sources
+
+    sources = [Source("oracle per-pixel", "oracle", {"profile": "per-pixel"}),
+               Source("oracle fitted", "oracle", {"profile": "fitted"}, study=True)]
+    ids = {"oracle per-pixel": "a", "oracle fitted": "b"}
+    # the trial's labels are today's fitted profile's: that source is the study's
+    same = point_sources(sources, ids, "b")
+    assert [(s.name, s.study, i) for s, i in same] == [("oracle per-pixel", False, "a"),
+                                                       ("oracle fitted", True, "b")]
+    # the fitted profile changed since the trials ran: today's is mapped like any other
+    # source, and the study's own labels are one more row, read from the trial
+    changed = point_sources(sources, ids, "c")
+    assert [(s.name, s.study, i) for s, i in changed] == [
+        ("the study's labels (oracle fitted, when its trials ran)", True, "c"),
+        ("oracle per-pixel", False, "a"), ("oracle fitted", False, "b")]
+    # a study made before trials recorded their labels: today's match
+    assert [s.study for s, _ in point_sources(sources, ids, None)] == [False, True]
 
 
 def _record(trial: int, point: str, source: str, ratio: float, loss: float,
