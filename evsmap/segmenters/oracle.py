@@ -83,7 +83,8 @@ def _frame_seed(seed: int, frame: Frame, *salt: int) -> np.random.SeedSequence:
 
 def resolve_profile(profile: str | Path | OracleProfile = DEFAULT_PROFILE,
                     **overrides: Any) -> OracleProfile:
-    """The profile with the options given (not None) in place of its values."""
+    """The profile with the options given (not None) in place of its values; ``accuracy`` or
+    ``boundary_accuracy`` given replaces the per-class values too (it holds for every class)."""
     base = profile if isinstance(profile, OracleProfile) else load_profile(profile)
     given = {k: v for k, v in overrides.items() if v is not None}
     unknown = set(given) - set(OVERRIDABLE)
@@ -98,6 +99,11 @@ def resolve_profile(profile: str | Path | OracleProfile = DEFAULT_PROFILE,
         if key in given:
             given[key] = float(given[key])
     named = ", ".join(f"{k}={v}" for k, v in sorted(given.items()))
+    # an accuracy given holds for every class: it replaces the profile's per-class values
+    if "accuracy" in given:
+        given["class_accuracy"] = {}
+    if "boundary_accuracy" in given:
+        given["class_boundary_accuracy"] = {}
     return base.replace(**given, name=f"{base.name} ({named})")
 
 

@@ -1,4 +1,6 @@
-"""The ``oracle`` segmenter: noisy top-k predictions from ground-truth labels."""
+"""The ``oracle`` segmenter: noisy top-k predictions from ground-truth labels (the mechanics,
+mostly on the ``per-pixel`` profile, whose errors are independent: their rates show on one
+frame)."""
 
 from __future__ import annotations
 
@@ -51,7 +53,7 @@ def test_registered_with_keyword_options():
 @pytest.mark.parametrize("accuracy", [0.85, 0.6, 1.0])
 def test_measured_accuracy_away_from_boundaries(accuracy):
     labels = blocks()
-    seg = OracleSegmenter(accuracy=accuracy, boundary_blur=3, seed=1)
+    seg = OracleSegmenter(profile="per-pixel", accuracy=accuracy, boundary_blur=3, seed=1)
     obs = seg.predict(frame(labels))
     inside = interior(labels, 3)
     assert inside.sum() > 40000
@@ -61,7 +63,8 @@ def test_measured_accuracy_away_from_boundaries(accuracy):
 
 def test_accuracy_holds_with_block_errors_and_adjacent_confusers():
     labels = blocks(480, 640, size=80)
-    seg = OracleSegmenter(accuracy=0.85, error_block=4, confusion="adjacent", seed=2)
+    seg = OracleSegmenter(profile="per-pixel", accuracy=0.85, error_block=4,
+                          confusion="adjacent", seed=2)
     obs = seg.predict(frame(labels))
     inside = interior(labels, 3)
     measured = (obs.argmax[inside] == labels[inside]).mean()
@@ -74,14 +77,14 @@ def test_accuracy_holds_with_block_errors_and_adjacent_confusers():
 
 def test_wrong_labels_come_from_the_class_confusers():
     labels = blocks()
-    seg = OracleSegmenter(accuracy=0.5, seed=4)
+    seg = OracleSegmenter(profile="per-pixel", accuracy=0.5, seed=4)
     obs = seg.predict(frame(labels))
     inside = interior(labels, 3)
     wrong = inside & (obs.argmax != labels)
     allowed = seg.confusers[labels[wrong]]
     assert np.all(np.any(allowed == obs.argmax[wrong][:, None], axis=1))
     # the same table for every frame of this seed
-    again = OracleSegmenter(accuracy=0.5, seed=4)
+    again = OracleSegmenter(profile="per-pixel", accuracy=0.5, seed=4)
     assert np.array_equal(again.confusers, seg.confusers)
 
 
@@ -125,7 +128,7 @@ def test_probabilities_valid_and_sorted(k):
 
 def test_default_k_and_true_class_often_second_when_wrong():
     labels = blocks()
-    obs = OracleSegmenter(accuracy=0.6, seed=8).predict(frame(labels))
+    obs = OracleSegmenter(profile="per-pixel", accuracy=0.6, seed=8).predict(frame(labels))
     assert obs.k == 3
     inside = interior(labels, 3)
     wrong = inside & (obs.argmax != labels)
@@ -137,7 +140,8 @@ def test_default_k_and_true_class_often_second_when_wrong():
 
 def test_boundary_pixels_are_less_accurate_and_flatter():
     labels = blocks()
-    seg = OracleSegmenter(accuracy=0.9, boundary_blur=3, boundary_accuracy=0.55, seed=9)
+    seg = OracleSegmenter(profile="per-pixel", accuracy=0.9, boundary_blur=3,
+                          boundary_accuracy=0.55, seed=9)
     obs = seg.predict(frame(labels))
     inside = interior(labels, 3)
     band = ~inside & (labels != VOID)
@@ -152,13 +156,14 @@ def test_boundary_pixels_are_less_accurate_and_flatter():
     across = (obs.argmax == hi) | (obs.argmax == lo)
     assert across[wrong].mean() > 0.9
     # no blur: the band is as accurate as the interior
-    flat = OracleSegmenter(accuracy=0.9, boundary_blur=0, seed=9).predict(frame(labels))
+    flat = OracleSegmenter(profile="per-pixel", accuracy=0.9, boundary_blur=0,
+                           seed=9).predict(frame(labels))
     assert abs((flat.argmax == labels)[band].mean() - 0.9) <= 0.03
 
 
 def test_void_pixels_get_low_confidence():
     labels = blocks()
-    obs = OracleSegmenter(seed=10).predict(frame(labels))
+    obs = OracleSegmenter(profile="per-pixel", seed=10).predict(frame(labels))
     void = labels == VOID
     assert obs.probs[..., 0][void].mean() < 0.4
     assert obs.probs[..., 0][~void].mean() > 0.6
@@ -188,3 +193,21 @@ def test_call_uses_the_factory_k():
     labels = blocks()
     seg = SEGMENTERS.create("oracle", k=2)
     assert seg(frame(labels)).k == 2
+
+
+def test_the_default_profiles_accuracy_holds_over_frames_that_see_different_places():
+    """With errors correlated over patches and anchored to the scene, one frame's error rate
+    varies; over frames seeing different places it is the profile's."""
+    from evsmap.segmenters.oracle_profile import load_profile
+
+    profile = load_profile("fitted").replace(class_accuracy={}, class_boundary_accuracy={})
+    seg = OracleSegmenter(profile=profile, seed=11)
+    labels = blocks()
+    inside = interior(labels, profile.boundary_blur)
+    rates = []
+    for i in range(40):
+        f = frame(labels, name=f"p{i}", timestamp=float(i))
+        f.pose[:3, 3] = [7.0 * i, 3.0 * i, 0.0]  # a place of its own
+        rates.append((seg.predict(f).argmax[inside] == labels[inside]).mean())
+    assert abs(np.mean(rates) - profile.accuracy) < 0.04
+    assert np.std(rates) > 0.02  # a network's per-frame accuracy varies too

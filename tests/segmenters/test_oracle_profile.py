@@ -154,3 +154,13 @@ def test_a_memo_never_changes_a_prediction():
         assert np.array_equal(plain.probs, kept.probs)
     assert np.array_equal(OracleSegmenter(profile=profile, memo=memo).error_mask(frame),
                           plain.argmax != frame.labels)
+
+
+def test_an_accuracy_given_holds_for_every_class():
+    frame = digest_frame()
+    profile = load_profile("per-pixel").replace(class_accuracy={0: 0.1},
+                                                class_boundary_accuracy={0: 0.1})
+    seg = OracleSegmenter(profile=profile, accuracy=1.0, boundary_accuracy=1.0)
+    obs = seg.predict(frame)
+    labelled = frame.labels != VOID
+    assert np.array_equal(obs.argmax[labelled], frame.labels[labelled])

@@ -67,7 +67,8 @@ def test_semantic_slams_averaged_colours_leave_voxels_without_a_class(synthetic,
     # the generator front end (semantic_slam's, and SSMI's for multiclass-bayes) averages the
     # packed class colours of a voxel-grid leaf's points, so
     # leaves mixing classes (and noisy oracle pixels) carry colours that are no class: those
-    # voxels read back unlabelled, the labelled ones are mostly right
+    # voxels read back unlabelled, the labelled ones are mostly right (about 9 % of the seen
+    # voxels with the fitted oracle's patchy errors; 20-60 % with the per-pixel profile's)
     seq, frames, observations = synthetic
     updater = UPDATERS.create(name, resolution=0.05)
     for frame, obs in zip(frames, observations, strict=True):
@@ -77,7 +78,7 @@ def test_semantic_slams_averaged_colours_leave_voxels_without_a_class(synthetic,
     seen = q.state == 1
     label, want = q.label[seen], np.asarray(truth.labels)[seen]
     assert seen.sum() > 1000
-    assert 0.2 < np.mean(label < 0) < 0.6
+    assert 0.02 < np.mean(label < 0) < 0.6
     assert np.mean(label[label >= 0] == want[label >= 0]) > 0.75
 
 
