@@ -5,8 +5,8 @@ wrong in the next (it sees nearly the same image). The oracle draws each pixel's
 and "which wrong class" from uniforms that are correlated the same ways:
 
 * :func:`image_field`: white Gaussian noise smoothed by a Gaussian of standard deviation
-  ``sigma`` px (periodic boundaries, so every pixel has the same variance), scaled to unit
-  variance;
+  ``sigma`` px (a circular convolution, by FFT, so every pixel has the same variance), scaled
+  to unit variance;
 * :func:`world_field`: a Gaussian value-noise field on a 3D lattice of spacing ``scale`` metres,
   trilinearly interpolated at each pixel's back-projected point (world frame), scaled to unit
   variance at every point; the lattice values are hashes of the lattice coordinates and the
@@ -20,7 +20,7 @@ and "which wrong class" from uniforms that are correlated the same ways:
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage, special
+from scipy import special
 
 from evsmap.data import Frame
 
@@ -59,36 +59,73 @@ def world_points(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
     return cam @ pose[:3, :3].T + pose[:3, 3], valid
 
 
-def world_field(points: np.ndarray, scale: float, key: int) -> np.ndarray:
-    """Unit-variance value noise at ``points`` (..., 3): lattice spacing ``scale`` m."""
+_OFFSET = 1 << 20
+"""Lattice coordinates are packed in 21 bits each (+- 2^20 cells: 52 km at 5 cm)."""
+
+
+def _cells(points: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct lattice cells (C, 3) of ``points`` (N, 3), each point's cell index and its
+    position inside the cell (N, 3) in [0, 1)."""
     p = points / scale
-    base = np.floor(p)
-    f = p - base
-    base = base.astype(np.int64)
-    total = np.zeros(points.shape[:-1])
-    weight2 = np.zeros(points.shape[:-1])
+    floor = np.floor(p)
+    f = p - floor
+    c = np.clip(floor.astype(np.int64) + _OFFSET, 0, 2 * _OFFSET - 1)
+    packed = (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+    keys, where = np.unique(packed, return_inverse=True)
+    mask = (1 << 21) - 1
+    cells = np.stack([keys >> 42, (keys >> 21) & mask, keys & mask], axis=1) - _OFFSET
+    return cells, where.reshape(-1), f
+
+
+def world_fields(points: np.ndarray, scale: float, keys: list[int]) -> list[np.ndarray]:
+    """Unit-variance value noise at ``points`` (..., 3), one field per key: lattice spacing
+    ``scale`` m, trilinear between the lattice values, which are drawn once per distinct cell
+    of the points (a frame covers few cells)."""
+    flat = points.reshape(-1, 3)
+    cells, where, f = _cells(flat, scale)
+    weights = []
     for corner in range(8):
         d = [(corner >> a) & 1 for a in range(3)]
-        w = np.ones(points.shape[:-1])
+        w = np.ones(len(flat))
         for a in range(3):
-            w = w * (f[..., a] if d[a] else 1.0 - f[..., a])
-        n = _lattice_normals(base[..., 0] + d[0], base[..., 1] + d[1], base[..., 2] + d[2], key)
-        total += w * n
-        weight2 += w * w
-    return total / np.sqrt(weight2)
+            w = w * (f[:, a] if d[a] else 1.0 - f[:, a])
+        weights.append((d, w))
+    norm = np.sqrt(sum(w * w for _, w in weights))
+    out = []
+    for key in keys:
+        total = np.zeros(len(flat))
+        for d, w in weights:
+            n = _lattice_normals(cells[:, 0] + d[0], cells[:, 1] + d[1], cells[:, 2] + d[2], key)
+            total += w * n[where]
+        out.append((total / norm).reshape(points.shape[:-1]))
+    return out
+
+
+def world_field(points: np.ndarray, scale: float, key: int) -> np.ndarray:
+    """One of :func:`world_fields`."""
+    return world_fields(points, scale, [key])[0]
+
+
+def _periodic_gaussian(n: int, sigma: float) -> np.ndarray:
+    """The Gaussian of standard deviation ``sigma`` sampled on a circle of ``n`` px (offsets
+    0..n-1, every wrap summed), summing to 1."""
+    wraps = int(np.ceil(4.0 * sigma / n)) + 1
+    x = np.arange(n)[None, :] + n * np.arange(-wraps, wraps + 1)[:, None]
+    k = np.exp(-0.5 * (x / sigma) ** 2).sum(axis=0)
+    return k / k.sum()
 
 
 def _smoothed(noise: np.ndarray, sigma: float) -> np.ndarray:
-    """White noise smoothed to a unit-variance field of correlation length ``sigma`` px."""
+    """White noise smoothed to a unit-variance field of correlation length ``sigma`` px: a
+    circular convolution with the periodic Gaussian (every pixel has the same variance), by
+    FFT; the variance of smoothed unit white noise is the kernel's sum of squares."""
     if sigma <= 0:
         return noise
-    smooth = ndimage.gaussian_filter(noise, sigma, mode="wrap")
-    # the variance of the filtered white noise is the kernel's sum of squares (separable)
-    radius = int(4.0 * sigma + 0.5)
-    x = np.arange(-radius, radius + 1, dtype=np.float64)
-    k = np.exp(-0.5 * (x / sigma) ** 2)
-    k /= k.sum()
-    return smooth / float((k ** 2).sum())
+    h, w = noise.shape
+    ky, kx = _periodic_gaussian(h, sigma), _periodic_gaussian(w, sigma)
+    transfer = np.fft.fft(ky).real[:, None] * np.fft.rfft(kx).real[None, :]
+    smooth = np.fft.irfft2(np.fft.rfft2(noise) * transfer, s=noise.shape)
+    return smooth / float(np.sqrt((ky ** 2).sum() * (kx ** 2).sum()))
 
 
 def image_field(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
@@ -128,6 +165,15 @@ def uniform_fields(rng: np.random.Generator, frame: Frame, n: int, *, sigma: flo
             if _frame_key(frame) not in memo.points:
                 memo.points[_frame_key(frame)] = world_points(frame)
             points, valid = memo.points[_frame_key(frame)]
+    scenes: list[np.ndarray] = []
+    if points is not None:
+        wkey = (*_frame_key(frame), n, world_scale, key)
+        if memo is None or wkey not in memo.world:
+            scenes = world_fields(points, world_scale, [key * 8 + i for i in range(n)])
+            if memo is not None:
+                memo.world[wkey] = np.stack(scenes)
+        else:
+            scenes = list(memo.world[wkey])
     for i in range(n):
         noise = rng.standard_normal(shape)
         ikey = (*_frame_key(frame), i, sigma, key)
@@ -137,18 +183,12 @@ def uniform_fields(rng: np.random.Generator, frame: Frame, n: int, *, sigma: flo
             if ikey not in memo.image:
                 memo.image[ikey] = _smoothed(noise, sigma)
             g = memo.image[ikey]
-        if points is not None and valid is not None:
-            wkey = (*_frame_key(frame), i, world_scale, key)
-            if memo is None:
-                scene = world_field(points, world_scale, key * 8 + i)
-            else:
-                if wkey not in memo.world:
-                    memo.world[wkey] = world_field(points, world_scale, key * 8 + i)
-                scene = memo.world[wkey]
-            mixed = np.sqrt(world_share) * scene + np.sqrt(1.0 - world_share) * g
+        if scenes and valid is not None:
+            mixed = np.sqrt(world_share) * scenes[i] + np.sqrt(1.0 - world_share) * g
             g = np.where(valid, mixed, g)
         out[i] = special.ndtr(g)
     return np.minimum(out, np.nextafter(1.0, 0.0))
 
 
-__all__ = ["FieldMemo", "image_field", "uniform_fields", "world_field", "world_points"]
+__all__ = ["FieldMemo", "image_field", "uniform_fields", "world_field", "world_fields",
+           "world_points"]
