@@ -488,7 +488,7 @@ def oracle_observations_key(oracle: Any, ctx: RunContext, sequence: FrameSequenc
 
 def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: FrameSequence,
                    indices: list[int], profile: str) -> Labels:
-    """Labels from the oracle with ``profile`` (ground truth with seeded noise); the
+    """Labels from the oracle with ``profile`` (ground truth with the profile's errors); the
     segmentation time of the untrained network on the same frames."""
     from evsmap.measure.engine import is_oracle
     from evsmap.registry import SEGMENTERS
@@ -505,8 +505,8 @@ def _oracle_labels(run: MappingRun, ctx: RunContext, caches: _Caches, sequence: 
                             {"segmenter": spec, "backend": ctx.speed_backend})
     segment_ms = timing["predict_ms"]
     note = (f"labels from the oracle segmenter (profile {oracle.profile.name}; "
-            f"{_options(ctx.oracle)}: ground truth with seeded noise), no trained weights; "
-            f"segmentation time of the untrained {spec} "
+            f"{_options(ctx.oracle)}: ground truth with the profile's errors), no trained "
+            f"weights; segmentation time of the untrained {spec} "
             f"({ctx.speed_backend}) on the same frames in order, {len(segment_ms)} of them "
             f"(until its median was within +-{100 * timing['rel_ci']:.1f} %, "
             f"{timing['stopped']})")
