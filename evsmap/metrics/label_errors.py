@@ -28,7 +28,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from evsmap.data import VOID, Frame, SemanticObservation
 
@@ -227,6 +226,8 @@ class LabelErrorStats:
                 both = va & vb
                 self.lag[d] += [both.sum(), (a & both).sum(), (b & both).sum(),
                                 (a & b & both).sum()]
+        from scipy import ndimage  # scipy only when measuring (`evsmap list` stays light)
+
         components, count = ndimage.label(wrong, structure=np.ones((3, 3)))
         if count:
             area = np.bincount(components.ravel())[1:].astype(np.float64) / scale ** 2

@@ -20,7 +20,6 @@ and "which wrong class" from uniforms that are correlated the same ways:
 from __future__ import annotations
 
 import numpy as np
-from scipy import special
 
 from evsmap.data import Frame
 
@@ -41,6 +40,8 @@ def _lattice_normals(ix: np.ndarray, iy: np.ndarray, iz: np.ndarray, key: int) -
     h = _splitmix(np.full(ix.shape, key, dtype=np.uint64))
     for coord in (ix, iy, iz):
         h = _splitmix(h ^ coord.astype(np.int64).view(np.uint64))
+    from scipy import special  # scipy only where a field is drawn (`evsmap list` stays light)
+
     u = ((h >> np.uint64(11)).astype(np.float64) + 0.5) / float(1 << 53)
     return special.ndtri(u)
 
@@ -154,6 +155,8 @@ def uniform_fields(rng: np.random.Generator, frame: Frame, n: int, *, sigma: flo
                    memo: FieldMemo | None = None) -> np.ndarray:
     """(n, H, W) correlated uniforms (module notes); ``key`` picks the world field (the same
     key, the same field in every frame)."""
+    from scipy import special
+
     assert frame.depth is not None  # an image frame
     shape = frame.depth.shape
     out = np.empty((n,) + shape)
