@@ -149,9 +149,10 @@ def _own_name(bench: Bench) -> str:
     inputs = bench.inputs
     if inputs.weights is not None:
         return f"{inputs.segmenter} ({Path(inputs.weights).name})"
+    from evsmap.measure.engine import is_oracle
+
     segmenter = bench.segmenter()
-    profile = getattr(segmenter, "profile", None)
-    return f"oracle {profile.name}" if profile is not None else inputs.segmenter
+    return f"oracle {segmenter.profile.name}" if is_oracle(segmenter) else inputs.segmenter
 
 
 def labels_id(bench: Bench, source: Source) -> str:

@@ -34,6 +34,7 @@ from evsmap.data import VOID, Frame, SemanticObservation
 LAGS = (1, 2, 4, 8, 16, 32, 64)
 """Autocorrelation lags, px at 640 px width."""
 REFERENCE_WIDTH = 640
+"""Lags, patch areas and the oracle's ``error_scale`` are in px of a frame this wide."""
 PAIR_STRIDE = 2
 """Every second row and column is projected for the frame-to-frame persistence."""
 DEPTH_AGREEMENT = 0.05
@@ -175,7 +176,7 @@ class LabelErrorStats:
         p1 = observation.probs[..., 0].astype(np.float64)
         void = labels == VOID
         true = np.where(void, 0, labels).astype(np.intp)
-        band, _ = boundary_band(labels, self.radius)
+        band = self.band(frame)
         wrong = ~void & (top1 != true)
         for i, region in enumerate((~void & ~band, band)):
             self.n[i] += np.bincount(true[region], minlength=self.c)[: self.c]

@@ -55,12 +55,11 @@ from evsmap.classes import class_names_for
 from evsmap.data import VOID, Frame, SemanticObservation
 from evsmap.errors import InvalidDataError
 from evsmap.interfaces import Segmenter
-from evsmap.metrics.label_errors import boundary_band
+from evsmap.metrics.label_errors import REFERENCE_WIDTH, boundary_band
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.oracle_field import FieldMemo, uniform_fields
 from evsmap.segmenters.oracle_profile import (
     DEFAULT_PROFILE,
-    REFERENCE_WIDTH,
     OracleProfile,
     load_profile,
 )

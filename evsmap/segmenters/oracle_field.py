@@ -4,10 +4,10 @@ A network's errors come in patches, and a surface it gets wrong in one frame it 
 wrong in the next (it sees nearly the same image). The oracle draws each pixel's "is it wrong"
 and "which wrong class" from uniforms that are correlated the same ways:
 
-* :func:`image_field`: white Gaussian noise smoothed by a Gaussian of standard deviation
+* the image's field: white Gaussian noise smoothed by a Gaussian of standard deviation
   ``sigma`` px (a circular convolution, by FFT, so every pixel has the same variance), scaled
   to unit variance;
-* :func:`world_field`: a Gaussian value-noise field on a 3D lattice of spacing ``scale`` metres,
+* :func:`world_fields`: a Gaussian value-noise field on a 3D lattice of spacing ``scale`` metres,
   trilinearly interpolated at each pixel's back-projected point (world frame), scaled to unit
   variance at every point; the lattice values are hashes of the lattice coordinates and the
   seed, so every frame of a sequence reads the same field;
@@ -102,11 +102,6 @@ def world_fields(points: np.ndarray, scale: float, keys: list[int]) -> list[np.n
     return out
 
 
-def world_field(points: np.ndarray, scale: float, key: int) -> np.ndarray:
-    """One of :func:`world_fields`."""
-    return world_fields(points, scale, [key])[0]
-
-
 def _periodic_gaussian(n: int, sigma: float) -> np.ndarray:
     """The Gaussian of standard deviation ``sigma`` sampled on a circle of ``n`` px (offsets
     0..n-1, every wrap summed), summing to 1."""
@@ -127,11 +122,6 @@ def _smoothed(noise: np.ndarray, sigma: float) -> np.ndarray:
     transfer = np.fft.fft(ky).real[:, None] * np.fft.rfft(kx).real[None, :]
     smooth = np.fft.irfft2(np.fft.rfft2(noise) * transfer, s=noise.shape)
     return smooth / float(np.sqrt((ky ** 2).sum() * (kx ** 2).sum()))
-
-
-def image_field(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
-    """(H, W) unit-variance Gaussian field with correlation length ``sigma`` px (0: white)."""
-    return _smoothed(rng.standard_normal(shape), sigma)
 
 
 class FieldMemo:
@@ -193,5 +183,4 @@ def uniform_fields(rng: np.random.Generator, frame: Frame, n: int, *, sigma: flo
     return np.minimum(out, np.nextafter(1.0, 0.0))
 
 
-__all__ = ["FieldMemo", "image_field", "uniform_fields", "world_field", "world_fields",
-           "world_points"]
+__all__ = ["FieldMemo", "uniform_fields", "world_fields", "world_points"]

@@ -25,17 +25,15 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.errors import InvalidDataError
+from evsmap.metrics.label_errors import KINDS
 
 PROFILE_NAMES = ("fitted", "per-pixel", "noise-free")
 """The shipped profiles, by name."""
 DEFAULT_PROFILE = "fitted"
 SCHEMA = 1
 CONFUSION_MODES = ("seeded", "adjacent", "fitted")
-MEAN_TOP1_KINDS = ("correct", "wrong", "edge_correct", "edge_wrong", "void")
-REFERENCE_WIDTH = 640
-"""``error_scale`` is in pixels of a frame this wide; a frame of width W uses
-``error_scale * W / 640`` (a network's errors scale with the frame, since it sees every frame at
-its own input size)."""
+MEAN_TOP1_KINDS = KINDS
+"""The kinds of pixel with a mean top-1 probability (the error figures' kinds)."""
 
 
 @dataclass(frozen=True)
@@ -56,8 +54,10 @@ class OracleProfile:
             classes touching it in the frame) or ``fitted`` (``confusers``).
         confusers: per class, up to 3 ``[class, weight]`` pairs (fitted confusion).
         error_block: errors shared by squares of this many px (with ``error_scale`` 0).
-        error_scale: the standard deviation (px at :data:`REFERENCE_WIDTH`) of the Gaussian
-            smoothing of the image's error field; 0: ``error_block``'s squares.
+        error_scale: the standard deviation (px at
+            :data:`~evsmap.metrics.label_errors.REFERENCE_WIDTH` width, scaled with the frame: a
+            network sees every frame at its own input size) of the Gaussian smoothing of the
+            image's error field; 0: ``error_block``'s squares.
         world_share: share of the error field's variance anchored to the scene (a 3D field
             read at each pixel's point, so a surface seen wrong in one frame tends to be wrong
             in the next), the rest the image's own.
@@ -197,4 +197,4 @@ def load_profile(name_or_path: str | Path) -> OracleProfile:
 
 
 __all__ = ["CONFUSION_MODES", "DEFAULT_PROFILE", "MEAN_TOP1_KINDS", "OracleProfile",
-           "PROFILE_NAMES", "REFERENCE_WIDTH", "load_profile"]
+           "PROFILE_NAMES", "load_profile"]

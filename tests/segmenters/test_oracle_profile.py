@@ -13,7 +13,7 @@ from evsmap.data import VOID, Frame, Intrinsics
 from evsmap.errors import InvalidDataError
 from evsmap.registry import SEGMENTERS
 from evsmap.segmenters.oracle import OracleSegmenter
-from evsmap.segmenters.oracle_field import FieldMemo, uniform_fields, world_field
+from evsmap.segmenters.oracle_field import FieldMemo, uniform_fields, world_fields
 from evsmap.segmenters.oracle_profile import PROFILE_NAMES, load_profile
 
 H, W = 120, 160
@@ -122,7 +122,7 @@ def test_fields_are_uniform_whatever_their_correlation():
             assert abs(u.mean() - 0.5) < 0.06 and abs(u.var() - 1 / 12) < 0.02
     # across many lattice cells the world field is standard normal
     pts = np.random.default_rng(1).uniform(-50, 50, size=(20000, 3))
-    g = world_field(pts, 1.0, key=3)
+    (g,) = world_fields(pts, 1.0, [3])
     assert abs(g.mean()) < 0.05 and abs(g.std() - 1.0) < 0.05
 
 
