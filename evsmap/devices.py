@@ -94,26 +94,44 @@ def synchronize(device: torch.device | str) -> None:
 class PassTimer:
     """Seconds one call takes on ``device``: between two CUDA events on the current stream,
     then a synchronisation on the second, on a GPU; the host clock on the CPU (whose work is
-    done when the call returns)."""
+    done when the call returns).
+
+    Every call also keeps, in :attr:`walls` and :attr:`dispatches`, the host's wall clock from
+    just before the call to the end of the synchronisation, and the host's time until the call
+    returned (its dispatch: on a GPU the launches, on the CPU the whole pass);
+    :meth:`reset` empties both (before the timed passes, after a warm-up)."""
 
     def __init__(self, device: torch.device | str = "cpu") -> None:
         import torch
 
         self.device = torch.device(device)
         self.kind = "cuda events" if self.device.type == "cuda" else "host clock"
+        self.walls: list[float] = []
+        self.dispatches: list[float] = []
         if self.device.type == "cuda":
             self._start = torch.cuda.Event(enable_timing=True)
             self._end = torch.cuda.Event(enable_timing=True)
+
+    def reset(self) -> None:
+        self.walls.clear()
+        self.dispatches.clear()
 
     def __call__(self, call: Callable[[], object]) -> float:
         if self.device.type != "cuda":
             t0 = time.perf_counter()
             call()
-            return time.perf_counter() - t0
+            seconds = time.perf_counter() - t0
+            self.walls.append(seconds)
+            self.dispatches.append(seconds)
+            return seconds
+        t0 = time.perf_counter()
         self._start.record()
         call()
+        dispatched = time.perf_counter()
         self._end.record()
         self._end.synchronize()
+        self.walls.append(time.perf_counter() - t0)
+        self.dispatches.append(dispatched - t0)
         return float(self._start.elapsed_time(self._end)) / 1e3
 
 

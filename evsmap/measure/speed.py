@@ -27,10 +27,15 @@ from evsmap.devices import PassTimer, Settled, require_device, settle
 from evsmap.environment import LIBRARIES, collect_environment, collect_gpu
 from evsmap.errors import InvalidDataError, UnknownNameError
 from evsmap.measure.contention import Probe, contention, describe
+from evsmap.measure.pass_timing import DeviceBusy, device_busy, pass_timing
 from evsmap.measure.timing_policy import TimedPasses, TimingPolicy, time_until_precise
 from evsmap.models.module_utils import as_inputs, eval_mode, image_size
 
-BACKENDS = ("onnxruntime", "torch", "torch-compile")
+BACKENDS = ("onnxruntime", "torch", "torch-compile", "torch-cuda-graph")
+GPU_BACKENDS = ("torch-cuda-graph",)
+"""Backends that only run on a GPU."""
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune")
+"""``torch.compile``'s modes (``reduce-overhead`` replays CUDA graphs on a GPU)."""
 AUTOCASTS = ("fp16", "bf16")
 """``autocast`` values: torch's mixed precision (``torch.autocast``) at this dtype."""
 ROOFLINE_SIZE = 4096
@@ -42,8 +47,9 @@ class SpeedRecord:
 
     Attributes:
         backend: ``"torch"`` (eager, ``inference_mode``), ``"torch-compile"`` (``torch.compile``,
-            TorchInductor, default mode) or ``"onnxruntime"`` (all graph optimisations, on
-            ``provider``).
+            TorchInductor, in ``compile_mode``), ``"torch-cuda-graph"`` (the eager pass captured
+            once as a CUDA graph and replayed; a GPU only) or ``"onnxruntime"`` (all graph
+            optimisations, on ``provider``).
         height, width: input image size.
         runs, warmup: timed forward passes, and untimed ones before them.
         threads: intra-op threads used (torch's after setting; onnxruntime's is set the same).
@@ -87,6 +93,17 @@ class SpeedRecord:
             Settled`'s fields).
         gpu: the GPU's facts after the timed passes (:func:`evsmap.environment.collect_gpu`;
             empty on the CPU).
+        compile_mode: ``torch.compile``'s mode (torch-compile only; :data:`COMPILE_MODES`).
+        channels_last: the module and its 4-D inputs in channels-last memory format.
+        timing: how each pass was timed (:class:`evsmap.measure.pass_timing.PassTiming`: host
+            threads, pinned CPUs, stream, synchronisation, clock, settle).
+        wall_ms_median: the host's wall clock per pass to the end of its synchronisation,
+            median, ms (equals ``ms_median`` on the CPU; a GPU's events leave out the host's
+            wait).
+        dispatch_ms: the host's time until a pass's call returned, median, ms: on a GPU its
+            launches (the kernels still run after), on the CPU the whole pass.
+        busy: where the pass's time goes (:class:`evsmap.measure.pass_timing.DeviceBusy`:
+            kernel time, device-busy share, ``bound``: launch, device or host).
     """
 
     backend: str
@@ -125,6 +142,17 @@ class SpeedRecord:
     compile_s: float | None = None
     settle: dict[str, Any] | None = None
     gpu: dict[str, Any] = field(default_factory=dict)
+    compile_mode: str | None = None
+    channels_last: bool = False
+    timing: dict[str, Any] = field(default_factory=dict)
+    wall_ms_median: float | None = None
+    dispatch_ms: float | None = None
+    busy: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def bound(self) -> str | None:
+        """``launch``, ``device`` or ``host`` (:mod:`evsmap.measure.pass_timing`), or None."""
+        return self.busy.get("bound")
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -222,6 +250,9 @@ def measure_speed(
     device: str = "cpu",
     autocast: str | None = None,
     provider: str | None = None,
+    compile_mode: str | None = None,
+    channels_last: bool = False,
+    pin: bool = True,
 ) -> SpeedRecord:
     """Time ``runs`` forward passes of ``module(*inputs)`` after ``warmup`` untimed ones.
 
@@ -229,8 +260,9 @@ def measure_speed(
         backend: ``"torch"`` (eval mode, ``torch.inference_mode``) or ``"onnxruntime"`` (the
             module exported with :func:`~evsmap.models.onnx_export.cached_onnx`, run on the
             CPU execution provider with all graph optimisations, inputs as numpy arrays).
-        threads: intra-op threads for torch and onnxruntime; ``None`` keeps torch's current
-            count. torch's count is restored on return.
+        threads: host intra-op threads for torch and onnxruntime (default: one on a GPU,
+            torch's current count on the CPU: :func:`~evsmap.measure.pass_timing.pass_timing`);
+            torch's count is restored on return.
         macs: MACs of one forward pass; measured with
             :func:`~evsmap.measure.complexity.measure_complexity` when not given.
         input_names: ONNX input names (default ``input0``, ``input1``, ...).
@@ -263,9 +295,17 @@ def measure_speed(
             that dtype; with the ``tensorrt`` provider, ``fp16`` builds fp16 engines.
         provider: ONNX Runtime's execution provider (:data:`evsmap.models.ort_providers.
             PROVIDERS`; default ``cpu`` on the CPU, ``cuda`` on a GPU).
+        compile_mode: ``torch.compile``'s mode with backend ``torch-compile``
+            (:data:`COMPILE_MODES`; default ``default``).
+        channels_last: the module and its 4-D inputs in channels-last memory format (the
+            torch backends).
+        pin: pin the process to the lowest ``threads`` CPUs while timing (the gate's rule;
+            :class:`~evsmap.measure.pass_timing.PassTiming`).
 
-    Each sample is one forward pass timed with ``time.perf_counter`` on the CPU, between CUDA
-    events on a GPU (:class:`evsmap.devices.PassTimer`).
+    Each pass is timed as :mod:`evsmap.measure.pass_timing` defines (the gate times its network
+    workloads the same way): the host clock on the CPU, CUDA events on a GPU with the wall clock
+    and the host's dispatch time beside; on a GPU the device-busy share of a pass is measured
+    after the timed passes (``busy``).
 
     Raises:
         UnknownNameError: ``backend``, ``autocast``, ``provider`` or ``device`` unknown.
@@ -275,53 +315,109 @@ def measure_speed(
         OnnxExportError: the onnxruntime backend could not export the module.
     """
     _check_settings(backend, runs, warmup, threads, max_rounds)
-    dev = require_device(device)
-    provider = _check_device_settings(backend, dev, autocast, provider)
+    timing = pass_timing(device, threads, pin=pin)
     inputs = as_inputs(inputs)
-    size = image_size(inputs)
     if macs is None:
         from evsmap.measure.complexity import measure_complexity
 
         macs = measure_complexity(module, inputs).flops
-    previous_threads = torch.get_num_threads()
-    timer = PassTimer(dev)
-    try:
-        if threads is not None:
-            torch.set_num_threads(threads)
-        used_threads = torch.get_num_threads()
+    timer = PassTimer(timing.device)
+    with timing.applied():
         first = Probe.take()  # the machine before the first timed pass
-        t_session = time.perf_counter()
-        session_s = compile_s = None
-        if backend == "onnxruntime":
-            call, provider = _onnxruntime_forward(
-                module, inputs, input_names, used_threads, key or type(module).__name__,
-                cache_dir, onnx_path, free_dimensions, provider=provider, device=dev,
-                fp16=autocast == "fp16")
-            session_s = time.perf_counter() - t_session
-            model = module
-        else:
-            model = _on_device(module, dev)
-            runnable = torch.compile(model) if backend == "torch-compile" else model
-            call = functools.partial(runnable, *(t.to(dev) for t in inputs))
-        context = functools.partial(_timing_context, model, backend, dev, autocast)
-        if backend == "torch-compile":
-            with context():
-                compile_s = timer(call)  # the first call compiles
-        settled = _settle(call, timer, context) if dev.type == "cuda" else None
-        timed = (_time_precisely(call, policy, first, context, timer) if policy is not None
-                 else _time_in_rounds(call, runs, warmup, max_rounds, stable_rel_iqr, first,
-                                      context, timer))
+        prepared = prepare_pass(
+            module, inputs, backend=backend, device=timing.device, autocast=autocast,
+            provider=provider, compile_mode=compile_mode, channels_last=channels_last,
+            input_names=input_names, key=key, cache_dir=cache_dir, onnx_path=onnx_path,
+            free_dimensions=free_dimensions, timer=timer)
+        settled = _settle(prepared.call, timer, prepared.context) if timing.settle else None
+        timer.reset()
+        timed = (_time_precisely(prepared.call, policy, first, prepared.context, timer)
+                 if policy is not None
+                 else _time_in_rounds(prepared.call, runs, warmup, max_rounds, stable_rel_iqr,
+                                      first, prepared.context, timer))
+        busy = _busy(prepared, timed, timing.device)
         if roofline is None:
-            roofline = roofline_gmacs(roofline_size, device=str(dev))
-    finally:
-        torch.set_num_threads(previous_threads)
-    record = _speed_record(timed, backend=backend, size=size, threads=used_threads,
-                           macs=int(macs), roofline=roofline, stable_rel_iqr=stable_rel_iqr,
-                           calibration_log=calibration_log, session_s=session_s)
+            roofline = roofline_gmacs(roofline_size, device=timing.device)
+    record = _speed_record(timed, backend=backend, size=image_size(inputs),
+                           threads=timing.host_threads, macs=int(macs), roofline=roofline,
+                           stable_rel_iqr=stable_rel_iqr, calibration_log=calibration_log,
+                           session_s=prepared.session_s)
     return dataclasses.replace(
-        record, device=str(dev), timer=timer.kind, autocast=autocast, provider=provider,
-        compile_s=compile_s, settle=settled.as_dict() if settled else None,
-        gpu=collect_gpu(dev))
+        record, device=timing.device, timer=timer.kind, autocast=autocast,
+        provider=prepared.provider, compile_s=prepared.compile_s,
+        settle=settled.as_dict() if settled else None, gpu=collect_gpu(torch.device(timing.device)),
+        compile_mode=prepared.compile_mode, channels_last=channels_last,
+        timing=timing.as_dict(), wall_ms_median=_median_ms(timer.walls),
+        dispatch_ms=_median_ms(timer.dispatches), busy=busy.as_dict())
+
+
+def _median_ms(seconds: list[float]) -> float | None:
+    return float(np.median(seconds)) * 1e3 if seconds else None
+
+
+def _busy(prepared: PreparedPass, timed: _Timed, device: str) -> DeviceBusy:
+    """The device-busy share of the timed pass (the profiler's passes run in its context)."""
+    with prepared.context():
+        return device_busy(prepared.call, float(np.median(timed.times)), device)
+
+
+@dataclass
+class PreparedPass:
+    """One forward pass ready to time: ``call`` runs it and returns its output (logits, or ONNX
+    Runtime's arrays), ``context`` is what every call runs in (eval mode, inference mode,
+    autocast, cuDNN's autotuner); ``compile_s`` the first call of a compiled module,
+    ``session_s`` ONNX Runtime's session, ``provider`` the provider it runs with."""
+
+    call: Callable[[], Any]
+    context: Callable[[], contextlib.AbstractContextManager[None]]
+    provider: str | None = None
+    compile_mode: str | None = None
+    compile_s: float | None = None
+    session_s: float | None = None
+
+
+def prepare_pass(module: torch.nn.Module, inputs: Sequence[torch.Tensor], *,
+                 backend: str = "torch", device: str = "cpu", autocast: str | None = None,
+                 provider: str | None = None, compile_mode: str | None = None,
+                 channels_last: bool = False, input_names: Sequence[str] | None = None,
+                 key: str | None = None, cache_dir: str | os.PathLike[str] | None = None,
+                 onnx_path: str | os.PathLike[str] | None = None,
+                 free_dimensions: dict[str, int] | None = None,
+                 timer: PassTimer | None = None) -> PreparedPass:
+    """``module(*inputs)`` on ``backend`` and ``device``, ready to time (:class:`PreparedPass`):
+    the module copied to the device, compiled, captured or exported as the backend needs, its
+    one-off cost (compilation, session) paid here and recorded.
+
+    Raises:
+        UnknownNameError: an unknown backend, autocast, compile mode or provider.
+        DeviceUnavailableError: the device or provider is not on this machine, or a GPU-only
+            backend (torch-cuda-graph) asked for on the CPU.
+        InvalidDataError: settings that do not go together.
+    """
+    dev = require_device(device)
+    provider = _check_device_settings(backend, dev, autocast, provider)
+    compile_mode = _check_variant(backend, dev, compile_mode, channels_last)
+    inputs = as_inputs(inputs)
+    timer = timer or PassTimer(dev)
+    if backend == "onnxruntime":
+        t0 = time.perf_counter()
+        run, used = _onnxruntime_forward(
+            module, inputs, input_names, torch.get_num_threads(), key or type(module).__name__,
+            cache_dir, onnx_path, free_dimensions, provider=provider, device=dev,
+            fp16=autocast == "fp16")
+        return PreparedPass(run, contextlib.nullcontext, provider=used,
+                            session_s=time.perf_counter() - t0)
+    model = _on_device(module, dev, channels_last)
+    args = tuple(_placed(t, dev, channels_last) for t in inputs)
+    context = functools.partial(_timing_context, model, backend, dev, autocast)
+    if backend == "torch-cuda-graph":
+        return PreparedPass(_captured(model, args, context), context)
+    if backend == "torch":
+        return PreparedPass(functools.partial(model, *args), context)
+    compiled = functools.partial(torch.compile(model, mode=compile_mode), *args)
+    with context():
+        compile_s = timer(compiled)  # the first call compiles
+    return PreparedPass(compiled, context, compile_mode=compile_mode, compile_s=compile_s)
 
 
 def _check_device_settings(backend: str, device: torch.device, autocast: str | None,
@@ -353,12 +449,67 @@ def _check_device_settings(backend: str, device: torch.device, autocast: str | N
     return provider
 
 
-def _on_device(module: torch.nn.Module, device: torch.device) -> torch.nn.Module:
-    """``module`` on ``device``: itself on the CPU, a copy on a GPU (the caller's module stays
-    where it was)."""
-    if device.type == "cpu":
+def _check_variant(backend: str, device: torch.device, compile_mode: str | None,
+                   channels_last: bool) -> str | None:
+    """The compile mode to use (None unless torch-compile), after refusing a GPU-only backend
+    on the CPU, a mode without torch-compile, and channels-last on ONNX Runtime."""
+    from evsmap.devices import DeviceUnavailableError
+
+    if backend in GPU_BACKENDS and device.type != "cuda":
+        raise DeviceUnavailableError(f"backend {backend} replays a captured CUDA graph: it needs "
+                                     f"a GPU (--device cuda), not {device}")
+    if compile_mode is not None and compile_mode not in COMPILE_MODES:
+        raise UnknownNameError(f"unknown compile mode {compile_mode!r} (known: "
+                               f"{', '.join(COMPILE_MODES)})")
+    if compile_mode is not None and backend != "torch-compile":
+        raise InvalidDataError(f"compile mode {compile_mode} is torch.compile's: it needs "
+                               f"backend torch-compile (backend {backend!r} given)")
+    if channels_last and backend == "onnxruntime":
+        raise InvalidDataError("channels-last is a torch memory format: ONNX Runtime chooses "
+                               "its own layouts (use backend torch, torch-compile or "
+                               "torch-cuda-graph)")
+    return (compile_mode or "default") if backend == "torch-compile" else None
+
+
+def _on_device(module: torch.nn.Module, device: torch.device,
+               channels_last: bool = False) -> torch.nn.Module:
+    """``module`` on ``device`` (in channels-last format if asked): itself on the CPU in the
+    default format, else a copy (the caller's module stays as it was)."""
+    if device.type == "cpu" and not channels_last:
         return module
-    return copy.deepcopy(module).to(device)
+    model = copy.deepcopy(module).to(device)
+    return model.to(memory_format=torch.channels_last) if channels_last else model  # type: ignore[call-overload]
+
+
+def _placed(tensor: torch.Tensor, device: torch.device, channels_last: bool) -> torch.Tensor:
+    tensor = tensor.to(device)
+    if channels_last and tensor.dim() == 4:
+        return tensor.contiguous(memory_format=torch.channels_last)
+    return tensor
+
+
+def _captured(model: torch.nn.Module, args: tuple[torch.Tensor, ...],
+              context: Callable[[], contextlib.AbstractContextManager[None]]
+              ) -> Callable[[], Any]:
+    """The pass captured once as a CUDA graph (after warm-up passes on a side stream, as
+    torch's documentation prescribes: cuDNN's autotuner and the allocator settle before the
+    capture); returns a call replaying it and returning the graph's static output."""
+    static = tuple(t.clone() for t in args)
+    side = torch.cuda.Stream()  # type: ignore[no-untyped-call]
+    side.wait_stream(torch.cuda.current_stream())
+    with torch.cuda.stream(side), context():
+        for _ in range(3):
+            model(*static)
+    torch.cuda.current_stream().wait_stream(side)
+    graph = torch.cuda.CUDAGraph()
+    with context(), torch.cuda.graph(graph):
+        output = model(*static)
+
+    def replay() -> Any:
+        graph.replay()
+        return output
+
+    return replay
 
 
 def _settle(call: Callable[[], object], timer: PassTimer,
@@ -474,7 +625,9 @@ def _timing_context(module: torch.nn.Module, backend: str, device: torch.device 
         stack.enter_context(torch.inference_mode())
         if autocast is not None:
             dtype = torch.float16 if autocast == "fp16" else torch.bfloat16
-            stack.enter_context(torch.autocast(device_type=device.type, dtype=dtype))
+            # no weight-cast cache: a CUDA graph's capture must not keep casts made outside it
+            stack.enter_context(torch.autocast(device_type=device.type, dtype=dtype,
+                                               cache_enabled=backend != "torch-cuda-graph"))
         if device.type == "cuda":
             stack.enter_context(_cudnn_benchmark())
         yield
