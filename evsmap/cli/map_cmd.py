@@ -90,8 +90,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stage-threads", type=key_value, action="append", default=[],
                    metavar="KEY=N",
                    help="a stage's threads, repeatable: segment (ONNX Runtime), torch (pre- and "
-                        "post-processing), update (the update kernels), blas (numpy); default: "
-                        "chosen for the loop (docs/realtime.md), recorded in the JSON")
+                        "post-processing), update (the update kernels), blas (numpy), over "
+                        "the plan for --cores; recorded in the JSON")
+    p.add_argument("--cores", type=positive_int, metavar="N",
+                   help="plan the pipelined loop's threads for N cores (1 to 1024; default: "
+                        "the cores this process may run on); the plan and why is the JSON's "
+                        "thread_plan (docs/realtime.md, \"Each stage's threads\")")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
     add_precision_options(p, target="the frames mapped")
     add_sequence_options(p)
@@ -115,10 +119,11 @@ def run(args: argparse.Namespace) -> int:
 
     set_resume_hint(hint)
     from evsmap.measure.mapping import map_sequence
-    from evsmap.measure.pipelined import stage_threads_option
+    from evsmap.measure.pipelined import loop_balance
     from evsmap.progress import progress
     from evsmap.registry import UPDATERS
 
+    plan = _thread_plan(args)
     config = dict(args.option)
     config.update(resolution=args.resolution, max_range=args.max_range)
     updater = UPDATERS.create(args.updater, **config)
@@ -152,11 +157,14 @@ def run(args: argparse.Namespace) -> int:
         segmenter_name=seg_name, frames=args.frames, out=args.out,
         progress=lambda it: progress(it, total=len(it), desc=f"mapping {args.updater}"),
         skip_bad=args.skip_bad, file_format=args.file_format, pipeline=args.pipeline,
-        threads=stage_threads_option(args.stage_threads, pipeline=args.pipeline))
+        threads=plan.threads)
     result = record.as_dict()
     result.update(precision)
     result.update(weights_record)
     result["stage_ms_median"] = record.stage_medians()
+    result["thread_plan"] = plan.as_dict()
+    result["loop"] = loop_balance(result["stage_ms_median"], record.wall_hz,
+                                  pipelined=args.pipeline)
     result["machine"] = describe()
     result["occupied_voxels"] = updater.occupied_voxels()
     if survey is not None:
@@ -179,6 +187,21 @@ def run(args: argparse.Namespace) -> int:
     for line in empty_result_warnings(result, args):
         sys.stderr.write(f"evsmap map: warning: {line}\n")
     return 0
+
+
+def _thread_plan(args: argparse.Namespace):
+    """The loop's threads: the plan for ``--cores`` (default: this process's CPUs) and
+    ``--device``, with ``--stage-threads`` over it (:mod:`evsmap.measure.thread_plan`)."""
+    from dataclasses import replace
+
+    from evsmap.measure.pipelined import stage_thread_changes
+    from evsmap.measure.thread_plan import available_cores, thread_plan
+
+    cores = available_cores() if args.cores is None else args.cores
+    plan = thread_plan(cores, args.device, pipelined=args.pipeline)
+    if args.cores is not None:
+        plan = replace(plan, cores_from="--cores")
+    return plan.overridden(stage_thread_changes(args.stage_threads))
 
 
 def _open(args: argparse.Namespace):
@@ -323,6 +346,7 @@ def format_record(r: dict[str, Any]) -> str:
             else "update only: no network ran)"),
         "per frame    " + ", ".join(f"{k} {v:.1f} ms" for k, v in
                                     r.get("stage_ms_median", {}).items()) + " (medians)",
+    ] + _loop_lines(r.get("loop"), r.get("wall_hz")) + _plan_lines(r.get("thread_plan")) + [
         f"map file     {r['map_bytes'] / 1e6:.3f} MB {r['file_format']}" + (
             f"  ({r['map_file']})" if r["map_file"] else "") + _other_size(r),
         f"map          {r['nodes']:,} nodes, {r['leaves']:,} leaves",
@@ -332,6 +356,35 @@ def format_record(r: dict[str, Any]) -> str:
         + ([f"note         {r['extra']['segmenter_not_run']}"]
            if r.get("extra", {}).get("segmenter_not_run") else [])
         + _quality_lines(r.get("quality")))
+
+
+def _loop_lines(loop: dict[str, Any] | None, wall_hz: float | None) -> list[str]:
+    """The wall rate beside the rate the loop's stages allow, and each stage's share of a
+    frame's wall time (:func:`~evsmap.measure.pipelined.loop_balance`)."""
+    if not loop or not wall_hz:
+        return []
+    bound_hz = 1000.0 / loop["bound_ms"] if loop["bound_ms"] > 0 else float("inf")
+    if loop["bound"] == "all stages":
+        what = f"of the rate its stages allow one after the other ({loop['bound_ms']:.1f} ms"
+    else:
+        what = f"of its slowest stage's rate ({loop['bound']} {loop['bound_ms']:.1f} ms"
+    shares = ", ".join(f"{k} {100 * v:.0f} %" for k, v in loop["shares"].items())
+    return [f"loop         reaches {100 * loop['reached']:.0f} % {what} a frame: "
+            f"{bound_hz:.2f} Hz; wall {wall_hz:.2f} Hz)",
+            f"shares       {shares} of the wall time a frame"
+            + (" (the stages overlap)" if loop["bound"] != "all stages" else "")]
+
+
+def _plan_lines(plan: dict[str, Any] | None) -> list[str]:
+    """The loop's threads and the cores they were planned for."""
+    if not plan:
+        return []
+    stages = plan["stages"]
+    text = ", ".join(f"{k} {'default' if v['threads'] is None else v['threads']}"
+                     for k, v in stages.items() if k != "read")
+    source = "--cores" if plan["cores_from"] == "--cores" else "the process's CPUs"
+    return [f"threads      {text} ({plan['loop']} loop planned for {plan['cores']} cores, "
+            f"{source}; network on {plan['device']})"]
 
 
 def _network_lines(r: dict[str, Any]) -> list[str]:

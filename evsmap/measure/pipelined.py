@@ -18,15 +18,16 @@ under contention a stage's time is its wall time while sharing the cores, so the
 of a pipelined run are larger than the sequential run's; the figure the pipeline improves is the
 end-to-end rate, frames / wall time (``MappingPass.wall_s``).
 
-The threads of each stage are set for the loop (:class:`StageThreads`, :data:`PIPELINED`):
+The threads of each stage are set for the loop (:class:`StageThreads`; :data:`PIPELINED` on 2
+cores, :func:`evsmap.measure.thread_plan.thread_plan` for the cores and device at hand):
 thread pools that busy-wait for a core are the enemy of overlap. numpy's OpenBLAS threads turned
 the synthetic renderer's 307,200 x 3 by 3 x 3 ray product from 1 ms into 200 ms while the other
 stages held the cores, and torch's two intra-op threads made the top-k's softmax denominator 3x
 slower than one; both run on one thread in the pipeline (the same numbers: no reduction of
-theirs is split across threads). The network itself runs at the sequential loop's thread count
+theirs is split across threads). A network on the CPU runs at the sequential loop's thread count
 in both (:attr:`StageThreads.segment`): its logits depend on that count, so the pipeline keeps
 it and the observations, thus the map, are the same bytes with the pipeline on and off
-(``tests/cli/test_map_thread_independence.py``).
+(``tests/cli/test_map_thread_independence.py``); on a GPU they do not depend on host threads.
 
 A failure in a worker thread (a bad frame, a network error) is re-raised in the calling thread;
 leaving the loop early (an exception, Ctrl-C) stops both workers within one queue timeout.
@@ -236,21 +237,59 @@ SEQUENTIAL = StageThreads()
 """The sequential loop: every library's defaults (each stage alone has all the cores)."""
 
 PIPELINED = StageThreads(segment=None, spinning=False, torch=1, update=1, blas=1)
-"""The pipelined loop's threads, chosen for 2 cores (docs/realtime.md): the network keeps the
-sequential loop's threads (ONNX Runtime without spinning), so both loops segment every frame
-into the same bytes; torch's pre/post-processing and numpy's BLAS run on one thread each (their
-pools busy-wait for cores the other stages hold)."""
+"""The pipelined loop's threads on 2 cores (docs/realtime.md), and the loop's default where no
+plan is given: the network keeps the sequential loop's threads (ONNX Runtime without spinning),
+so both loops segment every frame into the same bytes; torch's pre/post-processing, the update
+and numpy's BLAS run on one thread each (their pools busy-wait for cores the other stages hold).
+:func:`evsmap.measure.thread_plan.thread_plan` gives exactly this for 2 cores on the CPU, and
+sizes the loop for other core counts and for a GPU."""
+
+LOOP_THREADS = ("read", "segment", "update")
+"""The pipelined loop's threads, in its order: the reader, the segmentation (pre-processing,
+network, post-processing or the oracle, one after the other) and the update."""
 
 
-def stage_threads_option(pairs: list[tuple[str, Any]], *, pipeline: bool) -> StageThreads:
-    """The loop's default threads (:data:`PIPELINED` or :data:`SEQUENTIAL`) with ``KEY=N``
-    pairs from the command line applied (``segment``, ``torch``, ``update``, ``blas``).
+def loop_balance(stage_ms: dict[str, float], wall_hz: float, *, pipelined: bool
+                 ) -> dict[str, Any]:
+    """How near the loop's ``wall_hz`` came to the rate its stages allow, and each stage's
+    share of a frame's wall time; ``{}`` without frames.
+
+    ``stage_ms``: each stage's median ms a frame (``MappingRecord.stage_medians``). The
+    pipelined loop can at best run at its slowest thread's rate (the segmentation thread's
+    stages add up); the sequential loop at the rate of all stages one after the other.
+
+    Returns:
+        ``threads_ms`` (the median ms a frame of each loop thread, :data:`LOOP_THREADS`),
+        ``bound`` (the slowest thread's name, or ``"all stages"`` for the sequential loop),
+        ``bound_ms``, ``reached`` (``wall_hz * bound_ms / 1000``: the share of the bound's rate
+        the loop reached) and ``shares`` (each stage's median ms over the wall time a frame,
+        ``1000 / wall_hz``; in the pipelined loop the stages overlap and their shares add up
+        to more than 1).
+    """
+    if not stage_ms or not wall_hz > 0:
+        return {}
+    segment = [v for k, v in stage_ms.items() if k not in ("read", "update")]
+    threads_ms = {"read": stage_ms.get("read"), "segment": sum(segment) if segment else None,
+                  "update": stage_ms.get("update")}
+    threads_ms = {k: v for k, v in threads_ms.items() if v is not None}
+    if pipelined:
+        bound = max(threads_ms, key=lambda k: threads_ms[k])
+        bound_ms = threads_ms[bound]
+    else:
+        bound, bound_ms = "all stages", sum(stage_ms.values())
+    frame_ms = 1000.0 / wall_hz
+    return {"threads_ms": threads_ms, "bound": bound, "bound_ms": bound_ms,
+            "reached": wall_hz * bound_ms / 1000.0,
+            "shares": {k: v / frame_ms for k, v in stage_ms.items()}}
+
+
+def stage_thread_changes(pairs: list[tuple[str, Any]]) -> dict[str, int]:
+    """``KEY=N`` pairs from the command line (``--stage-threads``) as ``{stage: threads}``
+    (``segment``, ``torch``, ``update``, ``blas``).
 
     Raises:
         InvalidDataError: an unknown key or a value that is not a positive integer.
     """
-    from dataclasses import replace
-
     from evsmap.errors import InvalidDataError
 
     keys = ("segment", "torch", "update", "blas")
@@ -266,10 +305,23 @@ def stage_threads_option(pairs: list[tuple[str, Any]], *, pipeline: bool) -> Sta
         if n < 1 or str(n) != str(value).strip():
             raise InvalidDataError(f"--stage-threads {key}={value}: a positive integer, please")
         changes[key] = n
-    base = PIPELINED if pipeline else SEQUENTIAL
-    return replace(base, segment=changes.get("segment", base.segment),
-                   torch=changes.get("torch", base.torch),
-                   update=changes.get("update", base.update), blas=changes.get("blas", base.blas))
+    return changes
+
+
+def stage_threads_option(pairs: list[tuple[str, Any]], *, pipeline: bool,
+                         base: StageThreads | None = None) -> StageThreads:
+    """``base`` (default: the loop's, :data:`PIPELINED` or :data:`SEQUENTIAL`; ``evsmap map``
+    passes the plan for its cores, :mod:`evsmap.measure.thread_plan`) with ``KEY=N`` pairs
+    from the command line applied (:func:`stage_thread_changes`).
+
+    Raises:
+        InvalidDataError: an unknown key or a value that is not a positive integer.
+    """
+    from dataclasses import replace
+
+    if base is None:
+        base = PIPELINED if pipeline else SEQUENTIAL
+    return replace(base, **stage_thread_changes(pairs))
 
 
 def _update_record() -> dict[str, Any]:
