@@ -196,6 +196,16 @@ class StageThreads:
     update: int | None = None
     blas: int | None = None
 
+    def changed(self, changes: dict[str, int]) -> StageThreads:
+        """These threads with ``changes`` (``{stage: threads}``, :func:`stage_thread_changes`)
+        applied."""
+        from dataclasses import replace
+
+        return replace(self, segment=changes.get("segment", self.segment),
+                       torch=changes.get("torch", self.torch),
+                       update=changes.get("update", self.update),
+                       blas=changes.get("blas", self.blas))
+
     @contextmanager
     def applied(self, segmenter: Segmenter | None) -> Iterator[dict[str, Any]]:
         """Set every stage's threads, yield what is in use (:meth:`record`), restore."""
@@ -269,9 +279,9 @@ def loop_balance(stage_ms: dict[str, float], wall_hz: float, *, pipelined: bool
     if not stage_ms or not wall_hz > 0:
         return {}
     segment = [v for k, v in stage_ms.items() if k not in ("read", "update")]
-    threads_ms = {"read": stage_ms.get("read"), "segment": sum(segment) if segment else None,
-                  "update": stage_ms.get("update")}
-    threads_ms = {k: v for k, v in threads_ms.items() if v is not None}
+    groups = {"read": [stage_ms["read"]] if "read" in stage_ms else [], "segment": segment,
+              "update": [stage_ms["update"]] if "update" in stage_ms else []}
+    threads_ms = {k: float(sum(v)) for k, v in groups.items() if v}
     if pipelined:
         bound = max(threads_ms, key=lambda k: threads_ms[k])
         bound_ms = threads_ms[bound]
@@ -317,11 +327,9 @@ def stage_threads_option(pairs: list[tuple[str, Any]], *, pipeline: bool,
     Raises:
         InvalidDataError: an unknown key or a value that is not a positive integer.
     """
-    from dataclasses import replace
-
     if base is None:
         base = PIPELINED if pipeline else SEQUENTIAL
-    return replace(base, **stage_thread_changes(pairs))
+    return base.changed(stage_thread_changes(pairs))
 
 
 def _update_record() -> dict[str, Any]:

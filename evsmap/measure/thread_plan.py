@@ -95,7 +95,7 @@ class ThreadPlan:
         for key, n in changes.items():
             planned = getattr(self.threads, key)
             reasons[key] = f"--stage-threads {key}={n} (the plan: {_shown(planned)})"
-        return replace(self, threads=replace(self.threads, **changes), reasons=reasons)
+        return replace(self, threads=self.threads.changed(changes), reasons=reasons)
 
     def as_dict(self) -> dict[str, Any]:
         """``cores``, ``cores_from``, ``device``, ``loop``, each stage's ``threads`` and
