@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from evsmap.devices import require_device
 from evsmap.errors import EvsmapError, UnknownNameError
 from evsmap.measure.batch_sweep import first_line, free_device_memory, is_out_of_memory
 from evsmap.measure.speed import SpeedRecord, measure_speed, prepare_pass
@@ -219,8 +220,10 @@ def backend_sweep(network: str, module: torch.nn.Module, inputs: Sequence[torch.
             ``roofline``, ``input_names``, ``cache_dir``, ...), the same for every variant.
 
     Raises:
-        EvsmapError: eager fp32 itself cannot run (a device that is not here).
+        DeviceUnavailableError: the device is not on this machine (eager fp32 itself cannot
+            run).
     """
+    require_device(device)  # before any work: a device that is not here is one line
     chosen = list(selected) if selected is not None else variants()
     reference = next(v for v in variants() if v.name == REFERENCE)
     chosen = [reference, *(v for v in chosen if v.name != REFERENCE)]

@@ -21,6 +21,7 @@ from typing import Any
 
 import torch
 
+from evsmap.devices import require_device
 from evsmap.measure.speed import SpeedRecord, measure_speed
 from evsmap.measure.timing_policy import TimingPolicy
 from evsmap.models.module_utils import as_inputs
@@ -139,9 +140,11 @@ def batch_sweep(networks: Sequence[SweepNetwork], *, batches: Sequence[int] = DE
             ``threads``, ``roofline``, ...), the same for every point.
 
     Raises:
+        DeviceUnavailableError: the device is not on this machine.
         ValueError: bad batch sizes, no network, a name given twice, or a ``reference`` that
             is not among the networks.
     """
+    require_device(device)  # before any work: a device that is not here is one line
     sizes = check_batches(batches)
     names = [n.name for n in networks]
     if not names or len(set(names)) != len(names):
