@@ -72,8 +72,8 @@ def add_sweep_options(p: argparse.ArgumentParser) -> None:
     """``--batch``, ``--reference``, ``--sweep-backends``, ``--variants`` and ``--budget``."""
     p.add_argument("--batch", type=batch_sizes, metavar="B,B,...",
                    help="a batch sweep: time MODEL and --reference at each batch size (e.g. "
-                        "1,2,4,8,16), FPS per image (batch / pass time) and the ratio to the "
-                        "reference at each")
+                        f"{','.join(map(str, DEFAULT_BATCHES))}), FPS per image (batch / pass "
+                        "time) and the ratio to the reference at each")
     p.add_argument("--reference", metavar="NAME",
                    help=f"the batch sweep's yardstick network (default {REFERENCE}; none: "
                         f"MODEL alone)")
