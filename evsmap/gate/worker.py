@@ -16,12 +16,15 @@ The phases, in order:
    the code: :mod:`evsmap.measure.memory`), is ``peak_rss_bytes``; the peak with them is
    recorded beside it (``peak_rss_total_bytes``, ``file_rss_growth_bytes``);
 4. fix the mmap threshold at glibc's ceiling (32 MiB, where its dynamic threshold settles in a
-   long run, so blocks are reused rather than mapped afresh on every run), then time
-   ``calibration, workload`` pairs, ending with a calibration, until the time budget is spent
-   (at least ``min_pairs``, at most ``max_pairs``); each workload time is divided by the mean
-   of the calibrations just before and after it, and ``time_ratio`` is the median of those
-   ratios; the RSS growth over this phase is recorded (a workload that keeps memory from run
-   to run shows it);
+   long run, so blocks are reused rather than mapped afresh on every run); a network's pass on a
+   GPU is first run until its speed settles, as ``evsmap speed`` does; then time
+   ``calibration, workload`` pairs (each workload run timed as
+   :mod:`evsmap.measure.pass_timing` defines: the host clock on the CPU, CUDA events on a GPU,
+   the wall clock and the host's dispatch beside, recorded as ``timing``), ending with a
+   calibration, until the time budget is spent (at least ``min_pairs``, at most
+   ``max_pairs``); each workload time is divided by the mean of the calibrations just before
+   and after it, and ``time_ratio`` is the median of those ratios; the RSS growth over this
+   phase is recorded (a workload that keeps memory from run to run shows it);
 5. the exact counts of the last run.
 
 The result is one JSON object written to ``--out``.
@@ -62,6 +65,7 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
         resident_parts,
         trim_heap,
     )
+    from evsmap.measure.timing_policy import median_ci, relative_half_width
 
     threads = int(context.get("threads", 1))
     cpus = context.get("cpus")
@@ -95,19 +99,19 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
     file_growth = max(0, end_parts["file"] - idle_parts["file"]) \
         if idle_parts and end_parts else 0
     fixed_mmap_threshold(MMAP_THRESHOLD_MAX)
+    timing, timer, settled = _pass_timing(name, context, job)
     before = current_rss()
     pairs = max(min_pairs, min(max_pairs, math.ceil(budget_s / max(first, 1e-3))))
     cal = [calibration.run()]
     parts = [calibration.parts]
     work = []
     for _ in range(pairs):
-        t = time.perf_counter()
-        job.run()
-        work.append(time.perf_counter() - t)
+        work.append(timer(job.run))
         cal.append(calibration.run())
         parts.append(calibration.parts)
     growth = current_rss() - before
     counts = job.counts()
+    median, low, high = median_ci(work)  # the workload's own median time, as speed states it
     cal_arr = np.asarray(cal)
     around = (cal_arr[:-1] + cal_arr[1:]) / 2.0
     ratios = np.asarray(work) / around
@@ -126,7 +130,27 @@ def measure(name: str, context: dict[str, Any], *, budget_s: float, min_pairs: i
         "peak_scope": scope, "allocator": allocator, "timed_rss_growth_bytes": int(growth),
         "threads": threads, "cpus": sorted(os.sched_getaffinity(0))
         if hasattr(os, "sched_getaffinity") else None, "counts": counts,
+        "workload_ci_ms": [low * 1e3, high * 1e3],
+        "workload_rel_ci": relative_half_width(median, low, high),
+        "timing": timing.as_dict(), "wall_ms": float(np.median(timer.walls) * 1e3),
+        "dispatch_ms": float(np.median(timer.dispatches) * 1e3),
+        "settle": settled.as_dict() if settled else None,
     }
+
+
+def _pass_timing(name: str, context: dict[str, Any], job: Any) -> tuple[Any, Any, Any]:
+    """The timing definition of the workload (:mod:`evsmap.measure.pass_timing`, with the
+    gate's threads and pinned CPU), its pass timer, and on a GPU the settling of its speed."""
+    from evsmap.devices import PassTimer, settle
+    from evsmap.measure.pass_timing import pass_timing
+
+    device = context.get("device", "cpu") if name.startswith("net/") else "cpu"
+    cpus = context.get("cpus")
+    timing = pass_timing(device, int(context.get("threads", 1)), cpus=cpus, pin=bool(cpus))
+    timer = PassTimer(device)
+    settled = settle(job.run, timer) if timing.settle else None
+    timer.reset()
+    return timing, timer, settled
 
 
 def main(argv: list[str] | None = None) -> int:

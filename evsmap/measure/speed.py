@@ -28,7 +28,13 @@ from evsmap.environment import LIBRARIES, collect_environment, collect_gpu
 from evsmap.errors import InvalidDataError, UnknownNameError
 from evsmap.measure.contention import Probe, contention, describe
 from evsmap.measure.pass_timing import DeviceBusy, device_busy, pass_timing
-from evsmap.measure.timing_policy import TimedPasses, TimingPolicy, time_until_precise
+from evsmap.measure.timing_policy import (
+    TimedPasses,
+    TimingPolicy,
+    median_ci,
+    relative_half_width,
+    time_until_precise,
+)
 from evsmap.models.module_utils import as_inputs, eval_mode, image_size
 
 BACKENDS = ("onnxruntime", "torch", "torch-compile", "torch-cuda-graph")
@@ -75,8 +81,8 @@ class SpeedRecord:
             ran while this figure was taken. Two speeds each divided by their own calibration
             compare without the drift of a shared machine between them
             (:func:`calibrated_ratio`).
-        ci_ms: the median's confidence interval (low, high), ms, under a
-            :class:`~evsmap.measure.timing_policy.TimingPolicy` (None: timed in rounds).
+        ci_ms: the median's 95 % confidence interval (low, high), ms (percentile bootstrap,
+            :func:`~evsmap.measure.timing_policy.median_ci`; under a policy, its interval).
         rel_ci: the precision reached: the interval's half-width over the median.
         stopped: why timing stopped (``"precision"``, ``"budget"``, ``"max_runs"``).
         timed_s: seconds spent on the timed passes.
@@ -601,11 +607,19 @@ def _speed_record(timed: _Timed, *, backend: str, size: tuple[int, int], threads
         stable=None if stable_rel_iqr is None else bool(timed.rel_iqr <= stable_rel_iqr),
         contention=contention(before, after, calibration_log),
         calibration_gmacs=math.sqrt(before.calibration_gmacs * after.calibration_gmacs),
-        **(_precision_fields(timed.passes) if timed.passes else {}), session_s=session_s,
+        **_precision_fields(timed), session_s=session_s,
     )
 
 
-def _precision_fields(passes: TimedPasses) -> dict[str, Any]:
+def _precision_fields(timed: _Timed) -> dict[str, Any]:
+    """The median's confidence interval and precision: the timing policy's, or, for passes
+    timed in rounds, the same percentile-bootstrap interval of the kept round (so every record
+    states how far its median can be trusted)."""
+    passes = timed.passes
+    if passes is None:
+        median, low, high = median_ci(timed.times)
+        return {"ci_ms": [low * 1000.0, high * 1000.0],
+                "rel_ci": relative_half_width(median, low, high)}
     return {"ci_ms": [passes.ci_s[0] * 1000.0, passes.ci_s[1] * 1000.0],
             "rel_ci": passes.rel_ci, "stopped": passes.stopped, "timed_s": passes.timed_s,
             "policy": dict(passes.policy)}

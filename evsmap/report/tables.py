@@ -22,8 +22,9 @@ from evsmap.tables.schema import CellSpec, Column, PaperTable, expand
 
 FRAME_COLUMNS = ("table", "row", "label", "column", "header", "unit", "measured", "paper",
                  "paper_printed", "paper_best", "ratio", "status", "note", "timing_flag",
-                 "calibration_gmacs", "rel_ci")
-"""Columns of :func:`table_frame`."""
+                 "calibration_gmacs", "rel_ci", "bound", "busy_share")
+"""Columns of :func:`table_frame` (``bound``, ``busy_share``: where a timed pass's time went,
+:mod:`evsmap.measure.pass_timing`; ``host`` on the CPU, ``launch`` or ``device`` on a GPU)."""
 
 STATUSES = ("ok", "n/a", "error", "not run", "no value", "paper only")
 """Cell statuses in a frame: measured; cannot be measured here (``note`` says what is
@@ -206,7 +207,7 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
             cell = table.cell(system.id, col.id)
             paper = None if cell.number is None else float(cell.number)
             measured = None
-            flag = calibration = precision = None
+            flag = calibration = precision = bound = busy_share = None
             if not system.implemented:
                 status, note = "paper only", ""
             elif (system.id, col.id) not in index or index[(system.id, col.id)] is None:
@@ -232,6 +233,8 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                         if col.timing:
                             calibration = record_calibration(rec)
                             precision = _number((rec.details or {}).get("rel_ci"))
+                            busy = (rec.details or {}).get("busy") or {}
+                            bound, busy_share = busy.get("bound"), busy.get("busy_share")
             ratio = (measured / paper if measured is not None and paper is not None
                      and paper != 0.0 else None)
             lines.append({"table": table.id, "row": system.id, "label": system.label,
@@ -240,9 +243,10 @@ def table_frame(table: PaperTable, records: Mapping[str, CellRecord],
                           "paper_printed": cell.printed, "paper_best": bool(cell.bold),
                           "ratio": ratio,
                           "status": status, "note": note, "timing_flag": flag,
-                          "calibration_gmacs": calibration, "rel_ci": precision})
+                          "calibration_gmacs": calibration, "rel_ci": precision,
+                          "bound": bound, "busy_share": _number(busy_share)})
     frame = pd.DataFrame(lines, columns=list(FRAME_COLUMNS))
-    for name in ("measured", "paper", "ratio", "calibration_gmacs", "rel_ci"):
+    for name in ("measured", "paper", "ratio", "calibration_gmacs", "rel_ci", "busy_share"):
         frame[name] = pd.to_numeric(frame[name]).astype("float64")
     return frame
 
@@ -359,6 +363,27 @@ def _cell_markdown(line: Mapping[str, Any], cell, notes: Footnotes,
     return f"{text} {ref}".strip()
 
 
+BOUND_HEADER = "GPU pass"
+BOUND_NOTE = ("GPU pass: the share of a timed pass the GPU spent running its kernels (torch's "
+              "profiler) and what bounds it: *launch-bound* below 50 % (the GPU waits on the "
+              "host's kernel launches: the figure measures Python and the launch path, and "
+              "moves with the host), else *device-bound*.")
+
+
+def _gpu_bounds(frame: pd.DataFrame) -> dict[str, str]:
+    """Per row, where its GPU speed cells' passes went ("23 % busy, launch-bound"); empty
+    when no timed cell ran on a GPU (a CPU run's tables keep their columns)."""
+    out: dict[str, str] = {}
+    for line in frame.to_dict("records"):
+        bound = line.get("bound")
+        if bound not in ("launch", "device"):
+            continue
+        share = line.get("busy_share")
+        busy = "" if share is None or pd.isna(share) else f"{100 * share:.0f} % busy, "
+        out.setdefault(line["row"], f"{busy}{bound}-bound")
+    return out
+
+
 TIMING_MARK = " ~"
 """Appended to a measured value whose timing is flagged (unstable or taken on a busy machine);
 the cell's note says which."""
@@ -419,9 +444,13 @@ def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
             "note says which). Bracketed numbers refer to the notes below the table.", ""]
     headers = ["System"] + [_md_escape(header_with_unit(c) + _measured_on(table, c, records))
                             for c in table.columns]
+    gpu_rows = _gpu_bounds(frame)
+    if gpu_rows:
+        headers.append(BOUND_HEADER)
     out.append("| " + " | ".join(headers) + " |")
     out.append("|" + "|".join(["---"] + [":---:" if c.kind == "flag" else "---:"
-                                         for c in table.columns]) + "|")
+                                         for c in table.columns]
+                              + ([":---"] if gpu_rows else [])) + "|")
     for system in table.rows:
         label = _md_escape(_row_label(system))
         if not system.implemented:
@@ -437,8 +466,12 @@ def table_markdown(table: PaperTable, records: Mapping[str, CellRecord],
             line = by_cell.get((system.id, col.id))
             cells.append(_md_escape(_cell_markdown(line, cell, notes, col.timing))
                          if line is not None else _paper_text(cell))
+        if gpu_rows:
+            cells.append(gpu_rows.get(system.id, ""))
         out.append("| " + " | ".join(cells) + " |")
     out.append("")
+    if gpu_rows:
+        out += [BOUND_NOTE, ""]
     if table.footnotes:
         out += ["Marks as printed in the paper:", ""]
         out += [f"- {m} {_md_escape(t)}" for m, t in table.footnotes.items()] + [""]

@@ -184,8 +184,10 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
                               details=rec.as_dict(), started=now())
     values = {col: float(rec.fps_median) for col in spec.metrics}
     where = (f"on the CPU ({rec.threads} threads, {rec.cpu})" if not rec.gpu else
-             f"on {rec.device} ({rec.gpu['gpu']}, CUDA events, after a warm-up of "
-             f"{(rec.settle or {}).get('passes', 0)} passes until the speed settled)")
+             f"on {rec.device} ({rec.gpu['gpu']}, CUDA events, {rec.threads} host thread"
+             f"{'s' if rec.threads != 1 else ''}, after a warm-up of "
+             f"{(rec.settle or {}).get('passes', 0)} passes until the speed settled; "
+             f"{busy_text(rec.busy)})")
     notes = [f"{ctx.speed_backend} {where}, {w}x{h}, "
              f"median of {rec.runs} passes after {rec.warmup} warm-up, "
              f"{precision_text(rec.as_dict())}; untrained weights (speed does not depend on "
@@ -204,6 +206,15 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
         details["timing_flag"] = rec.flag
     return CellRecord(**base_fields(spec), status="ok", values=values, notes=notes,
                       details=details)
+
+
+def busy_text(busy: dict[str, Any]) -> str:
+    """Where a GPU pass's time went, in words (:class:`evsmap.measure.pass_timing.
+    DeviceBusy`'s fields)."""
+    if busy.get("busy_share") is None:
+        return f"GPU busy share not measured: {busy.get('why') or 'unknown'}"
+    return (f"GPU busy {100 * busy['busy_share']:.0f} % of the pass "
+            f"({busy['kernel_ms']:.2f} ms of kernels): {busy['bound']}-bound")
 
 
 def precision_text(details: dict[str, Any]) -> str:

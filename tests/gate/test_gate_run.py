@@ -140,9 +140,17 @@ def test_gate_end_to_end_passes_on_its_baseline_and_fails_on_the_scaled_ones(tmp
 
     require_sample("lidar-odometry-bag")
     base = tmp_path / "baseline.json"
+    results = tmp_path / "results.json"
     r = _evsmap("gate", "--only", "read/rosbag", "--update", "--baseline", str(base),
-                "--budget", "0.5", "--repeats", "2")
+                "--budget", "0.5", "--repeats", "2", "--results", str(results))
     assert r.returncode == 0, r.stderr
+    # every workload is timed as evsmap speed times a pass (evsmap.measure.pass_timing)
+    measured = json.loads(results.read_text())["workloads"]["read/rosbag"]
+    assert measured["timing"]["clock"] == "host clock" and measured["timing"]["host_threads"] == 1
+    assert measured["timing"]["cpus"] == measured["cpus"]
+    low, high = measured["workload_ci_ms"]
+    assert low <= measured["workload_ms"] <= high and measured["workload_rel_ci"] >= 0
+    assert measured["wall_ms"] == pytest.approx(measured["workload_ms"])
     data = json.loads(base.read_text())
     (kind,) = data["kinds"].values()
     entry = kind["workloads"]["read/rosbag"]

@@ -131,3 +131,12 @@ def test_gpu_only_and_mismatched_settings_refused_in_one_line():
         prepare_pass(net(), [x()], backend="torch", compile_mode="reduce-overhead")
     with pytest.raises(InvalidDataError, match="channels-last"):
         prepare_pass(net(), [x()], backend="onnxruntime", channels_last=True)
+
+
+def test_speed_cells_say_where_a_gpu_pass_went():
+    from evsmap.runner.network_cells import busy_text
+
+    assert busy_text({"kernel_ms": 2.5, "busy_share": 0.21, "bound": "launch"}) == (
+        "GPU busy 21 % of the pass (2.50 ms of kernels): launch-bound")
+    assert "not measured: the profiler recorded no GPU kernel" in busy_text(
+        {"busy_share": None, "why": "the profiler recorded no GPU kernel"})

@@ -282,3 +282,25 @@ def test_cosmetics_headers_ratios_counts_and_skipped_cells(tables):
                      inputs={"sequence": "synthetic", "voxel_size": 0.05})
     csv = extra_frame([rec]).to_csv(index=False)
     assert ",1234," in csv and ",7," in csv and "1234.0" not in csv
+
+
+def test_gpu_speed_rows_say_whether_their_pass_was_launch_bound(tables, specs):
+    from dataclasses import replace
+
+    from evsmap.report.tables import BOUND_HEADER
+
+    records = {r.key: r for r in make_records()}
+    key = next(k for k, r in records.items() if r.kind == "speed" and r.status == "ok")
+    table = tables[records[key].table]
+    label = next(s.label for s in table.rows if s.id == records[key].row)
+    cpu_md = table_markdown(table, records, specs)
+    assert BOUND_HEADER not in cpu_md  # a CPU run's table keeps its columns
+    records[key] = replace(records[key], details={
+        "device": "cuda:0", "busy": {"kernel_ms": 3.1, "busy_share": 0.23, "bound": "launch"}})
+    md = table_markdown(table, records, specs)
+    assert md_cell(md, label, BOUND_HEADER) == "23 % busy, launch-bound"
+    rows = [x for x in md.splitlines() if x.startswith("| ") and "---" not in x][1:]
+    assert sum("-bound" in x for x in rows) == 1  # the CPU-timed rows leave it empty
+    frame = table_frame(table, records, specs)
+    row = frame[frame["bound"].notna()]
+    assert len(row) == 1 and row.iloc[0]["busy_share"] == pytest.approx(0.23)
