@@ -303,8 +303,10 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
             first frame is also integrated into a scratch copy of the empty map, so that the
             update's compiled kernels load (or compile) outside the loop.
         threads: a :class:`~evsmap.measure.pipelined.StageThreads` set for the warm-up and
-            the loop, then restored (default: ``PIPELINED`` with ``pipeline``, else
-            ``SEQUENTIAL``: the libraries' defaults).
+            the loop, then restored (default with ``pipeline``: the plan for the cores this
+            process may use, the network on the CPU (:func:`~evsmap.measure.thread_plan.
+            thread_plan`; ``PIPELINED`` on 2 cores); else ``SEQUENTIAL``: the libraries'
+            defaults).
         growth: a :class:`~evsmap.measure.growth.MapGrowth`, called after every frame outside
             the timed update (its time is left out of ``wall_s``); its snapshots are
             ``results["growth"]``.
@@ -333,9 +335,7 @@ def run_mapping(sequence: Sequence, updater: MapUpdater | Callable[[], MapUpdate
             not_run = f"the segmenter was not run: {type(the_map).__name__} uses no semantics"
             segmenter = None
         semantic = the_map.uses_semantics
-        from evsmap.measure.pipelined import PIPELINED, SEQUENTIAL
-
-        settings = threads if threads is not None else PIPELINED if pipeline else SEQUENTIAL
+        settings = threads if threads is not None else _default_threads(pipeline)
         with settings.applied(segmenter) as used:
             wall_s = _loop(sequence, order, the_map, segmenter, observations, semantic, times,
                            update_times, skipped, done, skip_bad=skip_bad, progress=progress,
@@ -443,3 +443,11 @@ def _check_names(evaluators: list[Any]) -> None:
         raise InvalidDataError(f"two evaluators named {', '.join(twice)}: give each its own "
                                f"name")
 
+
+def _default_threads(pipeline: bool) -> Any:
+    """The loop's threads when the caller gives none: the pipelined loop's plan for this
+    process's cores (the network on the CPU), or the sequential loop's library defaults."""
+    from evsmap.measure.pipelined import SEQUENTIAL
+    from evsmap.measure.thread_plan import available_cores, thread_plan
+
+    return thread_plan(available_cores(), "cpu").threads if pipeline else SEQUENTIAL
