@@ -321,14 +321,24 @@ def summary(records: dict[str, Any], args: argparse.Namespace) -> str:
     rows = [*agreement_rows(records), *sweep_rows(records), *ratio_rows(records),
             *batch_rows(records), *map_rows(records), *resume_rows(records),
             *gate_rows(records)]
-    lines = ["# GPU check (issue 53)", "", header(env, args.device), "",
+    lines = ["# GPU check (issue 53)", "", header(env, args.device, _gpu_under_load(records)),
+             "",
              "| step | what | measured | beside |", "|---|---|---|---|"]
     lines += [f"| {r.step} | {r.what} | {r.measured} | {r.beside} |" for r in rows]
     return "\n".join(lines) + "\n"
 
 
-def header(env: dict[str, Any], device: str) -> str:
-    gpu = env.get("gpu", {})
+def _gpu_under_load(records: dict[str, Any]) -> dict[str, Any]:
+    """The GPU's facts as the first speed record read them after its timed passes (the clocks
+    under load), else as read at the start."""
+    for name in records:
+        result = _result(records, name) if name.startswith("a/speed/") else None
+        if result and result.get("gpu"):
+            return dict(result["gpu"])
+    return dict(records.get("environment", {}).get("gpu", {}))
+
+
+def header(env: dict[str, Any], device: str, gpu: dict[str, Any]) -> str:
     clocks = (f"SM clock {gpu.get('clocks_sm', '?')} of {gpu.get('clocks_max_sm', '?')} MHz, "
               f"memory clock {gpu.get('clocks_mem', '?')} MHz" if gpu else "no GPU")
     return (f"Device {device}: {gpu.get('gpu', 'no GPU')} ({clocks}; CUDA {env.get('cuda')}, "
