@@ -321,6 +321,7 @@ def measure_speed(
         OnnxExportError: the onnxruntime backend could not export the module.
     """
     _check_settings(backend, runs, warmup, threads, max_rounds)
+    require_device(device)  # one line, before anything is built, where this machine has none
     timing = pass_timing(device, threads, pin=pin)
     inputs = as_inputs(inputs)
     if macs is None:

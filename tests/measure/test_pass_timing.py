@@ -140,3 +140,10 @@ def test_speed_cells_say_where_a_gpu_pass_went():
         "GPU busy 21 % of the pass (2.50 ms of kernels): launch-bound")
     assert "not measured: the profiler recorded no GPU kernel" in busy_text(
         {"busy_share": None, "why": "the profiler recorded no GPU kernel"})
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a machine with a GPU")
+def test_a_gpu_asked_of_a_machine_without_one_is_one_line():
+    with pytest.raises(DeviceUnavailableError) as info:
+        measure_speed(net(), x(), runs=3, device="cuda:7", roofline_size=32)
+    assert "\n" not in str(info.value) and "--device cuda:7" in str(info.value)
