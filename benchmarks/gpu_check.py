@@ -189,7 +189,8 @@ def timer_agreement(steps: Steps, args: argparse.Namespace) -> None:
     runs = "10" if args.quick else "100"
     for net in nets:
         steps.run(f"a/speed/{net}", evsmap("speed", net, "--device", args.device, "--threads",
-                                           "1", "--runs", runs, "--json"),
+                                           "1", "--runs", runs, "--height", "480", "--width",
+                                           "640", "--json"),
                   timeout=STEP_TIMEOUTS["speed"])
     steps.run("a/gate", evsmap("gate", "--device", args.device, "--threads", "1", "--update",
                                "--baseline", str(args.out / "gpu_pair_baseline.json"),
