@@ -162,8 +162,10 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
         trim_heap()
 
     def measure() -> SpeedRecord:
+        # on a GPU the timing definition's one host thread (evsmap.measure.pass_timing)
         return measure_speed(module, inputs, backend=ctx.speed_backend,
-                             threads=ctx.threads, macs=macs, input_names=segmenter.input_names,
+                             threads=ctx.threads if ctx.device == "cpu" else None, macs=macs,
+                             input_names=segmenter.input_names,
                              key=network.spec, calibration_log=log, policy=policy,
                              roofline=roofline,
                              onnx_path=export.path if export else None,
