@@ -1,7 +1,9 @@
 """Write ``evsmap/runner/reference_durations.json`` (``reference_durations_quick.json`` for a
 ``--quick`` run) from a finished ``evsmap reproduce`` run:
-how long each cell took on that machine, with the machine's calibration, so that a new user's
-first run can estimate its time (:mod:`evsmap.runner.estimate` scales these by the two
+how long the run spent on each cell on that machine (a timed cell's whole wait, its process's
+start-up included: :func:`evsmap.runner.estimate.cell_duration`) and outside its cells (from
+``run.json``'s ``time_accounting``), with the machine's calibration, so that a new user's first
+run can estimate its time (:mod:`evsmap.runner.estimate` scales these by the two
 machines' calibrations).
 
 Use a first run with an empty cache (``EVSMAP_CACHE_DIR`` pointing at an empty folder), on an
@@ -19,7 +21,7 @@ from pathlib import Path
 
 from evsmap.fileio import atomic_write_text
 from evsmap.report.build import read_records
-from evsmap.runner.estimate import REFERENCE_FILES
+from evsmap.runner.estimate import REFERENCE_FILES, cell_duration
 
 
 def main() -> int:
@@ -29,18 +31,22 @@ def main() -> int:
     run = json.loads((args.run / "run.json").read_text())
     calibration = json.loads((args.run / "cache" / "calibration.json").read_text())
     env = run.get("environment") or {}
-    cells = {r.key: round(r.seconds, 2) for r in read_records(args.run)
+    cells = {r.key: round(cell_duration(r), 2) for r in read_records(args.run)
              if r.status == "ok" and r.seconds > 0}
+    accounting = run.get("time_accounting") or {}
+    outside = ({"seconds": round(accounting["wall_s"] - sum(cells.values()), 2),
+                "cells": len(cells)} if accounting.get("wall_s") else None)
     data = {"machine": {"cpu": env.get("cpu"), "instruction_set": env.get("instruction_set"),
                         "threads": env.get("threads"),
                         "calibration_gmacs": round(float(calibration["best_gmacs"]), 2)},
             "run": {"started": run.get("started"), "finished": run.get("finished"),
                     "git_commit": env.get("git_commit"), "quick": run.get("quick"),
                     "extended": (run.get("settings") or {}).get("extended")},
-            "cells": dict(sorted(cells.items()))}
+            "outside": outside, "cells": dict(sorted(cells.items()))}
     target = REFERENCE_FILES[bool(run.get("quick"))]
     atomic_write_text(target, json.dumps(data, indent=1) + "\n")
-    print(f"{len(cells)} cells, {sum(cells.values()) / 60:.1f} min in all -> {target}")
+    print(f"{len(cells)} cells, {sum(cells.values()) / 60:.1f} min in them, "
+          f"{(outside or {}).get('seconds', 0) / 60:.1f} min outside -> {target}")
     return 0
 
 

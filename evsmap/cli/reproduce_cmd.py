@@ -9,6 +9,7 @@ written); the run itself is :func:`evsmap.runner.reproduce.reproduce`'s."""
 from __future__ import annotations
 
 import argparse
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -221,8 +222,11 @@ def run(args: argparse.Namespace) -> int:
     from evsmap.runner.reproduce import reproduce
 
     job = _reproduction(args)
+    job.count_startup = True
     records = reproduce(job)
+    t0 = time.perf_counter()
     written = build_report(job.out)
+    report_s = time.perf_counter() - t0
     ok = sum(r.status == "ok" for r in records)
     na = sum(r.status == "na" for r in records)
     err = [r for r in records if r.status == "error"]
@@ -230,7 +234,8 @@ def run(args: argparse.Namespace) -> int:
           f"{len(err)} failed")
     for r in err[:10]:
         print(f"  failed: {r.key}: {r.error}")
-    print(f"report written to {job.out}/ ({', '.join(p.name for p in written[:6])}, ...)")
+    print(f"report written to {job.out}/ ({', '.join(p.name for p in written[:6])}, ...) in "
+          f"{report_s:.1f} s")
     return 1 if err else 0
 
 

@@ -273,6 +273,9 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     from evsmap.report.precision import precision_markdown
 
     out += precision_markdown(list(records or []), (run.get("context") or {}).get("timing"))
+    from evsmap.report.accounting import accounting_markdown
+
+    out += accounting_markdown(run.get("time_accounting"), list(records or []))
     out += _run_lines(run, tables, table_ids, frames, sizes)
     out += _environment_lines(run.get("environment") or {})
     out += _available_lines(run)

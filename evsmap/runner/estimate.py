@@ -10,6 +10,14 @@ Each cell's estimate comes from the best source at hand:
    (:func:`evsmap.measure.contention.calibration_gmacs`);
 3. ``default``: a figure per kind of cell, for cells neither knows (a plug-in's, a new row).
 
+A cell's duration is what the run spends on it (:func:`cell_duration`): for a timed cell the
+driver's whole wait (its fresh process's start-up and imports, its retries:
+:mod:`evsmap.runner.accounting`), for an untimed one its own time. What a run spends outside
+its cells (the start-up, the plan, the estimate's calibration, the pools' start, ``run.json``)
+comes from the same sources (:data:`OUTSIDE_KEY`: this machine's last run, else the reference's
+scaled), shared out over the cells pending, so the start line's estimate is the run's, not its
+cells'.
+
 While the run goes, the estimates of the cells left are scaled by how the finished ones compared
 with theirs (:meth:`Estimator.remaining_s`), so the time left a person sees corrects itself.
 """
@@ -21,6 +29,7 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from evsmap.fileio import atomic_write_text, read_json_object
 
@@ -33,6 +42,9 @@ DEFAULT_S = {"complexity": 10.0, "speed": 30.0, "accuracy": 120.0, "mapping": 60
 """Seconds assumed for a cell of each kind that neither the history nor the reference knows."""
 CORRECTION_LIMITS = (0.5, 3.0)
 """The running correction of the estimates left is kept within these factors."""
+OUTSIDE_KEY = "(outside cells)"
+"""The history's and the reference's entry for a whole run's time outside its cells, with the
+count of cells it was spread over (``cells``)."""
 CORRECTION_PRIOR_S = 60.0
 """Seconds of "as estimated" the correction starts from, so that the first short cells (whose
 time is mostly a process's start-up: 8 s for a 2 s cell) do not triple the time left."""
@@ -58,6 +70,8 @@ class Estimator:
         scale: the reference machine's calibration over this one's (a slower machine: > 1).
         path: where the history is kept (None: not kept).
         machine: this machine's key in the history file.
+        outside: a whole run's seconds outside its cells and the count of cells it measured
+            (this machine's last run, else the reference's scaled; None: unknown).
     """
 
     history: dict[str, float] = field(default_factory=dict)
@@ -65,6 +79,7 @@ class Estimator:
     scale: float = 1.0
     path: Path | None = None
     machine: str = ""
+    outside: tuple[float, int] | None = None
     _estimated: float = 0.0
     _taken: float = 0.0
 
@@ -80,15 +95,17 @@ class Estimator:
         root = cache_root if cache_root is not None else default_root()
         path = root / DURATIONS_FILE
         machine = machine_id(threads, quick=quick)
-        history = read_json_object(path).get(machine, {})
+        history = dict(read_json_object(path).get(machine, {}))
         reference_data = read_json_object(REFERENCE_FILES[quick])
         same_kind = bool((reference_data.get("run") or {}).get("quick")) == quick
         reference = reference_data.get("cells", {}) if same_kind else {}
         ref_cal = (reference_data.get("machine") or {}).get("calibration_gmacs")
         scale = ref_cal / calibration_gmacs if ref_cal and calibration_gmacs else 1.0
+        outside = _outside(history.pop(OUTSIDE_KEY, None), 1.0) or \
+            (_outside(reference_data.get("outside"), scale) if same_kind else None)
         return cls(history={k: float(v) for k, v in history.items()},
                    reference={k: float(v) for k, v in reference.items()}, scale=scale,
-                   path=path, machine=machine)
+                   path=path, machine=machine, outside=outside)
 
     def seconds(self, key: str, kind: str) -> tuple[float, str]:
         """``(seconds, source)`` for the cell ``key`` of ``kind`` (source: ``history``,
@@ -102,6 +119,26 @@ class Estimator:
     def total_s(self, items: Iterable[tuple[str, str]]) -> float:
         """The sum of the estimates of ``(key, kind)`` items."""
         return sum(self.seconds(key, kind)[0] for key, kind in items)
+
+    def outside_s(self, cells: int) -> float:
+        """The time outside the cells of a run measuring ``cells`` cells: the known run's,
+        shared out per cell (all of it for a run at least as large)."""
+        if self.outside is None or cells <= 0:
+            return 0.0
+        seconds, count = self.outside
+        return seconds * min(1.0, cells / max(count, 1))
+
+    def run_s(self, items: Iterable[tuple[str, str]]) -> float:
+        """A run's estimate: its cells' and its time outside them."""
+        items = list(items)
+        return self.total_s(items) + self.outside_s(len(items))
+
+    def learn_outside(self, seconds: float, cells: int) -> None:
+        """A run on this machine spent ``seconds`` outside its ``cells`` cells: kept in the
+        history for the next run's estimate."""
+        if cells > 0 and seconds >= 0:
+            self.outside = (float(seconds), int(cells))
+            self._store(OUTSIDE_KEY, {"seconds": round(float(seconds), 2), "cells": int(cells)})
 
     def sources(self, items: Iterable[tuple[str, str]]) -> dict[str, int]:
         """How many of the items each source estimates."""
@@ -119,14 +156,20 @@ class Estimator:
         self._estimated += self.seconds(key, kind)[0]
         self._taken += seconds
         self.history[key] = float(seconds)
-        if self.path is not None:
-            data = read_json_object(self.path)
-            data[self.machine] = {**data.get(self.machine, {}), key: round(float(seconds), 2)}
-            try:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-                atomic_write_text(self.path, json.dumps(data, indent=0, sort_keys=True))
-            except OSError:
-                pass  # a read-only cache: the estimate stays in memory
+        self._store(key, round(float(seconds), 2))
+
+    def _store(self, key: str, value: Any) -> None:
+        """``key``'s entry of this machine in the history file (at once: an interrupted run
+        keeps what it learnt)."""
+        if self.path is None:
+            return
+        data = read_json_object(self.path)
+        data[self.machine] = {**data.get(self.machine, {}), key: value}
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(self.path, json.dumps(data, indent=0, sort_keys=True))
+        except OSError:
+            pass  # a read-only cache: the estimate stays in memory
 
     def correction(self) -> float:
         """Time taken over time estimated for the cells finished so far, each side starting
@@ -138,8 +181,27 @@ class Estimator:
         return min(high, max(low, ratio))
 
     def remaining_s(self, items: Iterable[tuple[str, str]]) -> float:
-        """The estimate of the cells left, corrected by how the finished ones went."""
-        return self.total_s(items) * self.correction()
+        """The estimate of the cells left, corrected by how the finished ones went, and their
+        share of the time outside cells."""
+        items = list(items)
+        return self.total_s(items) * self.correction() + self.outside_s(len(items))
+
+
+def cell_duration(record: Any) -> float:
+    """What a run spent on a cell (:class:`~evsmap.runner.records.CellRecord`): the driver's
+    whole wait for a timed cell (``around["wall_s"]``), else the cell's own seconds."""
+    around = record.around or {}
+    return float(around.get("wall_s", record.seconds))
+
+
+def _outside(entry: Any, scale: float) -> tuple[float, int] | None:
+    """``(seconds, cells)`` of a stored time outside cells (scaled), or None."""
+    if not isinstance(entry, dict):
+        return None
+    try:
+        return float(entry["seconds"]) * scale, int(entry["cells"])
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 @dataclass

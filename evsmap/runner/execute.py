@@ -15,6 +15,7 @@ import traceback
 
 from evsmap.errors import EvsmapError
 from evsmap.interrupt import reraise_interruption
+from evsmap.runner.accounting import stamp
 from evsmap.runner.cell_base import (
     RETRY_PAUSE_S,
     STRICT_PAUSE_S,
@@ -57,7 +58,7 @@ def execute_spec(spec: CellSpec, ctx: RunContext) -> CellRecord:
     from evsmap.measure.memory import mark_peak, peak_since_mark
 
     mark_peak()
-    started, t0 = now(), time.perf_counter()
+    started, t0, began = now(), time.perf_counter(), stamp()
     try:
         record = RUNNERS[spec.kind](spec, ctx)
     except EvsmapError as exc:
@@ -71,6 +72,7 @@ def execute_spec(spec: CellSpec, ctx: RunContext) -> CellRecord:
     record.started, record.seconds = started, time.perf_counter() - t0
     record.cell_peak_rss_bytes = peak_since_mark()
     record.environment = environment(ctx.threads)
+    record.around = {"began": began}  # the worker adds its own instants (runner.accounting)
     return record
 
 
@@ -78,7 +80,7 @@ def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
     from evsmap.measure.memory import mark_peak, peak_since_mark
 
     mark_peak()
-    started, t0 = now(), time.perf_counter()
+    started, t0, began = now(), time.perf_counter(), stamp()
     base = run.base_fields()
     try:
         record = mapping_record(run, ctx)
@@ -92,6 +94,7 @@ def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
     record.started, record.seconds = started, time.perf_counter() - t0
     record.cell_peak_rss_bytes = peak_since_mark()
     record.environment = environment(ctx.threads)
+    record.around = {"began": began}  # the worker adds its own instants (runner.accounting)
     return record
 
 

@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.errors import EvsmapError
+from evsmap.runner.accounting import RunClock, phase, settle_around, stamp, worker_stamps
 from evsmap.runner.context import RunContext
 from evsmap.runner.estimate import Budget, Estimator
 from evsmap.runner.execute import (
@@ -143,13 +144,19 @@ def plan(ctx: RunContext, tables: Iterable[str] | None = None,
 
 # ------------------------------------------------------------------ workers (top level: picklable)
 def _spec_worker(table: str, key: str, ctx_data: dict[str, Any]) -> dict[str, Any]:
+    entered = stamp()
     ctx = RunContext(**ctx_data)
     spec = next(s for s in expand(load_tables()[table]) if s.key == key)
-    return execute_spec(spec, ctx).as_dict()
+    record = execute_spec(spec, ctx)
+    record.around = worker_stamps(entered, record.around.get("began", entered))
+    return record.as_dict()
 
 
 def _mapping_worker(run: MappingRun, ctx_data: dict[str, Any]) -> dict[str, Any]:
-    return execute_mapping(run, RunContext(**ctx_data)).as_dict()
+    entered = stamp()
+    record = execute_mapping(run, RunContext(**ctx_data))
+    record.around = worker_stamps(entered, record.around.get("began", entered))
+    return record.as_dict()
 
 
 _fresh_executor = fresh_process
@@ -202,10 +209,15 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
     two kept; with ``--strict-timing`` one still contended is recorded as not measured."""
     from evsmap.runner.execute import RETRY_PAUSE_S, STRICT_PAUSE_S
 
+    first_submitted = stamp()
+
     def once() -> CellRecord:
+        submitted = stamp()
         with fresh() as ex:
-            return CellRecord.from_dict(
+            rec = CellRecord.from_dict(
                 _result(ex.submit(_mapping_worker, run, ctx.as_dict()), run.key, ctx.out))
+        rec.around = settle_around(rec.around, rec.seconds, submitted, stamp(), first_submitted)
+        return rec
 
     from evsmap.measure.contention import describe
 
@@ -218,6 +230,9 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
     again = once()
     if (_severity(again) or float("inf")) < first:
         record = again
+    else:  # the kept first try: the second and its pause are its retry
+        record.around["retry_s"] = round(again.around["wall_s"] - record.around["wall_s"], 4)
+        record.around["wall_s"] = again.around["wall_s"]
     machine = record.details["contention"]
     if ctx.strict_timing and machine["contended"]:
         return CellRecord(
@@ -226,7 +241,7 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
             needs=["an idle machine"], inputs=dict(record.inputs), details=dict(record.details),
             reason=f"n/a - --strict-timing: the machine was busy in both tries "
                    f"({describe(machine)}); rerun when it is idle",
-            environment=record.environment)
+            environment=record.environment, around=record.around)
     record.notes.append(f"timed twice: the first try was {why}; kept the less contended")
     return record
 
@@ -275,7 +290,8 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
                pool: Callable[[int], Executor] | None = None,
                fresh: Callable[[], Executor] | None = None,
                executor: CellExecutor | None = None, budget: Budget | None = None,
-               estimator: Estimator | None = None) -> list[CellRecord]:
+               estimator: Estimator | None = None,
+               clock: RunClock | None = None) -> list[CellRecord]:
     """Run every cell of ``the_plan`` not already done; returns all records of the plan.
 
     ``executor`` runs the cells (an entered :class:`~evsmap.runner.executors.CellExecutor`;
@@ -286,7 +302,8 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
 
     The cells the paper's claims rest on run first (:func:`evsmap.tables.claims.claims_first`).
     With a ``budget``, a cell whose ``estimator`` estimate does not fit in the time left is not
-    started: it is recorded as not measured, with the reason."""
+    started: it is recorded as not measured, with the reason. ``clock``: the run's phases are
+    added to it (:mod:`evsmap.runner.accounting`)."""
     if executor is None:
         executor = LocalExecutor(pool=pool or _spawn_pool, fresh=fresh or _fresh_executor)
     elif pool is not None or fresh is not None:
@@ -301,11 +318,14 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
             on_record(record)
 
     env = _Environment(ctx.threads)
-    todo = _record_needs(ctx, the_plan.specs, done, keep, env)
+    with phase(clock, "n/a cells"):
+        todo = _record_needs(ctx, the_plan.specs, done, keep, env)
     runs_left = [r for r in the_plan.runs if r.key not in done]
-    if todo or runs_left:
-        executor.prepare(ctx)
-    slots = executor.timing_slots() if any(s.fresh_process for s in todo) or runs_left else []
+    with phase(clock, "executor"):
+        if todo or runs_left:
+            executor.prepare(ctx)
+        slots = executor.timing_slots() if any(s.fresh_process for s in todo) or runs_left \
+            else []
     left_out = _budget_rule(budget, estimator)
 
     from evsmap.tables.claims import claims_first
@@ -315,8 +335,10 @@ def run_matrix(ctx: RunContext, the_plan: Plan, *, workers: int = 1, resume: boo
     for first in (0, 1):
         group = [s for s in todo if claims_first(s.table, s.row) == first]
         group_runs = runs_left if first == 0 else []
-        _run_group(ctx, group, group_runs, done, keep, executor, workers, slots, left_out)
-    _read_mapping_cells(ctx, the_plan, done, keep, env)
+        _run_group(ctx, group, group_runs, done, keep, executor, workers, slots, left_out,
+                   clock)
+    with phase(clock, "Table IV read"):
+        _read_mapping_cells(ctx, the_plan, done, keep, env)
     return [done[k] for k in the_plan.keys if k in done]
 
 
@@ -409,23 +431,27 @@ def _skip_record(spec: CellSpec | MappingRun, why: str, ctx: RunContext) -> Cell
 def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
                done: dict[str, CellRecord], keep: Callable[[CellRecord], None],
                executor: CellExecutor, workers: int, slots: list[TimingSlot],
-               left_out: Callable[[str, str], str | None]) -> None:
+               left_out: Callable[[str, str], str | None],
+               clock: RunClock | None = None) -> None:
     """Complexity and accuracy in a pool (once per configuration), then the timed cells one at a
     time per timing slot, each in a fresh process, then the mapping runs."""
-    _run_pooled(ctx, [s for s in specs if not s.fresh_process], keep, executor, workers,
-                left_out)
+    with phase(clock, "untimed cells"):
+        _run_pooled(ctx, [s for s in specs if not s.fresh_process], keep, executor, workers,
+                    left_out)
     timed = [s for s in specs if s.fresh_process]
 
     def time_spec(spec: CellSpec, slot: TimingSlot) -> CellRecord:
         why = left_out(spec.key, spec.kind)
         if why:
             return _skip_record(spec, why, ctx)
+        submitted = stamp()
         with executor.fresh(slot) as ex:
             data = _slot_context(ctx, slot).as_dict()
-            return _placed(CellRecord.from_dict(
+            record = CellRecord.from_dict(
                 _result(ex.submit(_spec_worker, spec.table, spec.key, data), spec.key,
-                        ctx.out)),
-                executor)
+                        ctx.out))
+        record.around = settle_around(record.around, record.seconds, submitted, stamp())
+        return _placed(record, executor)
 
     def time_run(run: MappingRun, slot: TimingSlot) -> CellRecord:
         why = left_out(run.key, "mapping")
@@ -434,17 +460,20 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
         return _placed(_timed_mapping(run, _slot_context(ctx, slot),
                                       lambda: executor.fresh(slot)), executor)
 
-    _run_timed(timed, time_spec, slots, keep)
+    with phase(clock, "timed cells"):
+        _run_timed(timed, time_spec, slots, keep)
     labels_cache: dict[str, bool] = {}
     to_map: list[MappingRun] = []
-    for run in runs:
-        if run.segmenter is not None and lacks_labels(ctx, run, labels_cache):
-            rec = unlabelled_record(run)
-            rec.environment = environment(ctx.threads)
-            keep(rec)
-            continue
-        to_map.append(run)
-    _run_timed(to_map, time_run, slots, keep)
+    with phase(clock, "labels check"):
+        for run in runs:
+            if run.segmenter is not None and lacks_labels(ctx, run, labels_cache):
+                rec = unlabelled_record(run)
+                rec.environment = environment(ctx.threads)
+                keep(rec)
+                continue
+            to_map.append(run)
+    with phase(clock, "mapping runs"):
+        _run_timed(to_map, time_run, slots, keep)
 
 
 def _run_pooled(ctx: RunContext, pooled: list[CellSpec], keep: Callable[[CellRecord], None],
@@ -470,6 +499,7 @@ def _run_pooled(ctx: RunContext, pooled: list[CellSpec], keep: Callable[[CellRec
         for fut in as_completed(futures):
             group = futures[fut]
             first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
+            first.around = {}  # an untimed cell shares its pool's time (the run's phase)
             for spec in group:
                 keep(_copy_for(first, spec))
 

@@ -77,6 +77,10 @@ class CellRecord:
         started, seconds: UTC start time (ISO 8601) and wall time.
         cell_peak_rss_bytes: the peak resident memory of the process while the cell ran
             (Linux: the peak is reset when the cell starts; 0: not measured).
+        around: the time around a timed cell, seconds (:mod:`evsmap.runner.accounting`:
+            ``wall_s`` the run waited for it, split into ``start_s``, ``setup_s``, ``cell_s``,
+            ``finish_s``, ``return_s``, ``retry_s``); empty for the untimed cells (they share
+            their pool's time) and records of older runs.
     """
 
     key: str
@@ -97,6 +101,7 @@ class CellRecord:
     started: str = ""
     seconds: float = 0.0
     cell_peak_rss_bytes: int = 0
+    around: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:

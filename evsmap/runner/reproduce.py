@@ -19,8 +19,9 @@ from typing import Any
 
 from evsmap.errors import EvsmapError
 from evsmap.interrupt import set_resume_hint
+from evsmap.runner.accounting import RunClock, process_age_s
 from evsmap.runner.context import RunContext
-from evsmap.runner.estimate import Budget, Estimator, format_duration
+from evsmap.runner.estimate import Budget, Estimator, cell_duration, format_duration
 from evsmap.runner.execute import environment, open_mapping_sequence
 from evsmap.runner.executors import CellExecutor
 from evsmap.runner.mapping_cells import lacks_labels
@@ -45,6 +46,9 @@ class Reproduction:
         executor: where the cells run (not entered yet).
         resume: keep the records already ``ok``.
         force: with ``resume``, run every cell again.
+        count_startup: count this process's age when the run begins as its start-up phase
+            (the command line's run: the interpreter, the imports, the options' checks; not a
+            run started inside a longer-lived process).
     """
 
     out: Path
@@ -55,12 +59,34 @@ class Reproduction:
     executor: CellExecutor
     resume: bool = False
     force: bool = False
+    count_startup: bool = False
 
 
 def reproduce(job: Reproduction) -> list[CellRecord]:
     """Run ``job``: every cell of its plan not already done, then the proxy training
     (``settings.train``) and the int8 pass (``settings.precision``); ``run.json`` is written
     before the first cell and again at the end. Returns every record of the run.
+
+    Raises:
+        EvsmapError: ``settings.cells`` match no cell (a new folder is removed again).
+    """
+    clock = RunClock()
+    if job.count_startup:
+        clock.add("start-up", process_age_s() or 0.0)
+    with clock.phase("plan"):
+        ctx, the_plan, run = _planned(job)
+    records = _measure(ctx, job, the_plan, run, clock)
+    with clock.phase("extra passes"):
+        records += _extra_passes(ctx, job, the_plan, run)
+    with clock.phase("run.json"):
+        run.finished = datetime.now(UTC).isoformat(timespec="seconds")
+        run.time_accounting = clock.as_dict()
+        run.write(job.out / RUN_FILE)
+    return records
+
+
+def _planned(job: Reproduction) -> tuple[RunContext, Plan, RunFile]:
+    """The run's context and plan, and its ``run.json`` written as it starts.
 
     Raises:
         EvsmapError: ``settings.cells`` match no cell (a new folder is removed again).
@@ -89,11 +115,7 @@ def reproduce(job: Reproduction) -> list[CellRecord]:
     run.write(job.out / RUN_FILE)
     set_resume_hint(f"the finished cells are kept in {job.out}/records: resume with "
                     f"`evsmap reproduce --resume --out {job.out}`")
-    records = _measure(ctx, job, the_plan, run)
-    records += _extra_passes(ctx, job, the_plan, run)
-    run.finished = datetime.now(UTC).isoformat(timespec="seconds")
-    run.write(job.out / RUN_FILE)
-    return records
+    return ctx, the_plan, run
 
 
 def run_file(ctx: RunContext, job: Reproduction, the_plan: Plan) -> RunFile:
@@ -119,14 +141,15 @@ def run_file(ctx: RunContext, job: Reproduction, the_plan: Plan) -> RunFile:
         systems=[s.as_dict() for s in job.systems])
 
 
-def _measure(ctx: RunContext, job: Reproduction, the_plan: Plan,
-             run: RunFile) -> list[CellRecord]:
+def _measure(ctx: RunContext, job: Reproduction, the_plan: Plan, run: RunFile,
+             clock: RunClock) -> list[CellRecord]:
     """The matrix: the plan announced with its estimate, then every cell not done, on the
-    job's executor, with a progress bar (or line per cell)."""
+    job's executor, with a progress bar (or line per cell); its phases on ``clock``."""
     s = job.settings
-    estimator = _estimator(ctx)
-    pending = pending_cells(ctx, the_plan, resume=job.resume and not job.force)
-    _announce(the_plan, pending, estimator, estimator.total_s(pending), s.budget)
+    with clock.phase("estimate"):
+        estimator = _estimator(ctx)
+        pending = pending_cells(ctx, the_plan, resume=job.resume and not job.force)
+        _announce(the_plan, pending, estimator, estimator.run_s(pending), s.budget)
     budget = Budget(s.budget) if s.budget else None
     watch = _Progress(len(the_plan.keys), pending, estimator)
     with job.executor as executor:
@@ -135,9 +158,11 @@ def _measure(ctx: RunContext, job: Reproduction, the_plan: Plan,
             print(executor.summary())
         records = run_matrix(ctx, the_plan, workers=s.workers, resume=job.resume,
                              force=job.force, on_record=watch.tick, executor=executor,
-                             budget=budget, estimator=estimator)
+                             budget=budget, estimator=estimator, clock=clock)
         watch.close()
         run.executor = executor.describe()
+    if watch.measured:  # what this run spent outside its cells: the next estimate's
+        estimator.learn_outside(clock.as_dict()["wall_s"] - watch.spent, watch.measured)
     return records
 
 
@@ -277,21 +302,26 @@ class _Progress:
         self.total = total
         self.count = 0
         self.terminal = sys.stderr.isatty()
+        self.spent = 0.0  # the measured cells' durations (evsmap.runner.estimate.cell_duration)
+        self.measured = 0
         self.bar = tqdm(total=total, desc="cells", unit="cell", leave=False,
                         disable=not self.terminal, file=sys.stderr)
 
     def tick(self, record: CellRecord) -> None:
         self.count += 1
         measured = self.left.pop(record.key, None) is not None
-        if measured and record.seconds > 0:
-            self.estimator.learn(record.key, record.kind, record.seconds)
+        duration = cell_duration(record)
+        if measured and duration > 0:
+            self.estimator.learn(record.key, record.kind, duration)
+            self.spent += duration
+            self.measured += 1
         eta = format_duration(self.estimator.remaining_s(self.left.items()))
         if self.terminal:
             self.bar.update(1)
             self.bar.set_postfix_str(f"~{eta} left", refresh=True)
         elif measured:
             print(f"[{self.count}/{self.total}] {record.status} {record.key} "
-                  f"({record.seconds:.0f} s); about {eta} left", file=sys.stderr, flush=True)
+                  f"({duration:.0f} s); about {eta} left", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         self.bar.close()

@@ -86,6 +86,7 @@ class RunFile(BaseModel):
     executor: dict[str, Any] | None = None
     train: dict[str, Any] | None = None
     precision: str | None = None
+    time_accounting: dict[str, Any] | None = None
 
     @field_validator("tables", mode="before")
     @classmethod
@@ -98,10 +99,10 @@ class RunFile(BaseModel):
         return self.settings.stored() if self.settings is not None else {"quick": self.quick}
 
     def write(self, path: Path) -> None:
-        """Write the file at ``path`` (atomically); ``executor``, ``train`` and ``precision``
-        only where set."""
+        """Write the file at ``path`` (atomically); ``executor``, ``train``, ``precision`` and
+        ``time_accounting`` (:mod:`evsmap.runner.accounting`) only where set."""
         data = self.model_dump()
-        for key in ("executor", "train", "precision"):
+        for key in ("executor", "train", "precision", "time_accounting"):
             if data[key] is None:
                 del data[key]
         atomic_write_text(path, json.dumps(data, indent=1, default=str))
