@@ -33,6 +33,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -278,12 +279,45 @@ def _verify(module: torch.nn.Module, inputs: tuple[torch.Tensor, ...], names: li
                               f"(max abs diff {diff}; a size is baked into the trace)")
 
 
+SPEED_SESSION_MEMORY: Mapping[str, bool] = MappingProxyType({
+    "enable_cpu_mem_arena": True, "enable_mem_pattern": False})
+"""How a session on the CPU allocates (``SessionOptions`` attributes): ONNX Runtime's CPU arena
+kept, its *memory pattern* off. With the pattern on (the default), a session plans one block
+for all of a pass's intermediates, and at a large input that block, grown in the arena, is the
+speed cell's peak. SSMA at 2048x1024 (the run's largest cell; fresh processes, the network
+and its inputs included, AMD EPYC, ``avx512-vnni``, 2 threads): 4.14 GB with the defaults,
+2.82 GB with the pattern off, 3.01 GB with the arena off, 2.67 GB with both off, 4.22 GB with
+the arena grown by exactly what is asked (``kSameAsRequested``). The arena off slows a pass
+(FEAGNet-V2 at 640x480 by 28 %, ESANet-R34 by 10-25 %); the pattern off does not, within the
+timing's precision (docs/runner.md, "Timing memory"). The logits are bit-identical either way:
+only where the intermediates live changes. Measured with ``benchmarks/ort_memory.py``."""
+
+
+def session_memory(providers: Sequence[Any] | None = None) -> dict[str, bool]:
+    """The memory settings :func:`session_for` gives a session on ``providers``:
+    :data:`SPEED_SESSION_MEMORY` on the CPU, ONNX Runtime's own defaults on an accelerator
+    (not measured there: its memory is not the host's)."""
+    if providers and any(_provider_name(p) != "CPUExecutionProvider" for p in providers):
+        return {}
+    return dict(SPEED_SESSION_MEMORY)
+
+
+def _provider_name(provider: Any) -> str:
+    return str(provider[0] if isinstance(provider, (tuple, list)) else provider)
+
+
 def session_for(path: str | os.PathLike[str], *, threads: int,
                 free_dimensions: Mapping[str, int] | None = None,
-                providers: list[Any] | None = None):
+                providers: list[Any] | None = None,
+                memory: Mapping[str, bool] | None = None,
+                config: Mapping[str, str] | None = None):
     """An ONNX Runtime session on ``path`` with all graph optimisations, ``threads``
     intra-op threads and the free dimensions pinned (a size-specialised session), on the CPU
-    or on ``providers`` (:func:`evsmap.models.ort_providers.provider_chain`)."""
+    or on ``providers`` (:func:`evsmap.models.ort_providers.provider_chain`).
+
+    ``memory`` (``SessionOptions`` flags) replaces :func:`session_memory`'s settings, and
+    ``config`` adds session configuration entries; both are for measuring other settings
+    (``benchmarks/ort_memory.py``)."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
@@ -292,6 +326,11 @@ def session_for(path: str | os.PathLike[str], *, threads: int,
     options.log_severity_level = 3  # errors only
     for name, value in (free_dimensions or {}).items():
         options.add_free_dimension_override_by_name(name, int(value))
+    settings = session_memory(providers) if memory is None else memory
+    for name, flag in settings.items():
+        setattr(options, name, bool(flag))
+    for key, text in (config or {}).items():
+        options.add_session_config_entry(key, text)
     return ort.InferenceSession(str(path), sess_options=options,
                                 providers=providers or ["CPUExecutionProvider"])
 

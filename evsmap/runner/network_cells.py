@@ -146,7 +146,7 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
     export = None
     if ctx.speed_backend == "onnxruntime":
         # one size-free export per network, cached across runs (evsmap.models.speed_export)
-        from evsmap.models.speed_export import speed_export
+        from evsmap.models.speed_export import session_memory, speed_export
 
         export = speed_export(module, inputs, segmenter.input_names, key=network.spec)
     log = CalibrationLog(Path(ctx.out) / "cache" / "calibration.json",
@@ -201,6 +201,8 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
         details["export"] = {"path": export.path.name, "size_free": export.size_free,
                              "export_s": export.export_s, "cached": export.export_s is None,
                              "note": export.note}
+        # how the session allocates ({}: ONNX Runtime's defaults; SPEED_SESSION_MEMORY)
+        details["ort_memory"] = session_memory() if ctx.device == "cpu" else {}
         if export.note:
             notes.append(export.note)
     if rec.flag:
