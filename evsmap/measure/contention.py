@@ -201,6 +201,22 @@ def contention(before: Probe, after: Probe,
             "other_share": share, "severity": severity, "contended": bool(severity > 1.0)}
 
 
+def retry_can_help(machine: dict[str, Any]) -> bool:
+    """Whether timing a contended cell again, after a pause, can give a calmer figure: when
+    other processes of this machine used the cores (:data:`OTHER_LIMIT`: work that may end),
+    or when that share is unknown. A slowdown with the cores otherwise idle is the host's (a
+    neighbour VM, a frequency step): it is flagged, and a second try costs the cell's time
+    again for nothing it can remove (a cold ``--quick`` run here retried a 15 s mapping run
+    whose calibration ran 1.9x slow with 0 % of the cores used by others)."""
+    share = machine.get("other_share")
+    return share is None or float(share) > OTHER_LIMIT
+
+
+HOST_SLOWDOWN_NOTE = ("not timed again: no other process used the cores, so the slowdown was "
+                      "the host's, which a pause does not remove")
+"""The note of a contended cell :func:`retry_can_help` did not time again."""
+
+
 def severity(machine: dict[str, Any]) -> float:
     """:func:`contention`'s ``severity`` (records written before it: slowdown / limit)."""
     if machine.get("severity") is not None:

@@ -205,7 +205,8 @@ def _severity(record: CellRecord) -> float | None:
 def _timed_mapping(run: MappingRun, ctx: RunContext,
                    fresh: Callable[[], Executor]) -> CellRecord:
     """A mapping run in a fresh process. One that the calibration says ran on a busy machine is
-    run once more after a pause (as a contended speed cell is), and the less contended of the
+    run once more after a pause (as a contended speed cell is) when other processes used the
+    cores (:func:`evsmap.measure.contention.retry_can_help`), and the less contended of the
     two kept; with ``--strict-timing`` one still contended is recorded as not measured."""
     from evsmap.runner.execute import RETRY_PAUSE_S, STRICT_PAUSE_S
 
@@ -219,11 +220,14 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
         rec.around = settle_around(rec.around, rec.seconds, submitted, stamp(), first_submitted)
         return rec
 
-    from evsmap.measure.contention import describe
+    from evsmap.measure.contention import HOST_SLOWDOWN_NOTE, describe, retry_can_help
 
     record = once()
     first = _severity(record)
     if first is None or not record.details["contention"]["contended"]:
+        return record
+    if not ctx.strict_timing and not retry_can_help(record.details["contention"]):
+        record.notes.append(HOST_SLOWDOWN_NOTE)
         return record
     why = describe(record.details["contention"])
     time.sleep(STRICT_PAUSE_S if ctx.strict_timing else RETRY_PAUSE_S)
