@@ -666,10 +666,9 @@ def _ground_truth(run: MappingRun, ctx: RunContext, sequence: FrameSequence) -> 
     options; the sequence mapped is its rendering read back), a ScanNet scene's labelled mesh;
     None for a sequence without 3D ground truth."""
     if run.sequence in SYNTHETIC_SEQUENCES:
-        from evsmap.synth.sequence import SyntheticSequence
+        from evsmap.synth.cached import cached_ground_truth
 
-        return SyntheticSequence(**synthetic_options(ctx, run.sequence)).ground_truth(
-            run.voxel_size)
+        return cached_ground_truth(synthetic_options(ctx, run.sequence), run.voxel_size)
     return sequence.ground_truth(run.voxel_size) if sequence.has_ground_truth else None
 
 

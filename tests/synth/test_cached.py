@@ -43,3 +43,25 @@ def test_the_rendering_is_reused(cache):
 def test_an_unknown_render_mode_is_one_clear_error(cache):
     with pytest.raises(EvsmapError, match="render must be one of live, cached"):
         READERS.create("synthetic", render="gpu")
+
+
+def test_ground_truth_is_computed_once_and_read_back_bit_for_bit(tmp_path, monkeypatch):
+    import numpy as np
+
+    from evsmap.synth import cached
+    from evsmap.synth.sequence import SyntheticSequence
+
+    monkeypatch.setenv("EVSMAP_CACHE_DIR", str(tmp_path))
+    options = {"frames": 2, "width": 64, "height": 48}
+    fresh = SyntheticSequence(**options).ground_truth(0.1)
+    first = cached.cached_ground_truth(options, 0.1)
+    assert list(cached.cache_folder(options).glob("groundtruth-*.npz"))
+    calls = []
+    monkeypatch.setattr(SyntheticSequence, "ground_truth",
+                        lambda self, r: calls.append(r))  # a second compute would show here
+    again = cached.cached_ground_truth(options, 0.1)
+    assert calls == []
+    for truth in (first, again):
+        assert np.array_equal(truth.keys, fresh.keys) and truth.keys.dtype == fresh.keys.dtype
+        assert np.array_equal(truth.labels, fresh.labels)
+        assert truth.labels.dtype == fresh.labels.dtype and truth.resolution == 0.1
