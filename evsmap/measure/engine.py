@@ -379,7 +379,9 @@ def _loop(sequence: Sequence, order: list[int], the_map: MapUpdater,
     aside = [0.0]
 
     def after(the_map: MapUpdater) -> None:
-        if growth is not None:
+        # the last frame's snapshot is growth.finish's, with the evaluators, on the one tree
+        # built of the finished map (MapUpdater.reuse_tree)
+        if growth is not None and len(done) < len(order):
             t0 = time.perf_counter()
             growth.after_frame(len(done), the_map)
             aside[0] += time.perf_counter() - t0

@@ -215,6 +215,22 @@ def pruned_share(updater: MapUpdater) -> float | None:
     return updater.pruned_share()
 
 
+class PrunedShare(MapEvaluator):
+    """:func:`pruned_share` of the map, read off the tree the other evaluators of the same
+    pass build (the engine's :meth:`~evsmap.interfaces.MapUpdater.reuse_tree`) rather than a
+    tree of its own afterwards.
+
+    Args:
+        name: the key of the result.
+    """
+
+    def __init__(self, *, name: str = "pruned_share") -> None:
+        self.name = name
+
+    def evaluate(self, updater: MapUpdater) -> float | None:
+        return pruned_share(updater)
+
+
 class MapStatistics(MapEvaluator):
     """:class:`MapStats` of the map.
 

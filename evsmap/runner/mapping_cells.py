@@ -613,7 +613,7 @@ def _map(run: MappingRun, ctx: RunContext, sequence: FrameSequence, indices: lis
          observations: list[SemanticObservation] | None) -> MappingPass:
     """The timed mapping pass; the map's own memory is measured from before the updater is made
     to its files (the observations were computed beforehand)."""
-    from evsmap.measure.evaluators import MapFiles, MapStatistics
+    from evsmap.measure.evaluators import MapFiles, MapStatistics, PrunedShare
     from evsmap.measure.growth import MapGrowth, growth_every, growth_points
     from evsmap.registry import UPDATERS
 
@@ -622,7 +622,7 @@ def _map(run: MappingRun, ctx: RunContext, sequence: FrameSequence, indices: lis
         sequence, lambda: UPDATERS.create(run.updater.name, resolution=run.voxel_size,
                                           **run.updater.config),
         observations=observations, indices=indices,
-        evaluators=[MapStatistics(), MapFiles()],
+        evaluators=[MapStatistics(), MapFiles(), PrunedShare()],
         growth=MapGrowth(every=growth_every(n, growth_points(n, quick=ctx.quick))))
 
 
@@ -630,10 +630,8 @@ def _values_and_details(record: MappingRecord, mapped: MappingPass,
                         labels: Labels) -> tuple[dict[str, float], dict[str, Any]]:
     """The cell record's ``values`` (:meth:`MappingRecord.values`, with the share of pruned
     leaves) and ``details`` (per-frame times, counts, front end, growth, precision)."""
-    from evsmap.measure.evaluators import pruned_share
-
     values = record.values()
-    share = pruned_share(mapped.updater)  # builds arrays of its own: outside the memory scope
+    share = mapped.results["pruned_share"]  # on the finished map's one tree (PrunedShare)
     if share is not None:
         values["pruned_share"] = float(share)
     details: dict[str, Any] = {
