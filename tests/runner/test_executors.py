@@ -84,3 +84,27 @@ def test_local_is_the_default_and_keeps_its_pools(tmp_path):
     with pytest.raises(ValueError, match="not both"):
         matrix.run_matrix(ctx, plan, pool=lambda n: Inline(), executor=ex)
     assert matrix.run_matrix(ctx, plan, executor=ex) == []
+
+
+def _mark_and_report(value):
+    """Set a module-level mark in the worker and report what the worker saw before."""
+    import os
+    import sys
+
+    import evsmap.runner.executors as executors
+
+    seen = getattr(executors, "_test_mark", None)
+    executors._test_mark = value
+    return {"pid": os.getpid(), "seen": seen, "torch": "torch" in sys.modules}
+
+
+def test_each_timed_cell_gets_a_process_no_cell_ran_in():
+    from evsmap.runner.executors import fresh_process
+
+    reports = []
+    for value in ("first", "second"):
+        with fresh_process() as ex:
+            reports.append(ex.submit(_mark_and_report, value).result(timeout=120))
+    assert reports[0]["pid"] != reports[1]["pid"]
+    assert reports[0]["seen"] is None and reports[1]["seen"] is None  # nothing inherited
+    assert all(r["torch"] for r in reports)  # the heavy imports came with the process
