@@ -26,7 +26,7 @@ def around_totals(records: Iterable[CellRecord]) -> dict[str, dict[str, float]]:
     part of :data:`evsmap.runner.accounting.AROUND` and of the driver's wait (``wall_s``)."""
     out: dict[str, dict[str, float]] = {}
     for rec in records:
-        if not rec.around or "wall_s" not in rec.around:
+        if not rec.around or "wall_s" not in rec.around or "pooled" in rec.around:
             continue
         group = out.setdefault("mapping runs" if rec.kind == "mapping" else "timed cells", {})
         for key in ("wall_s", *AROUND):

@@ -15,7 +15,8 @@ Two levels, both plain data (the report formats them, ``index.md``'s "Where the 
   exports, calibration probes, warm-up, timed passes, and a speed cell's second try), what
   follows it in the worker (``finish_s``: memory, environment), the record's way back and the
   process's end (``return_s``), and another try of the whole process with its pause
-  (``retry_s``: a mapping run timed twice on a busy machine).
+  (``retry_s``: a mapping run timed twice on a busy machine); an untimed cell's is its share of
+  its pool's time (:func:`pooled_around`).
 
 The worker's instants are wall-clock stamps (``time.time``: one clock for every process of this
 machine); the driver's spans use the same clock.
@@ -114,3 +115,10 @@ def settle_around(around: dict[str, float], seconds: float, submitted: float,
 def worker_stamps(entered: float, began: float) -> dict[str, float]:
     """The stamps a worker puts in its record's ``around`` as it returns."""
     return {"entered": entered, "began": began, "left": stamp()}
+
+
+def pooled_around(seconds: float, workers: int) -> dict[str, float]:
+    """An untimed cell's ``around``: its share of the pool's wall time (its own seconds over
+    the pool's ``workers``, which run side by side; 0 for a record copied from an equal
+    configuration's), marked ``pooled`` (its parts are the pool's phase, not its own)."""
+    return {"wall_s": round(max(0.0, seconds) / max(1, int(workers)), 4), "pooled": 1.0}

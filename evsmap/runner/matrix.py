@@ -43,7 +43,14 @@ from pathlib import Path
 from typing import Any
 
 from evsmap.errors import EvsmapError
-from evsmap.runner.accounting import RunClock, phase, settle_around, stamp, worker_stamps
+from evsmap.runner.accounting import (
+    RunClock,
+    phase,
+    pooled_around,
+    settle_around,
+    stamp,
+    worker_stamps,
+)
 from evsmap.runner.context import RunContext
 from evsmap.runner.estimate import Budget, Estimator
 from evsmap.runner.execute import (
@@ -503,9 +510,13 @@ def _run_pooled(ctx: RunContext, pooled: list[CellSpec], keep: Callable[[CellRec
         for fut in as_completed(futures):
             group = futures[fut]
             first = _placed(CellRecord.from_dict(_result(fut, group[0].key, ctx.out)), executor)
-            first.around = {}  # an untimed cell shares its pool's time (the run's phase)
-            for spec in group:
-                keep(_copy_for(first, spec))
+            # an untimed cell's share of its pool's time; the copies cost nothing more
+            first.around = pooled_around(first.seconds, workers)
+            for i, spec in enumerate(group):
+                copy = _copy_for(first, spec)
+                if i:
+                    copy.around = pooled_around(0.0, workers)
+                keep(copy)
 
 
 def _copy_for(record: CellRecord, spec: CellSpec) -> CellRecord:

@@ -79,8 +79,8 @@ class CellRecord:
             (Linux: the peak is reset when the cell starts; 0: not measured).
         around: the time around a timed cell, seconds (:mod:`evsmap.runner.accounting`:
             ``wall_s`` the run waited for it, split into ``start_s``, ``setup_s``, ``cell_s``,
-            ``finish_s``, ``return_s``, ``retry_s``); empty for the untimed cells (they share
-            their pool's time) and records of older runs.
+            ``finish_s``, ``return_s``, ``retry_s``); for an untimed cell its share of its
+            pool's time (``wall_s``, ``pooled``); empty in records of older runs.
     """
 
     key: str

@@ -66,7 +66,11 @@ def test_a_run_matrix_accounts_for_its_phases_and_its_timed_cells(tmp_path, monk
     assert speed and all(set(AROUND) <= set(r.around) for r in speed)
     assert all(r.around["wall_s"] >= r.around["cell_s"] for r in speed)
     pooled = [r for r in records if r.kind == "complexity" and r.status == "ok"]
-    assert pooled and all(r.around == {} for r in pooled)  # the pool's time is the phase's
+    assert pooled and all(r.around["pooled"] == 1.0 for r in pooled)  # a share of the pool's
+    copies = [r for r in pooled if any("same configuration as" in n for n in r.notes)]
+    assert copies and all(r.around["wall_s"] == 0.0 for r in copies)  # measured once
+    assert "timed cells" in around_totals(records) and all(
+        "pooled" not in r.around for r in records if r.kind == "speed" and r.status == "ok")
     # stored with the record and read back
     from evsmap.runner.records import RecordStore
 
