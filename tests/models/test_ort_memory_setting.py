@@ -102,7 +102,13 @@ def test_a_speed_cell_records_how_its_session_allocates(tmp_path, monkeypatch):
     record = SimpleNamespace(contention={}, fps_median=10.0, threads=2, cpu="cpu", gpu=None,
                              runs=3, warmup=2, flag="", rel_ci=0.01, stopped="precision",
                              as_dict=lambda: {"rel_ci": 0.01, "stopped": "precision"})
-    monkeypatch.setattr(speed, "measure_speed", lambda *a, **kw: record)
+    timed_modules = []
+
+    def measure_speed(module, *a, **kw):
+        timed_modules.append(module)
+        return record
+
+    monkeypatch.setattr(speed, "measure_speed", measure_speed)
     monkeypatch.setattr(complexity, "cached_complexity",
                         lambda *a, **kw: SimpleNamespace(flops=1.0))
     monkeypatch.setattr(speed_export_module, "speed_export",
@@ -114,3 +120,6 @@ def test_a_speed_cell_records_how_its_session_allocates(tmp_path, monkeypatch):
     rec = cells.run_speed(spec, ctx)
     assert rec.details["ort_memory"] == {"enable_cpu_mem_arena": True,
                                          "enable_mem_pattern": False}
+    # the session holds the weights: the module handed to the timing no longer does
+    (module,) = timed_modules
+    assert all(p.device.type == "meta" for p in module.parameters())
