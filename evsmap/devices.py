@@ -83,14 +83,6 @@ def require_device(text: str) -> torch.device:
     return torch.device(name)
 
 
-def synchronize(device: torch.device | str) -> None:
-    """Wait for the device's queued work (nothing to wait for on the CPU)."""
-    import torch
-
-    if torch.device(device).type == "cuda":
-        torch.cuda.synchronize(device)
-
-
 class PassTimer:
     """Seconds one call takes on ``device``: between two CUDA events on the current stream,
     then a synchronisation on the second, on a GPU; the host clock on the CPU (whose work is

@@ -629,11 +629,9 @@ def _precision_fields(timed: _Timed) -> dict[str, Any]:
 @contextlib.contextmanager
 def _timing_context(module: torch.nn.Module, backend: str, device: torch.device | None = None,
                     autocast: str | None = None) -> Iterator[None]:
-    """The torch backends: the module in eval mode under ``inference_mode``, ``autocast`` at
-    its dtype, cuDNN's autotuner on a GPU (restored after); onnxruntime: nothing."""
-    if backend == "onnxruntime":
-        yield
-        return
+    """A torch backend's passes: the module in eval mode under ``inference_mode``, ``autocast``
+    at its dtype, cuDNN's autotuner on a GPU (restored after); ONNX Runtime's passes run in
+    no context (:func:`prepare_pass`)."""
     device = device or torch.device("cpu")
     with contextlib.ExitStack() as stack:
         stack.enter_context(eval_mode(module))
