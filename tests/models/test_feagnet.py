@@ -10,7 +10,8 @@ import torch
 from evsmap.losses import HybridLoss, MultiScaleLoss
 from evsmap.measure.complexity import measure_complexity
 from evsmap.models import feagnet as fg
-from evsmap.models.feagnet import CFIM, DAPPF, LBU, AxisAttention, CFIMConcat, DAPPFFullRes, FEAGNet
+from evsmap.models.feagnet import FEAGNet
+from evsmap.models.feagnet_blocks import CFIM, DAPPF, LBU, AxisAttention, CFIMConcat, DAPPFFullRes
 
 
 def _params(module: torch.nn.Module) -> int:
