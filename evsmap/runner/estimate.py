@@ -18,6 +18,13 @@ comes from the same sources (:data:`OUTSIDE_KEY`: this machine's last run, else 
 scaled), shared out over the cells pending, so the start line's estimate is the run's, not its
 cells'.
 
+A first run in a cache pays once for what later runs find cached (ONNX exports, FLOP counts,
+ground truths, compiled kernels, the calibration): its durations are kept apart in the history
+(:data:`FIRST_KEY`). A first run (this machine's history is empty: a new cache) is estimated from
+the reference's first run; a later one from this machine's later runs, else from its first run
+scaled by the reference's later-over-first ratio of that cell (:data:`REFERENCE_FILES`' ``warm``
+section: a second run on the reference machine, same cache), else from the reference's later run.
+
 While the run goes, the estimates of the cells left are scaled by how the finished ones compared
 with theirs (:meth:`Estimator.remaining_s`), so the time left a person sees corrects itself.
 """
@@ -45,6 +52,9 @@ CORRECTION_LIMITS = (0.5, 3.0)
 OUTSIDE_KEY = "(outside cells)"
 """The history's and the reference's entry for a whole run's time outside its cells, with the
 count of cells it was spread over (``cells``)."""
+FIRST_KEY = "(first run)"
+"""The history's entry for the durations learnt on this machine's first run in its cache (cold:
+exports, counts and compiles included), kept apart from later runs' (warm)."""
 CORRECTION_PRIOR_S = 60.0
 """Seconds of "as estimated" the correction starts from, so that the first short cells (whose
 time is mostly a process's start-up: 8 s for a 2 s cell) do not triple the time left."""
@@ -72,6 +82,10 @@ class Estimator:
         machine: this machine's key in the history file.
         outside: a whole run's seconds outside its cells and the count of cells it measured
             (this machine's last run, else the reference's scaled; None: unknown).
+        first: this is the first run in this cache (no history here): estimated and learnt as
+            a first run.
+        history_first: this machine's first run's durations, by cell key.
+        reference_warm: the reference machine's second run's durations, by cell key.
     """
 
     history: dict[str, float] = field(default_factory=dict)
@@ -80,6 +94,9 @@ class Estimator:
     path: Path | None = None
     machine: str = ""
     outside: tuple[float, int] | None = None
+    first: bool = False
+    history_first: dict[str, float] = field(default_factory=dict)
+    reference_warm: dict[str, float] = field(default_factory=dict)
     _estimated: float = 0.0
     _taken: float = 0.0
 
@@ -96,22 +113,39 @@ class Estimator:
         path = root / DURATIONS_FILE
         machine = machine_id(threads, quick=quick)
         history = dict(read_json_object(path).get(machine, {}))
+        first_run = history.pop(FIRST_KEY, None)
+        first_run = dict(first_run) if isinstance(first_run, dict) else {}
         reference_data = read_json_object(REFERENCE_FILES[quick])
         same_kind = bool((reference_data.get("run") or {}).get("quick")) == quick
-        reference = reference_data.get("cells", {}) if same_kind else {}
+        warm_data = (reference_data.get("warm") or {}) if same_kind else {}
         ref_cal = (reference_data.get("machine") or {}).get("calibration_gmacs")
         scale = ref_cal / calibration_gmacs if ref_cal and calibration_gmacs else 1.0
-        outside = _outside(history.pop(OUTSIDE_KEY, None), 1.0) or \
-            (_outside(reference_data.get("outside"), scale) if same_kind else None)
-        return cls(history={k: float(v) for k, v in history.items()},
-                   reference={k: float(v) for k, v in reference.items()}, scale=scale,
-                   path=path, machine=machine, outside=outside)
+        first = not history and not first_run
+        outside = _outside_estimate(
+            first=first, scale=scale, later=history.pop(OUTSIDE_KEY, None),
+            first_run=first_run.pop(OUTSIDE_KEY, None),
+            reference=reference_data.get("outside") if same_kind else None,
+            reference_warm=warm_data.get("outside"))
+        return cls(history=_seconds(history), history_first=_seconds(first_run),
+                   reference=_seconds(reference_data.get("cells", {}) if same_kind else {}),
+                   reference_warm=_seconds(warm_data.get("cells", {})), scale=scale,
+                   path=path, machine=machine, outside=outside, first=first)
 
     def seconds(self, key: str, kind: str) -> tuple[float, str]:
         """``(seconds, source)`` for the cell ``key`` of ``kind`` (source: ``history``,
-        ``reference`` or ``default``)."""
-        if key in self.history:
-            return self.history[key], "history"
+        ``history (first run)`` (within it), ``history (first run, scaled)``, ``reference`` or
+        ``default``; module docstring)."""
+        if self.first and key in self.history_first:
+            return self.history_first[key], "history (first run)"
+        if not self.first:
+            if key in self.history:
+                return self.history[key], "history"
+            if key in self.history_first:
+                cold, warm = self.reference.get(key), self.reference_warm.get(key)
+                ratio = warm / cold if cold and warm else 1.0
+                return self.history_first[key] * ratio, "history (first run, scaled)"
+            if key in self.reference_warm:
+                return self.reference_warm[key] * self.scale, "reference"
         if key in self.reference:
             return self.reference[key] * self.scale, "reference"
         return DEFAULT_S.get(kind, 30.0), "default"
@@ -138,7 +172,11 @@ class Estimator:
         history for the next run's estimate."""
         if cells > 0 and seconds >= 0:
             self.outside = (float(seconds), int(cells))
-            self._store(OUTSIDE_KEY, {"seconds": round(float(seconds), 2), "cells": int(cells)})
+            entry = {"seconds": round(float(seconds), 2), "cells": int(cells)}
+            if self.first:
+                self._store(FIRST_KEY, {**self.history_first, OUTSIDE_KEY: entry})
+            else:
+                self._store(OUTSIDE_KEY, entry)
 
     def sources(self, items: Iterable[tuple[str, str]]) -> dict[str, int]:
         """How many of the items each source estimates."""
@@ -155,8 +193,12 @@ class Estimator:
             return
         self._estimated += self.seconds(key, kind)[0]
         self._taken += seconds
-        self.history[key] = float(seconds)
-        self._store(key, round(float(seconds), 2))
+        if self.first:
+            self.history_first[key] = round(float(seconds), 2)
+            self._store(FIRST_KEY, dict(self.history_first))
+        else:
+            self.history[key] = float(seconds)
+            self._store(key, round(float(seconds), 2))
 
     def _store(self, key: str, value: Any) -> None:
         """``key``'s entry of this machine in the history file (at once: an interrupted run
@@ -192,6 +234,29 @@ def cell_duration(record: Any) -> float:
     whole wait for a timed cell (``around["wall_s"]``), else the cell's own seconds."""
     around = record.around or {}
     return float(around.get("wall_s", record.seconds))
+
+
+def _seconds(entries: Any) -> dict[str, float]:
+    """The cell entries of a history or reference as seconds (other entries left out)."""
+    if not isinstance(entries, dict):
+        return {}
+    return {k: float(v) for k, v in entries.items() if isinstance(v, (int, float))}
+
+
+def _outside_estimate(*, first: bool, scale: float, later: Any, first_run: Any, reference: Any,
+                      reference_warm: Any) -> tuple[float, int] | None:
+    """A run's time outside its cells: a first run's from the reference's first run (scaled);
+    a later run's from this machine's later run, else its first run's scaled by the reference's
+    later-over-first ratio, else the reference's later run (scaled)."""
+    ref_cold, ref_warm = _outside(reference, scale), _outside(reference_warm, scale)
+    if first:
+        return ref_cold
+    if (known := _outside(later, 1.0)) is not None:
+        return known
+    if (cold := _outside(first_run, 1.0)) is not None:
+        ratio = ref_warm[0] / ref_cold[0] if ref_cold and ref_warm and ref_cold[0] > 0 else 1.0
+        return cold[0] * ratio, cold[1]
+    return ref_warm or ref_cold
 
 
 def _outside(entry: Any, scale: float) -> tuple[float, int] | None:

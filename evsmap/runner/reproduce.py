@@ -270,8 +270,11 @@ def pending_cells(ctx: RunContext, the_plan: Plan, *, resume: bool) -> list[tupl
     return items
 
 
-_SOURCE_WORDS = {"history": "earlier runs here", "reference": "the reference run scaled by "
-                 "this machine's calibration", "default": "a default per kind of cell"}
+_SOURCE_WORDS = {"history": "earlier runs here",
+                 "history (first run)": "this run's first pass here",
+                 "history (first run, scaled)": "the first run here, less what it cached",
+                 "reference": "the reference run scaled by this machine's calibration",
+                 "default": "a default per kind of cell"}
 
 
 def _announce(the_plan: Plan, pending: list[tuple[str, str]], estimator: Estimator,
