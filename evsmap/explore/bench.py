@@ -134,7 +134,7 @@ class Bench:
         """The segmentation cache's key of the study's observations (the runner's keys: the
         same observations are shared with ``evsmap reproduce``'s mapping runs)."""
         from evsmap.measure.engine import is_oracle
-        from evsmap.runner.mapping_cells import observations_key, sequence_identity
+        from evsmap.runner.mapping_labels import observations_key, sequence_identity
 
         frames_id = sequence_identity(self.sequence)
         if self.inputs.weights is not None:
@@ -317,7 +317,7 @@ def _sizes(mapped: Any) -> dict[str, Any]:
     """A mapping pass's rates, size readings and counts (Table IV's reading is ``map_size``)."""
     from evsmap.measure.evaluators import pruned_share
     from evsmap.measure.mapping import MappingRecord
-    from evsmap.runner.mapping_cells import READINGS, TABLE4_READING
+    from evsmap.runner.table4_reading import READINGS, TABLE4_READING
 
     record = MappingRecord.from_run(mapped, updater=type(mapped.updater).__name__,
                                     segmenter=None)

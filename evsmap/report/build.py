@@ -267,7 +267,7 @@ def index_markdown(run: Mapping[str, Any], tables: Mapping[str, PaperTable],
     out = [f"# evsmap report - run {run_id}", ""]
     out += claims_markdown(frames, extras, detail or [])
     from evsmap.report.map_size import consistency_markdown
-    from evsmap.runner.mapping_cells import TABLE4_READING
+    from evsmap.runner.table4_reading import TABLE4_READING
 
     out += consistency_markdown(extras, TABLE4_READING)
     from evsmap.report.precision import precision_markdown

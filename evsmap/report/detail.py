@@ -121,7 +121,7 @@ def detail_markdown(extras: Iterable[CellRecord]) -> list[str]:
     records = _records(extras)
     if not records:
         return []
-    from evsmap.runner.mapping_cells import READINGS, TABLE4_READING
+    from evsmap.runner.table4_reading import READINGS, TABLE4_READING
 
     reading = READINGS[TABLE4_READING]
     out = ["## Semantic detail in 3D: Table IV's updates, one network (beyond the paper)", "",
@@ -195,7 +195,7 @@ class SourceResult:
 
 
 def _source_order(result: SourceResult) -> tuple[int, int, str]:
-    from evsmap.runner.mapping_cells import PROXY_LABEL_MODELS
+    from evsmap.runner.mapping_plan import PROXY_LABEL_MODELS
     from evsmap.segmenters.oracle_profile import PROFILE_NAMES
 
     kind, name = _source_key(result.labels)

@@ -17,8 +17,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 
-from evsmap.runner.mapping_cells import READINGS
 from evsmap.runner.records import CellRecord
+from evsmap.runner.table4_reading import READINGS
 
 PAIRS = {"TESAMap / ORGBMap": ("tesamap", "orgbmap"),
          "MESAMap / TESAMap": ("mesamap", "tesamap"),

@@ -85,7 +85,7 @@ class RunContext:
         synthetic_labels: what labels the semantic runs on the built-in synthetic sequences
             where their network has no NYUv2 weights (``reproduce --synthetic-labels``):
             ``oracle`` (with ``oracle_profile``) or ``network`` (a trained proxy network's own,
-            :func:`evsmap.runner.mapping_cells.proxy_source`).
+            :func:`evsmap.runner.mapping_plan.proxy_source`).
     """
 
     out: str

@@ -15,7 +15,7 @@ How the synthetic room's semantic figures depend on the labels: besides the run'
 TESAMap and EVSMap map the synthetic room again (Table IV's voxel size, the same frames) with
 each other label source (:func:`label_sources`): the oracle under each shipped profile
 (``per-pixel``, ``fitted``, ``noise-free``) and a trained proxy network's own labels
-(:func:`evsmap.runner.mapping_cells.proxy_source`: the first of FEAGNet-V1, FEAGNet-V2,
+(:func:`evsmap.runner.mapping_plan.proxy_source`: the first of FEAGNet-V1, FEAGNet-V2,
 FCHarDNet-70 with synthrooms weights), one record each,
 ``extra/mapping/detail-labels-<source>-<row>/synthetic@<voxel>m`` (``<source>``: the profile's
 name or ``network``); without proxy weights one n/a record, ``detail-labels-network``, says which
@@ -32,7 +32,7 @@ from evsmap.runner.scannet import SCANNET, scannet_scenes, scannet_sequence
 
 if TYPE_CHECKING:  # the report imports this module's names: it stays light (no torch)
     from evsmap.runner.context import RunContext
-    from evsmap.runner.mapping_cells import LabelSource, MappingRun
+    from evsmap.runner.mapping_plan import LabelSource, MappingRun
     from evsmap.tables.schema import Component
 
 DETAIL_PREFIX = "detail-"
@@ -69,7 +69,7 @@ def is_detail(row: str) -> bool:
 
 def sensitivity_row(slug: str, row: str | None = None) -> str:
     """The row id of ``row`` mapped with the label source ``slug``
-    (:attr:`~evsmap.runner.mapping_cells.LabelSource.slug`), ``detail-labels-<slug>-<row>``;
+    (:attr:`~evsmap.runner.mapping_plan.LabelSource.slug`), ``detail-labels-<slug>-<row>``;
     without ``row``, the source's one n/a record, ``detail-labels-<slug>``."""
     return LABELS_PREFIX + slug + ("" if row is None else f"-{row}")
 
@@ -89,7 +89,7 @@ def default_source(ctx: RunContext, segmenter: Component) -> LabelSource | None:
     """The label source the section's own rows use on the synthetic room: None where the
     network has NYUv2 weights (its labels), else the proxy network's
     (``--synthetic-labels network``) or the oracle with the run's profile."""
-    from evsmap.runner.mapping_cells import MAPPING_WEIGHTS, LabelSource, proxy_source
+    from evsmap.runner.mapping_plan import MAPPING_WEIGHTS, LabelSource, proxy_source
 
     if ctx.weights_choice(segmenter.spec, MAPPING_WEIGHTS) is not None:
         return None
@@ -101,7 +101,7 @@ def default_source(ctx: RunContext, segmenter: Component) -> LabelSource | None:
 def label_sources(ctx: RunContext, segmenter: Component) -> list[LabelSource]:
     """The label sources the synthetic room is mapped with besides the run's own
     (:func:`default_source`): the oracle under each shipped profile, then the proxy network."""
-    from evsmap.runner.mapping_cells import LabelSource, proxy_source
+    from evsmap.runner.mapping_plan import LabelSource, proxy_source
     from evsmap.segmenters.oracle_profile import PROFILE_NAMES
 
     own = default_source(ctx, segmenter)
@@ -112,8 +112,8 @@ def label_sources(ctx: RunContext, segmenter: Component) -> list[LabelSource]:
 def sensitivity_runs(ctx: RunContext, segmenter: Component) -> list[MappingRun]:
     """The synthetic room mapped by :data:`SENSITIVITY_ROWS` with each of
     :func:`label_sources`, at Table IV's voxel size; a network source without weights is one
-    n/a run (:func:`evsmap.runner.mapping_cells.missing_network_record`) instead of two."""
-    from evsmap.runner.mapping_cells import MappingRun
+    n/a run (:func:`evsmap.runner.mapping_labels.missing_network_record`) instead of two."""
+    from evsmap.runner.mapping_plan import MappingRun
     from evsmap.tables.schema import mapping_table
 
     rows = {r.id: r for r in mapping_table().rows}
@@ -143,7 +143,7 @@ def detail_runs(ctx: RunContext) -> list[MappingRun]:
     each ScanNet scene (one n/a run naming the dataset when it is not under the data root), at
     Table IV's voxel size; then the synthetic room with the other label sources
     (:func:`sensitivity_runs`)."""
-    from evsmap.runner.mapping_cells import MappingRun
+    from evsmap.runner.mapping_plan import MappingRun
     from evsmap.tables.schema import mapping_table
 
     table = mapping_table()

@@ -5,7 +5,7 @@ Cells the machine cannot measure (a dataset not prepared, weights not given, a J
 ``na`` records naming what is missing; a cell whose run raises becomes an ``error`` record with
 the message. Mapping is measured per (system, sequence) in "mapping runs" (``extra/mapping/...``
 records, beyond the paper's tables); Table IV's cells are then read from those runs
-(:func:`table4_record`), so each map is built once.
+(:func:`~evsmap.runner.table4_reading.table4_record`), so each map is built once.
 """
 
 from __future__ import annotations
@@ -16,37 +16,11 @@ import traceback
 from evsmap.errors import EvsmapError
 from evsmap.interrupt import reraise_interruption
 from evsmap.runner.accounting import stamp
-from evsmap.runner.cell_base import (
-    RETRY_PAUSE_S,
-    STRICT_PAUSE_S,
-    base_fields,
-    environment,
-    na_record,
-    now,
-    spec_inputs,
-)
+from evsmap.runner.cell_base import base_fields, environment, now
 from evsmap.runner.context import RunContext
-from evsmap.runner.mapping_cells import (
-    MAPPING_WEIGHTS,
-    REFERENCE_ROW,
-    VARIANT_ROWS,
-    MappingRun,
-    mapping_record,
-    mapping_runs,
-    observations_key,
-    open_mapping_sequence,
-    runtime_sequence,
-    sequence_identity,
-    table4_record,
-    weights_identity,
-)
-from evsmap.runner.network_cells import (
-    build_segmenter,
-    dataset_miou,
-    run_accuracy,
-    run_complexity,
-    run_speed,
-)
+from evsmap.runner.mapping_plan import MappingRun
+from evsmap.runner.mapping_record import mapping_record
+from evsmap.runner.network_cells import run_accuracy, run_complexity, run_speed
 from evsmap.runner.records import CellRecord
 from evsmap.tables.schema import CellSpec
 
@@ -96,13 +70,3 @@ def execute_mapping(run: MappingRun, ctx: RunContext) -> CellRecord:
     record.environment = environment(ctx.threads)
     record.around = {"began": began}  # the worker adds its own instants (runner.accounting)
     return record
-
-
-__all__ = [
-    "MAPPING_WEIGHTS", "REFERENCE_ROW", "RETRY_PAUSE_S", "RUNNERS", "STRICT_PAUSE_S",
-    "VARIANT_ROWS", "MappingRun", "build_segmenter", "dataset_miou", "environment",
-    "execute_mapping", "execute_spec", "mapping_record", "mapping_runs",
-    "na_record", "now", "observations_key", "open_mapping_sequence", "run_accuracy",
-    "run_complexity", "run_speed", "runtime_sequence", "sequence_identity", "spec_inputs",
-    "table4_record", "weights_identity",
-]

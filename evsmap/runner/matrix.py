@@ -51,17 +51,10 @@ from evsmap.runner.accounting import (
     stamp,
     worker_stamps,
 )
+from evsmap.runner.cell_base import environment, na_record
 from evsmap.runner.context import RunContext
 from evsmap.runner.estimate import Budget, Estimator
-from evsmap.runner.execute import (
-    MappingRun,
-    environment,
-    execute_mapping,
-    execute_spec,
-    mapping_runs,
-    na_record,
-    table4_record,
-)
+from evsmap.runner.execute import execute_mapping, execute_spec
 from evsmap.runner.executors import (
     EXECUTORS,
     CellExecutor,
@@ -70,9 +63,11 @@ from evsmap.runner.executors import (
     fresh_process,
     spawn_pool,
 )
-from evsmap.runner.mapping_cells import lacks_labels, unlabelled_record, with_synthetic_labels
+from evsmap.runner.mapping_labels import lacks_labels, unlabelled_record
+from evsmap.runner.mapping_plan import MappingRun, mapping_runs, with_synthetic_labels
 from evsmap.runner.records import CellRecord, RecordStore
 from evsmap.runner.systems import ExtraSystem
+from evsmap.runner.table4_reading import table4_record
 from evsmap.tables.schema import CellSpec, expand, load_tables, mapping_table_id
 
 QUICK_MAX_PIXELS = 1024 * 512
@@ -215,7 +210,7 @@ def _timed_mapping(run: MappingRun, ctx: RunContext,
     run once more after a pause (as a contended speed cell is) when other processes used the
     cores (:func:`evsmap.measure.contention.retry_can_help`), and the less contended of the
     two kept; with ``--strict-timing`` one still contended is recorded as not measured."""
-    from evsmap.runner.execute import RETRY_PAUSE_S, STRICT_PAUSE_S
+    from evsmap.runner.cell_base import RETRY_PAUSE_S, STRICT_PAUSE_S
 
     first_submitted = stamp()
 
@@ -430,7 +425,7 @@ def _skip_record(spec: CellSpec | MappingRun, why: str, ctx: RunContext) -> Cell
     if isinstance(spec, MappingRun):
         base = spec.base_fields()
     else:
-        from evsmap.runner.execute import spec_inputs
+        from evsmap.runner.cell_base import spec_inputs
 
         base = {"key": spec.key, "table": spec.table, "row": spec.row, "label": spec.label,
                 "kind": spec.kind, "metrics": list(spec.metrics), "inputs": spec_inputs(spec)}
@@ -521,7 +516,7 @@ def _run_pooled(ctx: RunContext, pooled: list[CellSpec], keep: Callable[[CellRec
 
 def _copy_for(record: CellRecord, spec: CellSpec) -> CellRecord:
     """``record`` (measured for one cell) under the key of ``spec``, an equal configuration."""
-    from evsmap.runner.execute import spec_inputs
+    from evsmap.runner.cell_base import spec_inputs
 
     data = record.as_dict()
     data.update(key=spec.key, table=spec.table, row=spec.row, label=spec.label,

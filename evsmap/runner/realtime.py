@@ -61,7 +61,7 @@ def realtime_record(ctx: RunContext, network: str) -> CellRecord:
     """The record of ``network`` (see the module docstring)."""
     from evsmap.measure.mapping import map_sequence
     from evsmap.registry import UPDATERS
-    from evsmap.runner.mapping_cells import open_mapping_sequence
+    from evsmap.runner.mapping_plan import open_mapping_sequence
     from evsmap.segmenters.network import POSTPROCESSES
     from evsmap.segmenters.quantize import evenly_spaced
 

@@ -20,11 +20,12 @@ from typing import Any
 from evsmap.errors import EvsmapError
 from evsmap.interrupt import set_resume_hint
 from evsmap.runner.accounting import RunClock, process_age_s
+from evsmap.runner.cell_base import environment
 from evsmap.runner.context import RunContext
 from evsmap.runner.estimate import Budget, Estimator, cell_duration, format_duration
-from evsmap.runner.execute import environment, open_mapping_sequence
 from evsmap.runner.executors import CellExecutor
-from evsmap.runner.mapping_cells import lacks_labels
+from evsmap.runner.mapping_labels import lacks_labels
+from evsmap.runner.mapping_plan import open_mapping_sequence
 from evsmap.runner.matrix import Plan, plan, run_matrix
 from evsmap.runner.records import CellRecord, RecordStore
 from evsmap.runner.runfile import RUN_FILE, RunFile, RunSettings
@@ -199,7 +200,7 @@ def user_systems(path: Path | None, tables: list[str], resumed: RunFile | None,
     Raises:
         EvsmapError: ``path`` is given without the mapping table, or is not a systems file.
     """
-    from evsmap.runner.mapping_cells import REFERENCE_ROW, VARIANT_ROWS
+    from evsmap.runner.mapping_plan import REFERENCE_ROW, VARIANT_ROWS
 
     if resumed is not None:
         stored = resumed.systems

@@ -10,7 +10,7 @@ import numpy as np
 from evsmap.report.detail import detail_markdown, difference, verdict_rows
 from evsmap.runner.context import RunContext
 from evsmap.runner.detail import DETAIL_ROWS, detail_row
-from evsmap.runner.mapping_cells import mapping_record
+from evsmap.runner.mapping_record import mapping_record
 from evsmap.runner.matrix import plan
 from evsmap.segmenters.oracle_profile import DEFAULT_PROFILE
 from tests.readers import scannet_scene as scene

@@ -1,4 +1,4 @@
-"""The synthetic room's label sources (evsmap/runner/detail.py, evsmap/runner/mapping_cells.py):
+"""The synthetic room's label sources (evsmap/runner/detail.py, evsmap/runner/mapping_*.py):
 TESAMap and EVSMap mapped again with each oracle profile and a proxy network's labels, planned
 with and without proxy weights, each with its own record key, its source on the run (typed) and
 in the record; the oracle's observations never shared between profiles; ``--synthetic-labels
@@ -19,13 +19,13 @@ from evsmap.runner.detail import (
     sensitivity_row,
     sensitivity_system,
 )
-from evsmap.runner.mapping_cells import (
-    LabelSource,
+from evsmap.runner.mapping_labels import (
     lacks_labels,
-    mapping_record,
     oracle_observations_key,
     unlabelled_record,
 )
+from evsmap.runner.mapping_plan import LabelSource
+from evsmap.runner.mapping_record import mapping_record
 from evsmap.runner.matrix import plan
 from evsmap.segmenters.cards import make_card
 from evsmap.segmenters.oracle_profile import PROFILE_NAMES

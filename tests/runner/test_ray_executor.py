@@ -16,7 +16,7 @@ import evsmap.runner.matrix as matrix
 from evsmap.cli.main import main
 from evsmap.errors import EvsmapError
 from evsmap.runner.context import RunContext
-from evsmap.runner.execute import MappingRun
+from evsmap.runner.mapping_plan import MappingRun
 from evsmap.runner.records import RecordStore
 from evsmap.tables.schema import Component
 

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 from runner_fixtures import Inline
 
-import evsmap.runner.mapping_cells as mapping_cells
+import evsmap.runner.mapping_labels as mapping_labels
 import evsmap.runner.matrix as matrix
 from evsmap.cli.main import main
 from evsmap.runner.records import CellRecord
@@ -37,7 +37,7 @@ def fake_cells(monkeypatch):
     monkeypatch.setattr(matrix, "execute_mapping", execute_mapping)
     monkeypatch.setattr(matrix, "_spawn_pool", Inline)
     monkeypatch.setattr(matrix, "_fresh_executor", Inline)
-    monkeypatch.setattr(mapping_cells, "_unlabelled", lambda *a: False)
+    monkeypatch.setattr(mapping_labels, "_unlabelled", lambda *a: False)
 
 
 def _records(out):

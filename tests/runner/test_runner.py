@@ -11,8 +11,9 @@ from runner_fixtures import Inline
 
 import evsmap.runner.matrix as matrix
 from evsmap.runner.context import RunContext
-from evsmap.runner.execute import MappingRun, table4_record
+from evsmap.runner.mapping_plan import MappingRun
 from evsmap.runner.records import CellRecord, RecordStore, needs_text
+from evsmap.runner.table4_reading import table4_record
 from evsmap.tables.schema import Component, expand, load_tables
 
 
@@ -173,7 +174,7 @@ def test_table4_cells_come_from_the_mapping_runs(ctx):
     assert orgb_rate.values == {"runtime": 25.0}
     assert "measured on synthetic for every row" in orgb_rate.notes[0]
     # once every implemented system maps TUM, TUM is the runtime sequence for all
-    from evsmap.runner.execute import runtime_sequence
+    from evsmap.runner.table4_reading import runtime_sequence
 
     rows = [r.id for r in load_tables()["table4"].rows if r.implemented and r.updater]
     all_tum = {f"extra/mapping/{row}/tum@0.02m": _run_record(row, "tum", segment_update_hz=1.0)

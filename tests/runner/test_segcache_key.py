@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from evsmap.runner import mapping_cells
-from evsmap.runner.execute import observations_key, weights_identity
+from evsmap.runner import mapping_labels
+from evsmap.runner.mapping_labels import observations_key, weights_identity
 from evsmap.runner.segcache import cache_key
 from evsmap.segmenters import cards
 from evsmap.segmenters.cards import make_card
@@ -37,7 +37,7 @@ def _key(path: Path) -> str:
 
 @pytest.fixture(autouse=True)
 def _fresh_memo(monkeypatch):
-    monkeypatch.setattr(mapping_cells, "_WEIGHTS_IDS", {})
+    monkeypatch.setattr(mapping_labels, "_WEIGHTS_IDS", {})
 
 
 def _touch_later(path: Path, seconds: int) -> None:
@@ -56,7 +56,7 @@ def test_replaced_weights_file_gets_a_new_key(tmp_path):
     # another run (a fresh process): the file replaced by other tensors under the same name
     second = _with_card(path, 1)
     assert path.stat().st_size == size  # same shapes: the size alone does not tell them apart
-    mapping_cells._WEIGHTS_IDS.clear()
+    mapping_labels._WEIGHTS_IDS.clear()
     key2 = _key(path)
     assert key2 != key1
     assert weights_identity(path) == f"tensors:{tensors_sha256(second)}"
