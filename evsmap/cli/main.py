@@ -29,6 +29,7 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     from evsmap.cli import (
         cache_cmd,
+        compare_cmd,
         complexity_cmd,
         datasets_cmd,
         eval_cmd,
@@ -55,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for module in (list_cmd, synth_cmd, info_cmd, reproduce_cmd, complexity_cmd, speed_cmd,
-                   map_cmd, datasets_cmd, eval_cmd, report_cmd, weights_cmd,
+                   map_cmd, datasets_cmd, eval_cmd, report_cmd, compare_cmd, weights_cmd,
                    predict_cmd, train_cmd, cache_cmd, gate_cmd, explore_cmd, oracle_cmd):
         module.add_parser(sub)
     return parser

@@ -15,18 +15,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Read DIR/run.json and DIR/records/*.json written by 'evsmap reproduce' and "
                     "write the tables (tableN.md/.csv, extra.csv), the figures and index.md "
                     "into DIR. Nothing is measured.")
-    p.add_argument("dir", type=Path, metavar="DIR", help="run folder (reports/<run>)")
+    p.add_argument("dir", type=Path, metavar="DIR",
+                   help="run folder (reports/<run>, or a shipped run under results/)")
+    p.add_argument("--format", choices=("markdown", "latex"), default="markdown",
+                   help="markdown (default): the whole report; latex: Tables I-IV as booktabs "
+                        "tables, tableN.tex, and tables.tex, a document that inputs them")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from evsmap.report.build import build_report
+    from evsmap.report.build import build_latex, build_report
 
     if args.dir.exists() and not args.dir.is_dir():
         raise EvsmapError(f"{args.dir}: is a file, not a run folder (give the folder "
                           "`evsmap reproduce --out` wrote, with run.json in it)")
     try:
-        written = build_report(args.dir)
+        written = (build_latex(args.dir) if args.format == "latex"
+                   else build_report(args.dir))
     except OSError as exc:
         # a report file whose place is taken by a folder (or a folder by a file): one line
         # naming it; the files written before it are complete (each is written by rename)

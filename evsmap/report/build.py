@@ -7,39 +7,36 @@ Reads ``DIR/run.json`` and ``DIR/records/*.json`` and writes into ``DIR``:
 * ``networks.png``, ``mapping.png``, ``qualitative.png`` where there is data for them (see
   :mod:`evsmap.report.plots`);
 * ``index.md``: the run, its environment, what was available, cell counts per table and links.
+
+The folder is read by :func:`evsmap.report.run_data.load_run` (:func:`read_run` and
+:func:`read_records` are named here too).
 """
 
 from __future__ import annotations
 
-import json
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from evsmap.errors import DataFormatError
 from evsmap.fileio import atomic_write_text
 from evsmap.report import plots
 from evsmap.report.claims import claims_markdown, relative_markdown
 from evsmap.report.detail import detail_markdown
 from evsmap.report.explore import study_markdown
-from evsmap.report.int8 import PREFIX as INT8_PREFIX
 from evsmap.report.int8 import int8_frame, int8_markdown, int8_records
 from evsmap.report.realtime import realtime_markdown
+from evsmap.report.run_data import load_run, read_records, read_run
 from evsmap.report.tables import (
     STATUSES,
     extra_frame,
-    extra_records,
     proxy_accuracy_markdown,
-    table_frame,
     table_markdown,
 )
 from evsmap.runner.detail import is_detail
 from evsmap.runner.records import CellRecord
-from evsmap.runner.runfile import RUN_FILE, RunFile
-from evsmap.tables.schema import PaperTable, expand_all, load_tables
+from evsmap.tables.schema import PaperTable
 
 PLOTS = {
     "networks.png": "speed against parameters and FLOPs (Tables I and II)",
@@ -53,61 +50,6 @@ _NO_DATA = {
     "map_growth.png": "no mapping run recorded its growth",
     "qualitative.png": "the run stored no segmentation or map artifacts",
 }
-
-
-# ------------------------------------------------------------------------------- reading
-def read_run(run_dir: str | Path) -> dict[str, Any]:
-    """``DIR/run.json`` as a dict of the keys it holds, read and checked by its one schema
-    (:class:`~evsmap.runner.runfile.RunFile`).
-
-    Raises:
-        DataFormatError: the folder or the file is missing, or the file is not a run
-            description; one line naming it.
-    """
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise DataFormatError(f"{run_dir}: no such run folder")
-    return RunFile.read(run_dir / RUN_FILE).model_dump(exclude_unset=True)
-
-
-def read_records(run_dir: str | Path) -> list[CellRecord]:
-    """Every ``DIR/records/*.json``, in file-name order.
-
-    Raises:
-        DataFormatError: a record is not JSON, not a cell record, or holds a value that is not
-            a number; the message names the file.
-    """
-    folder = Path(run_dir) / "records"
-    if not folder.is_dir():
-        return []
-    out = []
-    for path in sorted(folder.glob("*.json")):
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            raise DataFormatError(f"{path}: unreadable record ({exc})") from None
-        except RecursionError:
-            raise DataFormatError(f"{path}: unreadable record (nested too deeply)") from None
-        rec = CellRecord.from_json(data, source=str(path))
-        _check_record(rec, path)
-        out.append(rec)
-    return out
-
-
-def _check_record(rec: CellRecord, path: Path) -> None:
-    if not isinstance(rec.key, str) or not rec.key:
-        raise DataFormatError(f"{path}: not a cell record (no key)")
-    for name, kind in (("values", dict), ("details", dict), ("inputs", dict),
-                       ("environment", dict), ("metrics", list), ("notes", list),
-                       ("needs", list)):
-        if not isinstance(getattr(rec, name), kind):
-            raise DataFormatError(f"{path}: record {rec.key!r}: {name!r} must be a JSON "
-                                  f"{kind.__name__}")
-    for cid, value in rec.values.items():
-        if (value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
-                                   or not math.isfinite(value))):
-            raise DataFormatError(f"{path}: record {rec.key!r}: value {cid!r} is not a finite "
-                                  f"number ({value!r})")
 
 
 # ------------------------------------------------------------------------------- building
@@ -125,32 +67,17 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
             file).
     """
     run_dir = Path(run_dir)
-    run = read_run(run_dir)
-    records = read_records(run_dir)
-    by_key = {r.key: r for r in records}
-    tables = load_tables()
-    available = [str(a) for a in run.get("available") or []]
-    specs = expand_all(tables, available=available)
-    table_ids = [t for t in (run.get("tables") or []) if t in tables]
-    table_ids += sorted({r.table for r in records if r.table in tables} - set(table_ids))
-    if not table_ids:
-        table_ids = sorted(tables)
-    # the int8 records have their own section and CSV (evsmap.report.int8)
-    extras = [r for r in extra_records(records) if not r.key.startswith(INT8_PREFIX)]
-    # the semantic-detail runs have their own section (evsmap.report.detail): the other views
-    # (the extra table, the plots) would show their rows as second copies of Table IV's systems
-    detail = [r for r in extras if is_detail(r.row)]
-    extras = [r for r in extras if not is_detail(r.row)]
+    loaded = load_run(run_dir)
+    run, records, tables, table_ids = loaded.run, loaded.records, loaded.tables, loaded.table_ids
+    by_key, specs = loaded.by_key, loaded.specs
+    extras, detail = loaded.extras, loaded.detail
     plotted = [r for r in records if not is_detail(r.row)]
-    skipped = {str(pair[0]): str(pair[1]) for pair in run.get("skipped") or []
-               if isinstance(pair, (list, tuple)) and len(pair) == 2}
 
     written: list[Path] = []
-    frames: dict[str, pd.DataFrame] = {}
+    frames = loaded.frames
     for tid in table_ids:
         table = tables[tid]
-        frame = table_frame(table, by_key, specs, skipped)
-        frames[tid] = frame
+        frame = frames[tid]
         md = table_markdown(table, by_key, specs, frame=frame,
                             extras=extras if table.role == "mapping" else None)
         relative = relative_markdown(table, frame)
@@ -209,6 +136,25 @@ def build_report(run_dir: str | Path, *, study: Mapping[str, Any] | None | bool 
                                   "cache_root": str(cache_root()),
                                   "cache": folder_size(cache_root())[1]})
     written.append(_write(run_dir / "index.md", index))
+    return written
+
+
+def build_latex(run_dir: str | Path) -> list[Path]:
+    """Write ``tableN.tex`` per table of ``run_dir`` (:func:`evsmap.report.latex.table_latex`)
+    and ``tables.tex``, a document that inputs them; returns the files written (tables.tex
+    last).
+
+    Raises:
+        DataFormatError: ``run.json`` or a record is missing or corrupt (names the file).
+    """
+    from evsmap.report.latex import document, report_latex
+
+    run_dir = Path(run_dir)
+    loaded = load_run(run_dir)
+    texts = report_latex(loaded)
+    written = [_write(run_dir / name, text) for name, text in texts.items()]
+    title = f"evsmap run {loaded.run.get('run') or run_dir.name}"
+    written.append(_write(run_dir / "tables.tex", document(list(texts), title)))
     return written
 
 
@@ -435,3 +381,6 @@ _FILLING = ["## Filling the n/a cells", "",
             "`evsmap reproduce` again, and `evsmap report DIR` to rebuild these files from the "
             "stored records.", ""]
 """The index's last section: how to fill the n/a cells."""
+
+
+__all__ = ["PLOTS", "build_latex", "build_report", "index_markdown", "read_records", "read_run"]

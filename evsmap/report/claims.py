@@ -109,13 +109,18 @@ def check(claim: Claim, frame: pd.DataFrame) -> dict:
             "why": "a timing in it is flagged (~)" if flagged else ""}
 
 
+def checked_claims(frames: Mapping[str, pd.DataFrame]) -> list[dict]:
+    """:func:`check` of each claim of :data:`CLAIMS` whose table is in ``frames``."""
+    return [check(c, frames[c.table]) for c in CLAIMS if c.table in frames]
+
+
 def claims_markdown(frames: Mapping[str, pd.DataFrame],
                     extras: Iterable[CellRecord] = (),
                     detail: Iterable[CellRecord] = ()) -> list[str]:
     """``index.md``'s opening section: each claim of :data:`CLAIMS` whose table is in the run,
     then the map-size claim on the extra sequences (the synthetic room, TUM), then the
     semantic-detail claim on ScanNet (``detail``: :mod:`evsmap.report.detail`'s records)."""
-    rows = [check(c, frames[c.table]) for c in CLAIMS if c.table in frames]
+    rows = checked_claims(frames)
     extras, detail = list(extras), list(detail)
     if not rows and not extras and not detail:
         return []
@@ -129,7 +134,19 @@ def claims_markdown(frames: Mapping[str, pd.DataFrame],
            "run should land within it.", "",
            "| claim | measured ratio | precision | paper's ratio | here |",
            "|---|---:|---:|---:|---|"]
-    for r in rows:
+    out += ["| " + " | ".join(row) + " |" for row in claim_rows(rows, extras, detail)]
+    out.append("")
+    return out
+
+
+def claim_rows(checked: Iterable[dict], extras: Iterable[CellRecord] = (),
+               detail: Iterable[CellRecord] = (),
+               readings: Iterable[str] | None = None) -> list[tuple[str, ...]]:
+    """The claims table's rows as cells (claim, measured ratio, precision, paper's ratio,
+    verdict), Markdown-escaped: the :func:`check` results ``checked``, then the map-size claim
+    under each of ``readings`` (default: every reading) and the semantic-detail claim."""
+    out: list[tuple[str, ...]] = []
+    for r in checked:
         measured = "-" if r["measured"] is None else f"{r['measured']:.2f}x"
         if r.get("raw") is not None and f"{r['raw']:.2f}" != f"{r['measured']:.2f}":
             measured += f" (plain {r['raw']:.2f}x)"
@@ -137,13 +154,19 @@ def claims_markdown(frames: Mapping[str, pd.DataFrame],
         verdict = r["verdict"] + (f" ({_short(r['why'])})" if r["why"] else "")
         precision = ("-" if r["measured"] is None else "exact" if not r.get("timed") else
                      "-" if r.get("precision") is None else f"+-{100 * r['precision']:.1f} %")
-        out.append(f"| {r['claim']} | {measured} | {precision} | {paper} | {verdict} |")
+        out.append((r["claim"], measured, precision, paper, verdict))
     from evsmap.report.map_size import verdict_rows
 
-    out += verdict_rows(extras)
-    out += detail_rows(detail)
-    out.append("")
+    out += [split_row(row) for row in verdict_rows(extras, readings)]
+    out += [split_row(row) for row in detail_rows(detail)]
     return out
+
+
+def split_row(row: str) -> tuple[str, ...]:
+    """A Markdown table row's cells (an escaped ``\\|`` stays inside its cell)."""
+    import re
+
+    return tuple(c.strip() for c in re.split(r"(?<!\\)\|", row.strip())[1:-1])
 
 
 def _short(text: str, limit: int = 140) -> str:
@@ -183,5 +206,5 @@ def relative_markdown(table: PaperTable, frame: pd.DataFrame) -> list[str]:
     return out + [""]
 
 
-__all__ = ["BASELINES", "CLAIMS", "MATCH_TOLERANCE", "Claim", "check", "claims_markdown",
-           "measured_ratio", "relative_markdown"]
+__all__ = ["BASELINES", "CLAIMS", "MATCH_TOLERANCE", "Claim", "check", "checked_claims",
+           "claim_rows", "claims_markdown", "measured_ratio", "relative_markdown", "split_row"]

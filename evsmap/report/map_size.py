@@ -106,14 +106,17 @@ def consistency_markdown(extras: Iterable[CellRecord], table4_reading: str) -> l
     return out
 
 
-def verdict_rows(extras: Iterable[CellRecord]) -> list[str]:
-    """Claim-table rows: EVSMap / TFEAGMap and MESAMap / TESAMap under each reading, on each
-    sequence and voxel size where both were mapped, against the paper's "up to 2.6x"."""
+def verdict_rows(extras: Iterable[CellRecord],
+                 readings: Iterable[str] | None = None) -> list[str]:
+    """Claim-table rows: EVSMap / TFEAGMap and MESAMap / TESAMap under each reading (or each of
+    ``readings``), on each sequence and voxel size where both were mapped, against the paper's
+    "up to 2.6x"."""
+    chosen = READINGS if readings is None else {r: READINGS[r] for r in readings}
     out = []
     for (seq, voxel), rows in sorted(_runs(extras).items()):
         for pair in ("EVSMap / TFEAGMap", "MESAMap / TESAMap"):
             a, b = PAIRS[pair]
-            for reading, value in READINGS.items():
+            for reading, value in chosen.items():
                 ratio = _ratio(rows, a, b, value)
                 if ratio is None:
                     continue
