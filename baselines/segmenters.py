@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 from evsmap.classes import class_names_for
 from evsmap.errors import UnknownNameError
-from evsmap.registry import SEGMENTERS
+from evsmap.registry import NETWORK, SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS, ModelCard, PaperFigure, WeightFile
 from evsmap.segmenters.normalization import (
     CITYSCAPES_ESANET,
@@ -124,6 +124,7 @@ def _network(name: str, dataset: str, num_classes: int | None, build, *, backend
 
 @SEGMENTERS.register(
     "esanet-r34-nbt1d",
+    takes=NETWORK,
     description="ESANet-R34-NBt1D (Seichter et al. 2021): RGB-D baseline of Tables I, II, IV",
     paper_size=(480, 640),
 )
@@ -144,6 +145,7 @@ def esanet(
 
 @SEGMENTERS.register(
     "fchardnet-70",
+    takes=NETWORK,
     description="FC-HarDNet-70 (Chao et al. 2019): RGB baseline of FEAGNet (Table III)",
     paper_size=(480, 640),
 )

@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 from typing import TYPE_CHECKING, Any
 
-from evsmap.registry import UPDATERS
+from evsmap.registry import OCTREE, UPDATERS
 from evsmap.updaters.factories import given, octree_factory
 
 if TYPE_CHECKING:
@@ -49,10 +49,12 @@ def classic(rule: str, *, front_end: str, **options: Any) -> OctreeUpdater:
 
 
 UPDATERS.add("classic-semantic", octree_factory(functools.partial(classic, "bayes"), **CLASSIC),
+             takes=OCTREE,
              description="[14] semantic_slam: top-3 Bayesian semantic fusion + RGB (TESAMap, "
                          "TFEAGMap); -o front_end=direct for evsmap's cleaner variant")
 UPDATERS.add("classic-semantic-max", octree_factory(functools.partial(classic, "max"),
                                                     **CLASSIC),
+             takes=OCTREE,
              description="[14] semantic_slam: max semantic fusion + RGB; -o "
                          "front_end=direct for evsmap's cleaner variant")
 
@@ -71,6 +73,8 @@ def octomap(color: bool, **options: Any) -> OctoMapAdapter:
 
 
 UPDATERS.add("octomap-cpp", octree_factory(functools.partial(octomap, False)),
+             takes=OCTREE,
              description="OctoMap C++ OcTree via octomap-python (occupancy only, reference)")
 UPDATERS.add("octomap-color", octree_factory(functools.partial(octomap, True)),
+             takes=OCTREE,
              description="OctoMap C++ ColorOcTree via octomap-python (averaged RGB, reference)")

@@ -504,6 +504,12 @@ class Sequence(abc.ABC):
     def num_classes(self, count: int | None) -> None:
         self._num_classes = int(count) if count else None
 
+    def frame_stem(self, index: int) -> str | None:
+        """Frame ``index``'s own name where the reader has one (its files' shared stem, e.g.
+        TUM's timestamp), the name ``evsmap predict`` writes its outputs under; None (the
+        default) where the frames have no names of their own."""
+        return None
+
     def frames_identity(self) -> str | None:
         """What the frames (and their labels) are, for caches of what is computed from them
         (the runner's segmentation cache): a string that changes whenever a frame could, or

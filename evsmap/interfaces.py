@@ -36,6 +36,8 @@ class Segmenter(abc.ABC):
             segmenter that is not a network.
         default_size: (H, W) a network is measured at when the caller names no size; None for
             a segmenter that is not a network.
+        input_size: (H, W) a network resizes frames to before its forward pass
+            (:meth:`set_input_size`); None for a segmenter that takes frames as they come.
         last_timings: milliseconds of the last :meth:`predict`'s stages (e.g. ``preprocess``,
             ``network``, ``postprocess``); empty where a segmenter does not split them.
     """
@@ -46,6 +48,7 @@ class Segmenter(abc.ABC):
     weights: str | None = None
     backend: str = "torch"
     default_size: tuple[int, int] | None = None
+    input_size: tuple[int, int] | None = None
     last_timings: Mapping[str, float] = MappingProxyType({})
 
     @property
@@ -82,6 +85,16 @@ class Segmenter(abc.ABC):
         """
         raise InvalidDataError(f"{type(self).__name__} is not a network: it has no inputs to "
                                f"measure")
+
+    def set_input_size(self, size: tuple[int, int]) -> None:
+        """Resize frames to ``size`` (H, W) before the network from the next :meth:`predict`
+        on (``evsmap predict`` follows each frame's size this way).
+
+        Raises:
+            InvalidDataError: the segmenter has no input size (:attr:`input_size` is None).
+        """
+        raise InvalidDataError(f"{type(self).__name__} takes frames as they come: it has no "
+                               f"input size to set")
 
     def set_threads(self, threads: int | None = None, *, spinning: bool = True
                     ) -> dict[str, Any]:

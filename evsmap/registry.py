@@ -8,6 +8,15 @@ factory takes keyword-only arguments so a configuration is always explicit::
     from evsmap.registry import READERS
     seq = READERS.create("synthetic", scene="bedroom", frames=30)
 
+What a plug-in takes is declared once, where it is registered (timm's style): ``takes=``
+(:class:`Takes`: a network's weights, backend and input size; a reader's path, split, limit,
+camera, resolution; an updater's resolution) and the factory's options (:class:`Option`, read
+from its signature at registration). Callers read :attr:`Entry.takes` and
+:attr:`Entry.options`; nothing outside this module looks at a factory's parameters. A plug-in
+registered without ``takes=`` (a third-party one written before it existed) gets it derived
+from its signature then, once; a declared ``takes`` is checked against the signature, so the
+two cannot drift apart.
+
 Third-party packages add plug-ins through the ``evsmap.plugins`` entry-point group: each entry
 point names a module (or a callable) that registers its plug-ins when imported (or called).
 """
@@ -16,9 +25,10 @@ from __future__ import annotations
 
 import importlib
 import inspect
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field, fields
 from importlib import metadata
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from evsmap.errors import DuplicateNameError, EvsmapError, unknown_name
@@ -50,18 +60,93 @@ _loaded = False
 
 
 @dataclass(frozen=True)
+class Takes:
+    """What a plug-in's factory takes besides its own settings, declared where it is registered;
+    each field is named after the keyword option it stands for, and True means the factory takes
+    that option (the registry checks it against the factory's signature).
+
+    Attributes:
+        weights: segmenter: a trained weights file (a network; ``--weights``).
+        backend: segmenter: the inference backend (``torch``, ``onnxruntime``): it can run on a
+            device and at a precision (``--device``, ``--precision``).
+        input_size: segmenter: the network's input size (H, W) (``--size``).
+        path: reader: the file or folder it reads; without it the sequence is built from options
+            alone (``synthetic``) and named by the reader's name.
+        split: reader: a dataset split (``train``, ``val``, ``test``).
+        limit: reader: the first N frames only.
+        camera: reader: the camera's intrinsics by name (TUM's ``fr1``, ``fr2``, ...).
+        resolution: updater: the leaf size in metres; reader: the frames' size ``WxH``.
+    """
+
+    weights: bool = False
+    backend: bool = False
+    input_size: bool = False
+    path: bool = False
+    split: bool = False
+    limit: bool = False
+    camera: bool = False
+    resolution: bool = False
+
+
+NETWORK = Takes(weights=True, backend=True, input_size=True)
+"""What every network segmenter takes: trained weights, a backend and an input size."""
+
+OCTREE = Takes(resolution=True)
+"""What every octree map updater takes: the leaf size."""
+
+
+class _Required:
+    """The default of an option that has none (the caller must give it)."""
+
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+REQUIRED: Any = _Required()
+
+
+@dataclass(frozen=True)
+class Option:
+    """One keyword option of a plug-in's factory.
+
+    Attributes:
+        name: the option's name (``-o NAME=VALUE``, a systems file's key).
+        default: its default, or :data:`REQUIRED`.
+    """
+
+    name: str
+    default: Any = REQUIRED
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED
+
+
+@dataclass(frozen=True)
 class Entry(Generic[T]):
-    """One registered plug-in."""
+    """One registered plug-in.
+
+    Attributes:
+        takes: what it takes (:class:`Takes`), declared at registration or derived from the
+            factory's signature there.
+        options: the factory's keyword options by name, in its order.
+        any_option: the factory takes any option (``**options``) besides :attr:`options`.
+        extras: the other facts given at registration (a reader's ``detect``, a network's
+            ``paper_size``, ...).
+    """
 
     name: str
     factory: Callable[..., T]
     description: str
     kind: str
+    takes: Takes = Takes()
+    options: Mapping[str, Option] = field(default_factory=lambda: MappingProxyType({}))
+    any_option: bool = False
     extras: dict[str, Any] = field(default_factory=dict)
 
-    def parameters(self) -> dict[str, inspect.Parameter]:
-        """The factory's keyword-only parameters, by name."""
-        return dict(inspect.signature(self.factory).parameters)
+    def defaults(self) -> dict[str, Any]:
+        """The options that have a default, with it."""
+        return {k: o.default for k, o in self.options.items() if not o.required}
 
 
 class Registry(Generic[T]):
@@ -78,26 +163,30 @@ class Registry(Generic[T]):
 
     # -- registration -------------------------------------------------------------------------
     def register(
-        self, name: str, *, description: str | None = None, **extras: Any
+        self, name: str, *, description: str | None = None, takes: Takes | None = None,
+        **extras: Any,
     ) -> Callable[[Callable[..., T]], Callable[..., T]]:
         """Decorator registering ``factory`` under ``name``.
 
         Raises:
             DuplicateNameError: ``name`` is already taken.
-            TypeError: the factory has a positional parameter.
+            TypeError: the factory has a positional parameter, or ``takes`` does not match it.
         """
 
         def decorator(factory: Callable[..., T]) -> Callable[..., T]:
-            self.add(name, factory, description=description, **extras)
+            self.add(name, factory, description=description, takes=takes, **extras)
             return factory
 
         return decorator
 
     def add(
         self, name: str, factory: Callable[..., T], *, description: str | None = None,
-        **extras: Any,
+        takes: Takes | None = None, **extras: Any,
     ) -> None:
-        """Register ``factory`` under ``name`` (the non-decorator form of :meth:`register`)."""
+        """Register ``factory`` under ``name`` (the non-decorator form of :meth:`register`).
+
+        ``takes`` declares what the factory takes (:class:`Takes`); left out, it is derived here
+        from the factory's signature (each field True where the factory has that option)."""
         if not name or name != name.strip() or name.lower() != name:
             raise ValueError(f"{self.kind} name {name!r} must be non-empty lower case")
         if name in self._entries:
@@ -105,17 +194,17 @@ class Registry(Generic[T]):
                 f"{self.kind} {name!r} is already registered "
                 f"(by {_qualname(self._entries[name].factory)})"
             )
-        for pname, param in inspect.signature(factory).parameters.items():
-            if param.kind in (param.POSITIONAL_ONLY, param.POSITIONAL_OR_KEYWORD,
-                              param.VAR_POSITIONAL):
-                raise TypeError(
-                    f"{self.kind} factory {_qualname(factory)} must take keyword-only arguments; "
-                    f"parameter {pname!r} is positional"
-                )
+        options, any_option = _factory_options(self.kind, factory)
+        derived = Takes(**{f.name: f.name in options for f in fields(Takes)})
+        if takes is None:
+            takes = derived
+        else:
+            _check_takes(f"{self.kind} {name!r}", takes, derived, any_option=any_option)
         if description is None:
             doc = inspect.getdoc(factory) or ""
             description = doc.strip().splitlines()[0] if doc.strip() else ""
-        self._entries[name] = Entry(name, factory, description, self.kind, dict(extras))
+        self._entries[name] = Entry(name, factory, description, self.kind, takes,
+                                    MappingProxyType(options), any_option, dict(extras))
 
     def unregister(self, name: str) -> None:
         """Remove ``name`` (used by tests and by plug-ins that replace themselves)."""
@@ -139,12 +228,10 @@ class Registry(Generic[T]):
     def create(self, name: str, **config: Any) -> T:
         """Build the plug-in ``name`` with ``config``; unknown options are named in the error."""
         entry = self.get(name)
-        params = entry.parameters()
-        takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
-        if not takes_any:
-            unknown = sorted(set(config) - set(params))
+        if not entry.any_option:
+            unknown = sorted(set(config) - set(entry.options))
             if unknown:
-                accepted = ", ".join(sorted(params)) or "none"
+                accepted = ", ".join(sorted(entry.options)) or "none"
                 raise EvsmapError(
                     f"{self.kind} {name!r} has no option {', '.join(map(repr, unknown))} "
                     f"(accepted: {accepted})"
@@ -169,6 +256,47 @@ class Registry(Generic[T]):
 
     def __len__(self) -> int:
         return len(self.names())
+
+
+def _factory_options(kind: str, factory: Callable[..., Any]) -> tuple[dict[str, Option], bool]:
+    """``(options, any_option)``: the factory's keyword-only options and whether it takes any
+    other (``**options``); read once, when the factory is registered.
+
+    Raises:
+        TypeError: the factory has a positional parameter.
+    """
+    options: dict[str, Option] = {}
+    any_option = False
+    for pname, param in inspect.signature(factory).parameters.items():
+        if param.kind in (param.POSITIONAL_ONLY, param.POSITIONAL_OR_KEYWORD,
+                          param.VAR_POSITIONAL):
+            raise TypeError(
+                f"{kind} factory {_qualname(factory)} must take keyword-only arguments; "
+                f"parameter {pname!r} is positional"
+            )
+        if param.kind is param.VAR_KEYWORD:
+            any_option = True
+            continue
+        default = REQUIRED if param.default is param.empty else param.default
+        options[pname] = Option(pname, default)
+    return options, any_option
+
+
+def _check_takes(what: str, declared: Takes, derived: Takes, *, any_option: bool) -> None:
+    """Refuse a declared :class:`Takes` that differs from what the factory's options say (a
+    factory taking any option, ``**options``, may declare more than it names).
+
+    Raises:
+        TypeError: naming the first field that differs.
+    """
+    for f in fields(Takes):
+        said, has = getattr(declared, f.name), getattr(derived, f.name)
+        if said and not has and not any_option:
+            raise TypeError(f"{what} declares takes.{f.name} but its factory has no option "
+                            f"{f.name!r}")
+        if has and not said:
+            raise TypeError(f"{what}: its factory takes {f.name!r}; declare it "
+                            f"(takes=Takes({f.name}=True, ...))")
 
 
 _TYPE_WORDS = {float: "a number", int: "an integer", bool: "true or false", str: "a text"}

@@ -239,10 +239,22 @@ def test_datasets_list_given_root_missing(capsys, tmp_path):
     assert f"--root {tmp_path / 'nope'}: no such folder" in err and "pass --root" not in err
 
 
-def test_datasets_list_default_root_missing(capsys, tmp_path, monkeypatch):
+def test_datasets_list_default_root_missing_is_an_answer(capsys, tmp_path, monkeypatch):
+    """A fresh machine: no datasets/ folder yet. The question has an answer (exit 0): nothing
+    prepared, where it looked, what evsmap reads and how to prepare it."""
     monkeypatch.chdir(tmp_path)
-    err = _fails(capsys, "datasets", "list")
-    assert "no datasets/ folder here" in err and "pass --root DIR" in err
+    code = main(["datasets", "list"])
+    out, err = capsys.readouterr()
+    assert code == 0 and err == ""
+    first, *rest = out.splitlines()
+    assert first == (f"no prepared datasets under datasets ({tmp_path.resolve() / 'datasets'}: "
+                     "no such folder yet)")
+    listed = [line.split()[0] for line in rest[1:5]]
+    assert listed == ["nyuv2", "sunrgbd", "cityscapes", "synthrooms"]
+    assert "nyu_depth_v2_labeled.mat" in out and "evsmap datasets check scannet" in out
+    assert main(["datasets", "list", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == []
+    assert not (tmp_path / "datasets").exists()
 
 
 @pytest.mark.parametrize("kind", ["file", "missing"])

@@ -99,6 +99,23 @@ def test_entry_point_plugins_map_the_synthetic_sequence(plugin_package, tmp_path
     assert (tmp_path / "again.ot").read_bytes() == out.read_bytes()
 
 
+def test_plugins_registered_the_old_way_get_what_they_take_from_their_signature(
+        plugin_package, capsys, tmp_path):
+    """The doc's factories declare no ``takes=``: the registry derives it from their signatures
+    when they register, and the callers read it (``--weights`` refused for a non-network)."""
+    from evsmap.registry import Takes
+
+    updater, segmenter = UPDATERS.get("max-confidence"), SEGMENTERS.get("row-bands")
+    assert updater.takes == Takes(resolution=True) and segmenter.takes == Takes()
+    assert updater.defaults() == {"resolution": 0.05, "max_range": 5.0, "discretize": True}
+    assert list(segmenter.options) == ["bands", "first_class", "num_classes"]
+    code = main(["predict", "row-bands", "synthetic", "--weights", str(tmp_path / "w.pt"),
+                 "--out", str(tmp_path / "never")])
+    err = capsys.readouterr().err
+    assert code == 2 and "row-bands is not a network and takes no weights" in err, err
+    assert not (tmp_path / "never").exists()
+
+
 def test_the_doc_systems_map_beside_table_iv_in_the_runner(plugin_package, tmp_path):
     """``evsmap reproduce --systems``: the doc's system becomes a mapping run of the plan, and
     the runner's mapping cell maps it with the plug-in segmenter's own labels (not a network:

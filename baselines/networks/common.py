@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 from evsmap.classes import class_names_for
 from evsmap.errors import UnknownNameError
-from evsmap.registry import SEGMENTERS
+from evsmap.registry import NETWORK, SEGMENTERS
 from evsmap.segmenters.model_card import (
     CLASS_SETS,
     MODEL_CARDS,
@@ -133,8 +133,8 @@ def register_network(name: str, *, build: str, description: str, citation: str,
     first = datasets[default]
     # gate=False: the regression gates leave the compared networks out (timed in every
     # `evsmap reproduce` beside FEAGNet instead; see docs/gates.md, "What is gated")
-    SEGMENTERS.add(name, factory, description=description, paper_size=tuple(first.input_size),
-                   gate=False)
+    SEGMENTERS.add(name, factory, description=description, takes=NETWORK,
+                   paper_size=tuple(first.input_size), gate=False)
 
 
 def class_names(num_classes: int, dataset: str) -> tuple[str, ...]:

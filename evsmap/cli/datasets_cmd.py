@@ -37,7 +37,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     dsub = p.add_subparsers(dest="datasets_command", metavar="SUBCOMMAND",
                             parser_class=type(p))
     dsub.required = True
+    _add_prepare(dsub)
+    _add_list(dsub)
+    _add_check(dsub)
+    _add_fetch(dsub)
 
+
+def _add_prepare(dsub: argparse._SubParsersAction) -> None:
     prep = dsub.add_parser(
         "prepare", help="convert a dataset's official files",
         description="Read the official files of DATASET from --from and write the prepared "
@@ -79,15 +85,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                            f"(default {sr.DEFAULT_SEED})")
     prep.set_defaults(run=run_prepare)
 
+
+def _add_list(dsub: argparse._SubParsersAction) -> None:
     lst = dsub.add_parser(
         "list", help="list prepared datasets under a data root",
         description="List the prepared datasets (folders with evsmap-dataset.json, or layouts a "
-                    "dataset reader recognises) directly under --root.")
+                    "dataset reader recognises) directly under --root; with none there (or no "
+                    "datasets/ folder yet), the datasets evsmap reads and how to prepare them.")
     lst.add_argument("--root", type=Path, metavar="DIR",
                      help="data root (default: datasets/ under the current folder)")
     lst.add_argument("--json", action="store_true", help="print the list as JSON")
     lst.set_defaults(run=run_list)
 
+
+def _add_check(dsub: argparse._SubParsersAction) -> None:
     check = dsub.add_parser(
         "check", help="check a copy of a dataset evsmap cannot download (ScanNet)",
         description="ScanNet needs a signed agreement, so evsmap does not download it: this "
@@ -106,6 +117,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     check.add_argument("--json", action="store_true", help="print the check as JSON")
     check.set_defaults(run=run_check)
 
+
+def _add_fetch(dsub: argparse._SubParsersAction) -> None:
     from evsmap.download import CACHE_ENV, MIRROR_ENV, RETRIES, format_size
     from evsmap.fetch import CONFIRM_BYTES
     from evsmap.samples import SAMPLES
@@ -272,21 +285,18 @@ def _describe(folder: Path) -> dict | None:
 
 def run_list(args: argparse.Namespace) -> int:
     root: Path = args.root if args.root is not None else DEFAULT_ROOT
-    if args.root is None and not root.exists():
-        raise DataFormatError(f"no {root}/ folder here (the default data root): pass --root DIR, "
-                              "or prepare a dataset with `evsmap datasets prepare`")
     where = "--root " if args.root is not None else ""
     if root.exists() and not root.is_dir():
         raise DataFormatError(f"{where}{root}: is a file, not a folder of datasets")
-    if not root.is_dir():
+    if args.root is not None and not root.is_dir():
         raise DataFormatError(f"{where}{root}: no such folder")
-    found = [d for d in (_describe(p) for p in sorted(root.iterdir()) if p.is_dir()) if d]
+    found = [d for d in (_describe(p) for p in sorted(root.iterdir()) if p.is_dir()) if d] \
+        if root.is_dir() else []
     if args.json:
         print(json.dumps(found, indent=2))
         return 0
     if not found:
-        print(f"no prepared datasets under {root} "
-              "(evsmap datasets prepare DATASET --from DIR)")
+        print(_nothing_prepared(root))
         return 0
     width = max(len(d["path"]) for d in found)
     for d in found:
@@ -299,6 +309,20 @@ def run_list(args: argparse.Namespace) -> int:
             detail = d.get("note", "")
         print(f"{d['name'] or '?':<11} {d['path']:<{width}}  {detail}")
     return 0
+
+
+def _nothing_prepared(root: Path) -> str:
+    """What ``datasets list`` says when nothing is prepared under ``root``: where it looked, the
+    datasets evsmap reads and how each is prepared, and the data it reads where it lies."""
+    state = "" if root.is_dir() else ": no such folder yet"
+    lines = [f"no prepared datasets under {root} ({root.resolve()}{state})",
+             "evsmap reads these once prepared (evsmap datasets prepare DATASET):"]
+    width = max(len(n) for n in [*_SOURCES, *GENERATED])
+    lines += [f"  {name:<{width}}  --from a {source}" for name, source in _SOURCES.items()]
+    lines += [f"  {name:<{width}}  no --from: {what}" for name, what in GENERATED.items()]
+    lines.append("and, where they lie: ScanNet (evsmap datasets check scannet), the real samples "
+                 "(evsmap datasets fetch --list), any sequence folder or bag (evsmap info PATH)")
+    return "\n".join(lines)
 
 
 # -- check ----------------------------------------------------------------------------------------

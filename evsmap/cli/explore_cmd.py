@@ -120,12 +120,12 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, tuple[str, ...]]:
     segmenter = args.segmenter or "oracle"
     if segmenter not in SEGMENTERS:
         raise EvsmapError(f"--segmenter {segmenter}: not a registered segmenter (evsmap list)")
-    params = SEGMENTERS.get(segmenter).parameters()
+    entry = SEGMENTERS.get(segmenter)
     for key, _ in args.segmenter_option:
-        if key not in params:
+        if key not in entry.options:
             raise EvsmapError(f"-s {key}: {segmenter} has no option {key!r} (its options: "
-                              f"{', '.join(params)})")
-    if "weights" in params and args.weights is None and segmenter != "oracle":
+                              f"{', '.join(entry.options)})")
+    if entry.takes.weights and args.weights is None:
         raise EvsmapError(f"--segmenter {segmenter}: a network needs --weights FILE (its "
                           f"trained weights: the classes of the maps depend on them)")
     if args.weights is not None and not args.weights.is_file():
@@ -261,14 +261,11 @@ def _header(opened: Any, request: Any, elapsed: str) -> dict[str, str]:
 def _options(segmenter: str, given: dict[str, Any]) -> str:
     """The segmenter's options as it ran: those given, then its defaults (the oracle's accuracy
     is stated this way)."""
-    import inspect
-
     from evsmap.registry import SEGMENTERS
 
-    params = SEGMENTERS.get(segmenter).parameters() if segmenter in SEGMENTERS else {}
-    values = {k: p.default for k, p in params.items()
-              if p.default is not inspect.Parameter.empty and k not in ("weights", "backend")
-              and isinstance(p.default, (int, float, str, bool))}
+    defaults = SEGMENTERS.get(segmenter).defaults() if segmenter in SEGMENTERS else {}
+    values = {k: v for k, v in defaults.items()
+              if k not in ("weights", "backend") and isinstance(v, (int, float, str, bool))}
     values.update(given)
     return ", ".join(f"{k}={v}" for k, v in values.items()) or "no options"
 

@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     name = sequence_reader(str(args.path), args.reader)
     options = reader_options(args, str(args.path))
     if args.camera:
-        if "camera" not in READERS.get(name).parameters():
+        if not READERS.get(name).takes.camera:
             raise EvsmapError(f"--camera does not apply to reader {name!r}")
         options.append(("camera", args.camera))
     seq = open_sequence(str(args.path), name, options)

@@ -125,7 +125,7 @@ def _check_device(args: argparse.Namespace) -> None:
 def _require_network(model: str, option: str) -> None:
     from evsmap.registry import SEGMENTERS
 
-    if "backend" not in SEGMENTERS.get(model).parameters():
+    if not SEGMENTERS.get(model).takes.backend:
         raise EvsmapError(f"{option}: segmenter {model!r} is not a network and has no "
                           f"inference backend (pass --segmenter NAME, a network, or leave "
                           f"{option.split()[0]} out)")
@@ -220,7 +220,7 @@ def _calibration_sequence(name: str) -> tuple[Any, int, str]:
     from evsmap.registry import READERS
 
     text, reader = find_dataset(name, None)
-    split = "train" if "split" in READERS.get(reader_name(text, reader)).parameters() else None
+    split = "train" if READERS.get(reader_name(text, reader)).takes.split else None
     sequence, _ = open_dataset(name, reader=None, split=split, limit=None, options=[])
     if len(sequence) == 0:
         raise EvsmapError(f"--calibrate-on {name}: no frames")

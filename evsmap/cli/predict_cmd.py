@@ -101,9 +101,9 @@ def frame_names(sequence, count: int) -> tuple[list[str], str]:
     """One output name per frame ``0..count-1`` and how they were made (``"stem"`` or
     ``"index"``): the reader's ``frame_stem(i)`` when it has one and the stems are distinct,
     safe file names; the frame indices otherwise."""
-    stem_of = getattr(sequence, "frame_stem", None)
-    if callable(stem_of):
-        stems = [str(stem_of(i)) for i in range(count)]
+    named = [sequence.frame_stem(i) for i in range(count)]
+    if all(s is not None for s in named):
+        stems = [str(s) for s in named]
         safe = all(s and s not in (".", "..") and not _UNSAFE_NAME.search(s) for s in stems)
         if safe and len(set(stems)) == len(stems):
             return stems, "stem"
@@ -118,7 +118,7 @@ def class_colors(sequence, num_classes: int):
 
     from evsmap.classes import palette
 
-    colors = (getattr(sequence, "meta", None) or {}).get("class_colors")
+    colors = sequence.meta.get("class_colors")
     if colors is not None and len(colors) == num_classes:
         return np.asarray(colors, dtype=np.uint8).reshape(num_classes, 3)
     return palette(num_classes)
@@ -195,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
     backend = backend_for(args, args.model)
     if backend is not None:
         config["backend"] = backend
-    takes_size = "input_size" in SEGMENTERS.get(args.model).parameters()
+    takes_size = SEGMENTERS.get(args.model).takes.input_size
     if "input_size" in config:
         raise EvsmapError("-o input_size: pass the network input size as --size HxW")
     if args.size is not None:
@@ -282,10 +282,9 @@ def predict_sequence(sequence, segmenter, out: Path, *, model: str, count: int,
         for index, frame in progress(frames, total=count, desc=f"predicting {model}"):
             frame.require_images("evsmap predict")
             shape = (frame.height, frame.width)
-            if follow_frame_size and tuple(getattr(segmenter, "input_size", shape)) != shape:
-                segmenter.input_size = shape
-                if getattr(segmenter, "_session", None) is not None:
-                    segmenter._session = None  # an ONNX session is built for one input shape
+            size = segmenter.input_size
+            if follow_frame_size and size is not None and tuple(size) != shape:
+                segmenter.set_input_size(shape)
             t0 = time.perf_counter()
             try:
                 obs = segmenter.predict(frame, k=min(TOPK, num_classes))
@@ -294,7 +293,7 @@ def predict_sequence(sequence, segmenter, out: Path, *, model: str, count: int,
             except (ValueError, RuntimeError) as exc:
                 # a network that cannot take this input size: ESANet's "divisible by 32", a
                 # pooling layer's "output size is too small", ...
-                if not hasattr(segmenter, "input_size"):
+                if segmenter.input_size is None:
                     raise
                 h, w = segmenter.input_size
                 why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

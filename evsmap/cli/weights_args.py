@@ -69,7 +69,7 @@ def make_segmenter(args: argparse.Namespace, name: str, config: dict[str, Any], 
     config = dict(config)
     weights = getattr(args, "weights", None)
     if weights is not None:
-        if "weights" not in SEGMENTERS.get(name).parameters():
+        if not SEGMENTERS.get(name).takes.weights:
             raise EvsmapError(f"--weights {weights}: {name} is not a network and takes no "
                               f"weights (drop --weights)")
         if weights.is_dir():

@@ -51,7 +51,7 @@ from evsmap.datasets.common import (
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.fileio import atomic_write_text, staging_folder
 from evsmap.readers.images import read_rgb, read_uint8_labels, read_uint16, write_png
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 
 NAME = "cityscapes"
 SPLITS = ("train", "val", "test")
@@ -283,7 +283,8 @@ def is_cityscapes_folder(path: Path) -> bool:
                                           or (path / LABEL_DIR).is_dir())
 
 
-@READERS.register(NAME, detect=is_cityscapes_folder,
+@READERS.register(NAME, takes=Takes(path=True, split=True, limit=True, resolution=True),
+                  detect=is_cityscapes_folder,
                   description="Cityscapes, 19 classes, depth from disparity (official tree or a "
                               "folder written by `evsmap datasets prepare cityscapes`)")
 def open_cityscapes(*, path: str, split: str = "all", limit: int | None = None,

@@ -34,7 +34,7 @@ def find_dataset(text: str, reader: str | None) -> tuple[str, str | None]:
     if path.exists():
         return text, reader
     is_reader = reader is None and text in READERS.names()
-    if is_reader and "path" not in READERS.get(text).parameters():
+    if is_reader and not READERS.get(text).takes.path:
         return text, None  # e.g. synthetic: built from options
     roots = [Path("datasets")]
     data_root = default_data_root()
@@ -73,7 +73,7 @@ def open_dataset(text: str, *, reader: str | None = None, split: str | None = No
                  limit: int | None = None, options: list[tuple[str, object]] | None = None):
     """The labelled sequence to score and a description ``{reader, split, limit_applied}``.
 
-    ``split`` and ``limit`` go to readers that take them (``READERS.get(name).parameters()``);
+    ``split`` and ``limit`` go to readers that take them (``READERS.get(name).takes``);
     a reader without splits refuses an explicit ``split``; ``limit`` is applied while reading
     otherwise.
     """
@@ -82,13 +82,13 @@ def open_dataset(text: str, *, reader: str | None = None, split: str | None = No
 
     text, reader = find_dataset(text, reader)
     name = reader_name(text, reader)
-    params = READERS.get(name).parameters()
+    takes = READERS.get(name).takes
     config = dict(options or [])
-    if "split" in params:
+    if takes.split:
         config.setdefault("split", split or DEFAULT_SPLIT.get(name, "test"))
     elif split is not None:
         raise EvsmapError(f"reader {name!r} has no splits: leave out --split")
-    if limit is not None and "limit" in params:
+    if limit is not None and takes.limit:
         config.setdefault("limit", limit)
     sequence = open_sequence(text, reader, list(config.items()))
     return sequence, {"reader": name, "split": config.get("split")}

@@ -50,7 +50,7 @@ from evsmap.datasets.common import (
 from evsmap.errors import DataFormatError
 from evsmap.fileio import atomic_write_text, staging_folder
 from evsmap.readers.images import read_rgb, read_uint16, write_png
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 
 NAME = "nyuv2"
 NYUV2_INTRINSICS = Intrinsics(5.1885790117450188e02, 5.1946961112127485e02,
@@ -135,7 +135,8 @@ def is_nyuv2_folder(path: Path) -> bool:
     return all((path / sub).is_dir() for sub in (RGB_DIR, DEPTH_DIR, LABEL_DIR))
 
 
-@READERS.register(NAME, detect=is_nyuv2_folder,
+@READERS.register(NAME, takes=Takes(path=True, split=True, limit=True),
+                  detect=is_nyuv2_folder,
                   description="NYU Depth v2 labelled set, 40 classes (folder written by "
                               "`evsmap datasets prepare nyuv2`: rgb/, depth/, label40/)")
 def open_nyuv2(*, path: str, split: str = "all", limit: int | None = None) -> NYUv2Sequence:

@@ -58,7 +58,7 @@ from evsmap.datasets.common import (
 from evsmap.errors import DataFormatError, EvsmapError
 from evsmap.fileio import atomic_write_text, staging_folder
 from evsmap.readers.images import read_rgb, read_uint16, write_png
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 
 NAME = "sunrgbd"
 SPLITS = ("train", "test")
@@ -166,7 +166,8 @@ def is_sunrgbd_folder(path: Path) -> bool:
                for s in SPLITS)
 
 
-@READERS.register(NAME, detect=is_sunrgbd_folder,
+@READERS.register(NAME, takes=Takes(path=True, split=True, limit=True),
+                  detect=is_sunrgbd_folder,
                   description="SUN RGB-D, 37 classes, mixed sensors (folder written by "
                               "`evsmap datasets prepare sunrgbd`)")
 def open_sunrgbd(*, path: str, split: str = "all", limit: int | None = None) -> SUNRGBDSequence:

@@ -75,7 +75,7 @@ from evsmap.readers.images import (
     read_uint16,
     write_png,
 )
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 
 NAME = "synthrooms"
 GENERATOR_VERSION = 1
@@ -428,7 +428,8 @@ def _ranges(values: list[int]) -> str:
     return ", ".join(out)
 
 
-@READERS.register(NAME, detect=is_synthrooms_folder,
+@READERS.register(NAME, takes=Takes(path=True, split=True, limit=True),
+                  detect=is_synthrooms_folder,
                   description="synthetic rooms, NYUv2 40 classes, with poses per room (folder "
                               "written by `evsmap datasets prepare synthrooms`)")
 def open_synthrooms(*, path: str, split: str = "all", limit: int | None = None,

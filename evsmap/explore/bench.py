@@ -235,7 +235,7 @@ class Bench:
         from evsmap.measure.evaluators import MapFiles, MapStatistics
         from evsmap.registry import UPDATERS
 
-        taken = UPDATERS.get(name).parameters()
+        taken = UPDATERS.get(name).options
         config = {k: v for k, v in options.items() if k in taken}
 
         # made before the loop (no memory is measured here)

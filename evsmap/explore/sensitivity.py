@@ -297,7 +297,7 @@ def check_network(segmenter: str | None, weights: Path) -> Network:
     if segmenter not in SEGMENTERS:
         raise SensitivityError(f"--sensitivity-segmenter {segmenter}: not a registered "
                                f"segmenter (evsmap list)")
-    if "weights" not in SEGMENTERS.get(segmenter).parameters() or segmenter == "oracle":
+    if not SEGMENTERS.get(segmenter).takes.weights:
         raise SensitivityError(f"--sensitivity-segmenter {segmenter}: not a network (it takes "
                                f"no weights)")
     return Network(segmenter, str(weights.resolve()))

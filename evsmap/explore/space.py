@@ -308,7 +308,7 @@ def check_space(space: Space) -> None:
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise SpaceError(f"{where}: parameter {twice[0]!r} is given twice")
-    taken = UPDATERS.get(space.updater).parameters()
+    taken = UPDATERS.get(space.updater).options
     for name in [*names, *space.fixed]:
         if name not in taken:
             raise SpaceError(f"{where}: {space.updater} has no option {name!r} (its options: "

@@ -36,7 +36,7 @@ def pathless_reader(text: str, reader: str | None = None) -> str | None:
     without ``--reader`` naming the same reader) and no file of that name exists; else None."""
     if Path(text).exists() or text not in READERS.names() or reader not in (None, text):
         return None
-    return text if "path" not in READERS.get(text).parameters() else None
+    return None if READERS.get(text).takes.path else text
 
 
 def sequence_reader(text: str, reader: str | None = None) -> str:
@@ -53,7 +53,7 @@ def open_sequence(text: str, reader: str | None = None,
     if pathless_reader(text, reader) is not None:
         return READERS.create(text, **config)
     name = reader or detect_reader(path)
-    if "path" not in READERS.get(name).parameters():
+    if not READERS.get(name).takes.path:
         raise EvsmapError(f"reader {name!r} takes no path: give {name!r} as the sequence "
                           f"(not {text!r}), or leave out --reader to read {text!r} with the "
                           f"reader its layout needs")

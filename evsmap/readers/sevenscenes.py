@@ -48,7 +48,7 @@ from evsmap.readers.images import (
     read_uint16,
 )
 from evsmap.readers.poses import checked_pose
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 
 LAYOUT = "sevenscenes"
 INTRINSICS_FILE = "camera-intrinsics.txt"
@@ -349,7 +349,7 @@ class SevenScenesSequence(Sequence):
                      name=self.depth_files[index].name)
 
 
-@READERS.register("sevenscenes", detect=is_sevenscenes_folder,
+@READERS.register("sevenscenes", takes=Takes(path=True), detect=is_sevenscenes_folder,
                   description="Microsoft 7-Scenes sequence folder (frame-NNNNNN.color/.depth/"
                               ".pose files) or a scene folder of seq-NN/ (-r sequence=seq-02)")
 def open_sevenscenes(*, path: str, sequence: str | int | None = None,

@@ -33,7 +33,7 @@ from evsmap.readers.images import (
     read_uint16,
     write_png,
 )
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 
 # Published intrinsics of the TUM RGB-D cameras (640x480), from the dataset's documentation.
 TUM_CAMERAS: dict[str, Intrinsics] = {
@@ -393,7 +393,7 @@ def is_tum_folder(path: Path) -> bool:
     return (path / "rgb.txt").is_file() and (path / "depth.txt").is_file()
 
 
-@READERS.register("tum", detect=is_tum_folder,
+@READERS.register("tum", takes=Takes(path=True, camera=True), detect=is_tum_folder,
                   description="TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt) or an "
                               "`evsmap synth` output")
 def open_tum(*, path: str, camera: str | None = None, intrinsics: Intrinsics | None = None,

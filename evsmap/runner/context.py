@@ -348,19 +348,13 @@ def _factory_options(model: str, options: Mapping[str, Any]) -> tuple[dict[str, 
     """``(options, num_classes)`` as the segmenter's factory takes them: its defaults updated
     with ``options``, without the options that do not choose the network; ``num_classes``
     apart (None: the network's count follows from other options, e.g. ESANet's dataset)."""
-    import inspect
-
     from evsmap.errors import EvsmapError
     from evsmap.registry import SEGMENTERS
 
-    full: dict[str, Any] = {}
     try:
-        params = SEGMENTERS.get(model).parameters()
+        full: dict[str, Any] = SEGMENTERS.get(model).defaults()
     except EvsmapError:
-        params = {}
-    for key, param in params.items():
-        if param.default is not inspect.Parameter.empty:
-            full[key] = param.default
+        full = {}
     full.update(options)
     for key in _NOT_OPTIONS:
         full.pop(key, None)

@@ -50,10 +50,10 @@ def build_segmenter(component: Component, *, input_size: Sequence[int] | None = 
     from evsmap.segmenters.create import RANDOM_INIT_SEED, create_segmenter
 
     config = dict(component.config)
-    params = SEGMENTERS.get(component.name).parameters()
-    if input_size is not None and "input_size" in params:
+    takes = SEGMENTERS.get(component.name).takes
+    if input_size is not None and takes.input_size:
         config["input_size"] = tuple(input_size)
-    if backend is not None and "backend" in params:
+    if backend is not None and takes.backend:
         config["backend"] = backend
     if weights is not None:
         config["weights"] = weights
@@ -291,7 +291,7 @@ def score_segmenter(segmenter: Segmenter, dataset: str, path: str | os.PathLike[
     from evsmap.registry import READERS
 
     config: dict[str, Any] = {"path": str(path), "split": split}
-    if input_size and "resolution" in READERS.get(dataset).parameters():
+    if input_size and READERS.get(dataset).takes.resolution:
         config["resolution"] = f"{input_size[1]}x{input_size[0]}"
     if limit is not None:
         config["limit"] = limit

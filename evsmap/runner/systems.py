@@ -137,7 +137,7 @@ def parse_systems(data: dict[str, Any], *, source: str,
         updater = _component(s.updater)
         try:
             entry = UPDATERS.get(updater.name)
-            if "resolution" not in entry.parameters():
+            if not entry.takes.resolution:
                 raise EvsmapError(f"updater {updater.name!r} takes no resolution (the run maps "
                                   f"at Table IV's voxel size)")
             UPDATERS.create(updater.name, resolution=0.1, **updater.config)

@@ -14,7 +14,10 @@ Which commands refuse random weights and which use them is the command line's po
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from evsmap.interfaces import Segmenter
 
 RANDOM_INIT_SEED = 0
 """The seed of an untrained network's random initialisation when none is given."""
@@ -33,16 +36,16 @@ def create_segmenter(name: str, *, init_seed: int = RANDOM_INIT_SEED, **config: 
         return SEGMENTERS.create(name, **config)
 
 
-def is_network(segmenter: Any) -> bool:
+def is_network(segmenter: Segmenter) -> bool:
     """Whether ``segmenter`` runs a network (and so has weights, trained or random)."""
-    return getattr(segmenter, "module", None) is not None
+    return segmenter.module is not None
 
 
-def weights_fields(segmenter: Any, seed: int) -> dict[str, Any]:
+def weights_fields(segmenter: Segmenter, seed: int) -> dict[str, Any]:
     """What a record states about a segmenter's weights: ``weights`` (the file, or None),
     ``random_weights`` (a network without trained weights) and ``init_seed`` (the seed of those
     random weights; None where the weights came from a file or there is no network)."""
-    weights = getattr(segmenter, "weights", None)
+    weights = segmenter.weights
     random_weights = is_network(segmenter) and weights is None
     return {"weights": weights, "random_weights": random_weights,
             "init_seed": int(seed) if random_weights else None}

@@ -245,6 +245,12 @@ class NetworkSegmenter(Segmenter):
 
     # -- inference -------------------------------------------------------------------------
 
+    def set_input_size(self, size: tuple[int, int]) -> None:
+        """Resize frames to ``size`` (H, W) from the next :meth:`predict` on (an ONNX Runtime
+        session is built for one input shape: the next call builds another)."""
+        self.input_size = as_size(size, f"{self.name}: input_size")
+        self._session = None
+
     def place(self, *, device: str = "cpu", precision: str | None = None) -> None:
         """Run the network on ``device`` (``cpu``, ``cuda[:N]``; :mod:`evsmap.devices`) and,
         with ``precision``, at that precision (``fp16``/``bf16``: autocast, torch backend).

@@ -56,7 +56,7 @@ from evsmap.data import VOID, Frame, SemanticObservation
 from evsmap.errors import InvalidDataError
 from evsmap.interfaces import Segmenter
 from evsmap.metrics.label_errors import REFERENCE_WIDTH, boundary_band
-from evsmap.registry import SEGMENTERS
+from evsmap.registry import SEGMENTERS, Takes
 from evsmap.segmenters.oracle_field import FieldMemo, uniform_fields
 from evsmap.segmenters.oracle_profile import (
     DEFAULT_PROFILE,
@@ -370,6 +370,7 @@ class OracleSegmenter(Segmenter):
 
 @SEGMENTERS.register(
     "oracle",
+    takes=Takes(),  # not a network: no weights, backend or input size
     description="Ground-truth labels with a network's kind of errors (profile: fitted, "
                 "per-pixel, noise-free or a file)",
 )

@@ -15,7 +15,7 @@ from os import PathLike
 from typing import TYPE_CHECKING
 
 from evsmap.classes import class_names_for
-from evsmap.registry import SEGMENTERS
+from evsmap.registry import NETWORK, SEGMENTERS
 from evsmap.segmenters.model_card import MODEL_CARDS, PAPER, ModelCard, PaperFigure
 from evsmap.segmenters.normalization import INDOOR, Normalization
 
@@ -125,7 +125,7 @@ def _register(card: ModelCard) -> None:
             config={"num_classes": num_classes, **switches})
 
     factory.__name__ = name.replace("-", "_")
-    SEGMENTERS.add(name, factory, description=card.description, paper_size=size)
+    SEGMENTERS.add(name, factory, description=card.description, takes=NETWORK, paper_size=size)
 
 
 for _card in CARDS:

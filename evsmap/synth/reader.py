@@ -5,13 +5,13 @@ from __future__ import annotations
 from typing import Any
 
 from evsmap.errors import EvsmapError
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 from evsmap.synth.scene import DEFAULT_SCENE
 
 RENDERS = ("live", "cached")
 
 
-@READERS.register("synthetic")
+@READERS.register("synthetic", takes=Takes())  # built from options: no path
 def open_synthetic(*, scene: str = DEFAULT_SCENE, seed: int = 0, frames: int = 60,
                    width: int = 640, height: int = 480, noise: bool = False, laps: int = 1,
                    render: str = "live"):

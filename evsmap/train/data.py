@@ -159,9 +159,8 @@ class FirstFrames(Sequence):
         super().__init__(sequence.name, sequence.intrinsics, sequence.meta)
         self.sequence = sequence
         self.limit = min(int(limit), len(sequence))
-        for attr in ("class_names", "num_classes"):
-            if hasattr(sequence, attr):
-                setattr(self, attr, getattr(sequence, attr))
+        self.class_names = sequence.class_names
+        self.num_classes = sequence.num_classes
 
     def __len__(self) -> int:
         return self.limit
@@ -224,12 +223,12 @@ def open_splits(dataset: str, *, reader: str | None = None,
 
     text, named = find_dataset(str(dataset), reader)
     name = reader_name(text, named)
-    params = READERS.get(name).parameters()
+    takes = READERS.get(name).takes
     config = dict(reader_options or [])
     if "split" in config:
         raise EvsmapError("choose the splits with --train-split / --val-split, not -r split=")
     splits: tuple[str | None, str | None]
-    if "split" in params:
+    if takes.split:
         splits = (train_split or "train", val_split or VALIDATION_SPLIT.get(name, "test"))
     else:
         given = train_split or val_split
@@ -237,13 +236,13 @@ def open_splits(dataset: str, *, reader: str | None = None,
             raise EvsmapError(f"reader {name!r} has no splits: leave out --train-split and "
                               f"--val-split (it trains and validates on every frame)")
         splits = (None, None)
-    if limit is not None and "limit" in params:
+    if limit is not None and takes.limit:
         config["limit"] = limit
 
     def one(split: str | None) -> Sequence:
         options = dict(config, **({"split": split} if split is not None else {}))
         sequence = open_sequence(text, named, list(options.items()))
-        if limit is not None and "limit" not in params:
+        if limit is not None and not takes.limit:
             sequence = FirstFrames(sequence, limit)
         return sequence
 

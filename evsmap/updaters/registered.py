@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from evsmap.mapping.fusion import PHI, PSI, THETA
-from evsmap.registry import UPDATERS
+from evsmap.registry import OCTREE, UPDATERS
 from evsmap.updaters.factories import OCTREE_OPTIONS, given, octree_factory
 
 if TYPE_CHECKING:
@@ -26,6 +26,7 @@ def orgb(**options: Any) -> ORGBMap:
 
 
 UPDATERS.add("orgb", octree_factory(orgb),
+             takes=OCTREE,
              description="ORGBMap: OctoMap occupancy + averaged RGB (ColorOcTree), EVSMaP Table IV")
 
 _DIRECT_ONLY = ("leaf_update", "occupancy", "discretize", "prob_hit", "prob_miss")
@@ -68,6 +69,7 @@ MULTICLASS_BAYES: dict[str, Any] = {
 own, SSMI's with the generator)."""
 
 UPDATERS.add("multiclass-bayes", octree_factory(multiclass_bayes, **MULTICLASS_BAYES),
+             takes=OCTREE,
              description="EVSMaP: multi-class Bayesian semantic octree, SSMI's update on "
                          "the octomap_generator front end (Algorithm 1 merging nodes, "
                          "theta 0.6); -o front_end=direct for evsmap's per-leaf front end")

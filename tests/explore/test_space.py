@@ -20,7 +20,7 @@ def test_shipped_space_defaults_are_what_table_iv_runs_with() -> None:
     assert path is not None
     space = load_space(path)
     defaults = space.defaults()
-    params = UPDATERS.get("multiclass-bayes").parameters()
+    params = UPDATERS.get("multiclass-bayes").options
     for name in ("psi", "phi", "theta", "raycast_range", "max_range"):
         assert defaults[name] == pytest.approx(params[name].default), name
     # the clamps are left to the generator (None in the factory): SSMI's yaml values

@@ -34,7 +34,7 @@ def test_every_network_has_cards_and_every_card_a_segmenter():
         assert MODEL_CARDS.of_segmenter(name), name
     for card in MODEL_CARDS.items().values():
         assert card.segmenter in SEGMENTERS, card.name
-        params = SEGMENTERS.get(card.segmenter).parameters()
+        params = SEGMENTERS.get(card.segmenter).options
         assert set(card.config) <= set(params), card.name
 
 
@@ -90,7 +90,7 @@ def test_feagnet_factories_take_their_defaults_from_the_card():
     for name in ("feagnet-v1", "feagnet-v2", "feagnet-s", "feagnet-l"):
         card = MODEL_CARDS.get(name)
         entry = SEGMENTERS.get(name)
-        assert entry.parameters()["num_classes"].default == card.num_classes
+        assert entry.options["num_classes"].default == card.num_classes
         assert entry.extras["paper_size"] == card.input_size
         assert entry.description == card.description
 

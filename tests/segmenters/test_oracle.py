@@ -44,7 +44,7 @@ def test_registered_with_keyword_options():
     assert isinstance(seg, OracleSegmenter)
     assert seg.module is None and seg.num_classes == 40 and len(seg.class_names) == 40
     assert seg.class_names[0] == "wall" and not seg.uses_depth
-    params = SEGMENTERS.get("oracle").parameters()
+    params = SEGMENTERS.get("oracle").options
     assert {"num_classes", "accuracy", "confusion", "boundary_blur", "seed", "k"} <= set(params)
     with pytest.raises(EvsmapError, match="no option"):
         SEGMENTERS.create("oracle", bogus=1)

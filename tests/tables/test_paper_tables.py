@@ -193,10 +193,10 @@ def test_systems_match_the_registry(tables):
             for comp, registry in ((s.segmenter, SEGMENTERS), (s.updater, UPDATERS)):
                 if comp is None:
                     continue
-                params = registry.get(comp.name).parameters()
+                params = registry.get(comp.name).options
                 assert set(comp.config) <= set(params), (t.id, s.id)
             if s.segmenter is not None:
-                params = SEGMENTERS.get(s.segmenter.name).parameters()
+                params = SEGMENTERS.get(s.segmenter.name).options
                 for dataset in ("nyuv2", "sunrgbd", "cityscapes"):
                     resolved = s.segmenter_for(dataset)
                     assert resolved.name == s.segmenter.name, (t.id, s.id, dataset)

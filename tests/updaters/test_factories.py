@@ -27,7 +27,7 @@ def test_the_base_options_are_the_base_constructors():
 def test_every_base_option_is_listed_and_reaches_the_map(name):
     if name.startswith("octomap"):
         pytest.importorskip("octomap")
-    params = UPDATERS.get(name).parameters()
+    params = UPDATERS.get(name).options
     assert set(OCTREE_OPTIONS) <= set(params)
     for key, default in OCTREE_OPTIONS.items():
         assert params[key].default in (default, None), key  # None: the updater's own

@@ -33,7 +33,7 @@ from evsmap.readers.rosbag.messages import (
     decode_depth_image,
 )
 from evsmap.readers.rosbag.topics import PRESETS, TIME_SOURCES
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 
 
 def _bag_format(path: Path) -> str:
@@ -331,7 +331,7 @@ class RosbagSequence(_FramePoseMixin, Sequence):
         self.close()
 
 
-@READERS.register("rosbag", detect=is_rosbag,
+@READERS.register("rosbag", takes=Takes(path=True, limit=True), detect=is_rosbag,
                   description="ROS 1 .bag or ROS 2 bag (sqlite3 / MCAP): RGB-D images or "
                               "PointCloud2 with poses from odometry or /tf")
 def open_rosbag(*, path: str, preset: str | None = None, rgb_topic: str | None = None,

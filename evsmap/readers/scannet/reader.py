@@ -59,7 +59,7 @@ from evsmap.readers.poses import checked_pose
 from evsmap.readers.scannet.labelmap import LABELS_TSV, SCENE_ID, read_label_table
 from evsmap.readers.scannet.mesh import LabelMesh, read_label_mesh, voxelise
 from evsmap.readers.scannet.sens import SensFile
-from evsmap.registry import READERS
+from evsmap.registry import READERS, Takes
 
 LAYOUT = "scannet"
 FRAME_RATE = 30.0
@@ -547,7 +547,7 @@ def _find_upwards(folder: Path, name: str) -> Path | None:
     return None
 
 
-@READERS.register("scannet", detect=is_scannet,
+@READERS.register("scannet", takes=Takes(path=True), detect=is_scannet,
                   description="ScanNet v2 scene: scans/sceneNNNN_NN/ with its .sens and "
                               "labelled mesh, the .sens file, a SensReader export, or the "
                               "release root (-r scene=scene0011_00)")
