@@ -29,6 +29,8 @@ RUNS, WARMUP, PASSES = 6, 1, 3
 def _measure(paper_network) -> dict[str, dict]:
     from evsmap.measure.complexity import measure_complexity
     from evsmap.measure.speed import measure_speed
+    from evsmap.measure.speed_backends import OnnxRuntime
+    from evsmap.measure.timing_policy import RoundsPolicy
 
     names = (BASELINE, *GOALS)
     nets = {}
@@ -41,8 +43,9 @@ def _measure(paper_network) -> dict[str, dict]:
         for name in names if index % 2 == 0 else names[::-1]:
             seg, inputs, macs = nets[name]
             record = measure_speed(
-                seg.module, inputs, backend="onnxruntime", runs=RUNS, warmup=WARMUP,
-                macs=macs, input_names=seg.input_names, key=name,
+                seg.module, inputs,
+                backend=OnnxRuntime(input_names=tuple(seg.input_names), key=name),
+                policy=RoundsPolicy(runs=RUNS, warmup=WARMUP), macs=macs,
                 roofline_size=512)  # the gate needs no roofline; keep it cheap
             times[name].extend(record.times_ms)
     result = {}

@@ -13,9 +13,9 @@ from evsmap.cli.precision import add_precision_options, apply_precision, backend
 from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
 from evsmap.errors import EvsmapError
 
-# evsmap.measure.speed.BACKENDS and COMPILE_MODES, evsmap.models.ort_providers.PROVIDERS and
-# evsmap.measure.batch_sweep's DEFAULT_BATCHES and REFERENCE, spelled out so that building the
-# parser does not import torch
+# evsmap.measure.speed_backends.BACKENDS and COMPILE_MODES, evsmap.models.ort_providers.PROVIDERS
+# and evsmap.measure.batch_sweep's DEFAULT_BATCHES and REFERENCE, spelled out so that building
+# the parser does not import torch
 BACKENDS = ("onnxruntime", "torch", "torch-compile", "torch-cuda-graph")
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune")
 PROVIDERS = ("cpu", "cuda", "tensorrt")
@@ -148,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
     segmenter, height, width, weights_record = network_to_time(args)
     from evsmap.measure.complexity import measure_complexity
     from evsmap.measure.speed import measure_speed
+    from evsmap.measure.speed_backends import make_backend
+    from evsmap.measure.timing_policy import RoundsPolicy
 
     inputs = segmenter.example_inputs(height, width)
     macs = measure_complexity(segmenter.module, inputs).flops
@@ -160,12 +162,14 @@ def run(args: argparse.Namespace) -> int:
     autocast = args.precision if args.precision in ("fp16", "bf16") else None
     if autocast:  # speed times a copy of the module under autocast (not the segmenter's own)
         precision = {**precision, "precision": autocast}
+    onnx = {"input_names": tuple(segmenter.input_names), "key": args.model,
+            "cache_dir": args.cache_dir, "onnx_path": int8_path}
     record = measure_speed(
-        segmenter.module, inputs, backend=backend, runs=args.runs, warmup=args.warmup,
-        threads=args.threads, macs=macs, input_names=segmenter.input_names, key=args.model,
-        cache_dir=args.cache_dir, onnx_path=int8_path, device=args.device, autocast=autocast,
-        provider=args.provider, compile_mode=args.compile_mode,
-        channels_last=args.channels_last)
+        segmenter.module, inputs,
+        backend=make_backend(backend, autocast=autocast, channels_last=args.channels_last,
+                             compile_mode=args.compile_mode, provider=args.provider, onnx=onnx),
+        policy=RoundsPolicy(runs=args.runs, warmup=args.warmup), threads=args.threads,
+        macs=macs, device=args.device)
     result = {"model": args.model, "num_classes": segmenter.num_classes,
               "inputs": list(segmenter.input_names), **weights_record, **precision,
               **record.as_dict()}
@@ -212,6 +216,7 @@ def run_batch_sweep(args: argparse.Namespace) -> int:
     segmenter, height, width, weights_record = network_to_time(args)
     from evsmap.measure.batch_sweep import SweepNetwork, batch_sweep
     from evsmap.measure.complexity import measure_complexity
+    from evsmap.measure.speed_backends import make_backend
 
     reference = args.reference or REFERENCE
     segmenters = {args.model: segmenter}
@@ -226,9 +231,10 @@ def run_batch_sweep(args: argparse.Namespace) -> int:
     sweep = batch_sweep(networks, batches=args.batch,
                         reference=None if reference == "none" else reference,
                         policy=_sweep_policy(args), device=args.device,
-                        backend=args.backend or "torch", autocast=autocast,
-                        compile_mode=args.compile_mode, channels_last=args.channels_last,
-                        threads=args.threads, input_names=segmenter.input_names)
+                        backend=make_backend(args.backend or "torch", autocast=autocast,
+                                             compile_mode=args.compile_mode,
+                                             channels_last=args.channels_last),
+                        threads=args.threads)
     result = {"model": args.model, "sweep": "batch", "height": height, "width": width,
               "backend": args.backend or "torch", "precision": args.precision,
               "channels_last": args.channels_last, **weights_record, **sweep.as_dict()}
@@ -246,7 +252,8 @@ def run_backend_sweep(args: argparse.Namespace) -> int:
     sweep = backend_sweep(args.model, segmenter.module, inputs, selected=selected,
                           device=args.device, policy=_sweep_policy(args), threads=args.threads,
                           macs=measure_complexity(segmenter.module, inputs).flops,
-                          input_names=segmenter.input_names, cache_dir=args.cache_dir)
+                          onnx={"input_names": tuple(segmenter.input_names),
+                                "cache_dir": args.cache_dir})
     result = {"model": args.model, "sweep": "backends", "height": height, "width": width,
               **weights_record, **sweep.as_dict()}
     print(json.dumps(result, indent=2) if args.json else format_backend_sweep(result))

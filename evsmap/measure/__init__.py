@@ -7,7 +7,8 @@ command line's job (``evsmap complexity``, ``evsmap speed``).
 from __future__ import annotations
 
 from evsmap.measure.complexity import ComplexityRecord, measure_complexity
-from evsmap.measure.speed import BACKENDS, SpeedRecord, measure_speed, roofline_gmacs
+from evsmap.measure.speed import SpeedRecord, measure_speed, roofline_gmacs
+from evsmap.measure.speed_backends import BACKENDS
 from evsmap.models.onnx_export import OnnxExportError, cached_onnx, export_onnx
 
 __all__ = [

@@ -8,8 +8,9 @@ convolutions, and fp16/bf16 where the labels survive it. :func:`backend_sweep` t
 :class:`Variant` (:func:`variants`) with :func:`~evsmap.measure.speed.measure_speed` and the same
 :class:`~evsmap.measure.timing_policy.TimingPolicy`, or records in one line why it does not run
 here (a GPU-only variant on the CPU, a missing library or provider, out of memory). For each
-timed variant it runs one pass more, built the same way (:func:`~evsmap.measure.speed.
-prepare_pass`), and compares its per-pixel argmax with eager fp32's on the same input:
+timed variant it runs one pass more, built the same way (:meth:`~evsmap.measure.
+speed_backends.Backend.prepare`), and compares its per-pixel argmax with eager fp32's on the
+same input:
 
 * an fp32 variant qualifies when its labels are **equal** to eager fp32's, every pixel;
 * a reduced-precision one (fp16/bf16 autocast, TensorRT's fp16 engines) when at least
@@ -23,7 +24,7 @@ in its pass time. Records only; ``evsmap speed --sweep-backends`` formats them.
 from __future__ import annotations
 
 import fnmatch
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -33,7 +34,8 @@ import torch
 from evsmap.devices import require_device
 from evsmap.errors import EvsmapError, UnknownNameError
 from evsmap.measure.batch_sweep import first_line, free_device_memory, is_out_of_memory
-from evsmap.measure.speed import SpeedRecord, measure_speed, prepare_pass
+from evsmap.measure.speed import SpeedRecord, measure_speed
+from evsmap.measure.speed_backends import Backend, make_backend
 from evsmap.measure.timing_policy import TimingPolicy
 
 PRECISIONS = ("fp32", "fp16", "bf16")
@@ -51,8 +53,8 @@ Measure = Callable[..., SpeedRecord]
 
 @dataclass(frozen=True)
 class Variant:
-    """One way of running the network: a :func:`~evsmap.measure.speed.measure_speed` backend
-    with its options (``name`` is how it is asked for and reported)."""
+    """One way of running the network: a backend (:data:`~evsmap.measure.speed_backends.
+    BACKENDS`) with its options (``name`` is how it is asked for and reported)."""
 
     name: str
     backend: str
@@ -75,18 +77,13 @@ class Variant:
         """torch's autocast dtype (None for fp32 and ONNX Runtime's variants)."""
         return self.precision if self.reduced_precision and self.provider is None else None
 
-    def speed_options(self) -> dict[str, Any]:
-        """The keyword arguments of :func:`~evsmap.measure.speed.measure_speed` and
-        :func:`~evsmap.measure.speed.prepare_pass` that make this variant."""
-        options: dict[str, Any] = {"backend": self.backend, "channels_last": self.channels_last}
-        if self.compile_mode is not None:
-            options["compile_mode"] = self.compile_mode
-        if self.provider is not None:
-            options["provider"] = self.provider
-        autocast = self.precision if self.reduced_precision else None
-        if autocast is not None:
-            options["autocast"] = autocast
-        return options
+    def make(self, onnx: Mapping[str, Any] | None = None) -> Backend:
+        """The :class:`~evsmap.measure.speed_backends.Backend` that runs this variant;
+        ``onnx``: ONNX Runtime's export and session fields (``key``, ``input_names``,
+        ``cache_dir``; :func:`~evsmap.measure.speed_backends.make_backend`)."""
+        return make_backend(self.backend, autocast=self.precision if self.reduced_precision
+                            else None, channels_last=self.channels_last,
+                            compile_mode=self.compile_mode, provider=self.provider, onnx=onnx)
 
 
 def variants() -> list[Variant]:
@@ -206,7 +203,7 @@ def fastest_qualifying(results: Sequence[VariantResult]) -> VariantResult | None
 def backend_sweep(network: str, module: torch.nn.Module, inputs: Sequence[torch.Tensor], *,
                   selected: Sequence[Variant] | None = None, device: str = "cpu",
                   policy: TimingPolicy | None = None, measure: Measure = measure_speed,
-                  **speed_options: Any) -> BackendSweep:
+                  onnx: Mapping[str, Any] | None = None, **speed_options: Any) -> BackendSweep:
     """Time every variant of ``module(*inputs)`` on ``device`` and check its labels (module
     docstring).
 
@@ -216,8 +213,10 @@ def backend_sweep(network: str, module: torch.nn.Module, inputs: Sequence[torch.
             the selection, as the reference of the labels and speed-ups.
         policy: the timing rule of every variant (default :class:`TimingPolicy`'s).
         measure: the timing function (:func:`~evsmap.measure.speed.measure_speed`).
+        onnx: the ONNX Runtime variants' export fields (``input_names``, ``cache_dir``; the
+            cache key is ``network``).
         speed_options: more keyword arguments of ``measure`` (``threads``, ``macs``,
-            ``roofline``, ``input_names``, ``cache_dir``, ...), the same for every variant.
+            ``roofline``, ...), the same for every variant.
 
     Raises:
         DeviceUnavailableError: the device is not on this machine (eager fp32 itself cannot
@@ -236,16 +235,15 @@ def backend_sweep(network: str, module: torch.nn.Module, inputs: Sequence[torch.
         from evsmap.measure.speed import roofline_gmacs
 
         speed_options["roofline"] = roofline_gmacs(device=device)
-    label_options = {k: v for k, v in speed_options.items()
-                     if k in ("input_names", "cache_dir")}
-    ref_record = measure(module, inputs, device=device, policy=policy, key=network,
-                         **speed_options, **reference.speed_options())
-    ref_labels = variant_labels(module, inputs, reference, device, network, label_options)
+    onnx = {**(onnx or {}), "key": network}
+    ref_backend = reference.make(onnx)
+    ref_record = measure(module, inputs, backend=ref_backend, device=device, policy=policy,
+                         **speed_options)
+    ref_labels = variant_labels(module, inputs, ref_backend, device)
     results = [_timed(reference, ref_record, 1.0, ref_record.ms_median)]
     for variant in chosen[1:]:
         results.append(_run_variant(variant, module, inputs, ref_labels, ref_record.ms_median,
-                                    device, network, policy, measure, speed_options,
-                                    label_options))
+                                    device, policy, measure, speed_options, onnx))
         free_device_memory(device)
     best = fastest_qualifying(results)
     return BackendSweep(network, device, policy.as_dict(), results,
@@ -253,18 +251,19 @@ def backend_sweep(network: str, module: torch.nn.Module, inputs: Sequence[torch.
 
 
 def _run_variant(variant: Variant, module: torch.nn.Module, inputs: Sequence[torch.Tensor],
-                 ref_labels: torch.Tensor, ref_ms: float, device: str, network: str,
-                 policy: TimingPolicy, measure: Measure, speed_options: dict[str, Any],
-                 label_options: dict[str, Any]) -> VariantResult:
+                 ref_labels: torch.Tensor, ref_ms: float, device: str, policy: TimingPolicy,
+                 measure: Measure, speed_options: dict[str, Any],
+                 onnx: Mapping[str, Any]) -> VariantResult:
     """One variant timed, then its labels compared (refused or failed in one line)."""
     why = refusal(variant, device)
     if why is not None:
         return VariantResult(**_identity(variant), status="refused", why=why,
                              required_agreement=variant.required_agreement)
     try:
-        record = measure(module, inputs, device=device, policy=policy, key=network,
-                         **speed_options, **variant.speed_options())
-        labels = variant_labels(module, inputs, variant, device, network, label_options)
+        backend = variant.make(onnx)
+        record = measure(module, inputs, backend=backend, device=device, policy=policy,
+                         **speed_options)
+        labels = variant_labels(module, inputs, backend, device)
     except Exception as exc:  # noqa: BLE001 - one variant's failure is its row, not the sweep's
         return _not_timed(variant, exc)
     return _timed(variant, record, label_agreement(labels, ref_labels), ref_ms)
@@ -272,9 +271,9 @@ def _run_variant(variant: Variant, module: torch.nn.Module, inputs: Sequence[tor
 
 def refusal(variant: Variant, device: str) -> str | None:
     """Why ``variant`` is not run on ``device`` before trying it, or None (the rest is refused
-    by :func:`~evsmap.measure.speed.prepare_pass` itself): torch.compile's ``reduce-overhead``
-    mode is its default one plus CUDA graphs, so on the CPU it would time compile-default again
-    under another name."""
+    by the backend itself, :meth:`~evsmap.measure.speed_backends.Backend.prepare`):
+    torch.compile's ``reduce-overhead`` mode is its default one plus CUDA graphs, so on the
+    CPU it would time compile-default again under another name."""
     if variant.compile_mode == "reduce-overhead" and not device.startswith("cuda"):
         return ("compile mode reduce-overhead replays CUDA graphs: on the CPU it is "
                 "compile-default's pass (needs --device cuda)")
@@ -310,13 +309,12 @@ def _identity(variant: Variant) -> dict[str, Any]:
             "channels_last": variant.channels_last, "provider": variant.provider}
 
 
-def variant_labels(module: torch.nn.Module, inputs: Sequence[torch.Tensor], variant: Variant,
-                   device: str, network: str, options: dict[str, Any]) -> torch.Tensor:
-    """The per-pixel argmax of one pass of ``variant``, built as its timing builds it
-    (:func:`~evsmap.measure.speed.prepare_pass`; a compiled variant is compiled again, from
-    TorchInductor's cache), on the host."""
-    prepared = prepare_pass(module, inputs, device=device, key=network, **options,
-                            **variant.speed_options())
+def variant_labels(module: torch.nn.Module, inputs: Sequence[torch.Tensor], backend: Backend,
+                   device: str) -> torch.Tensor:
+    """The per-pixel argmax of one pass on ``backend``, built as its timing builds it
+    (:meth:`~evsmap.measure.speed_backends.Backend.prepare`; a compiled variant is compiled
+    again, from TorchInductor's cache), on the host."""
+    prepared = backend.prepare(module, inputs, device)
     with prepared.context():
         output = prepared.call()
     return argmax_labels(output)

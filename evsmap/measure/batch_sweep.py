@@ -136,8 +136,9 @@ def batch_sweep(networks: Sequence[SweepNetwork], *, batches: Sequence[int] = DE
         policy: the timing rule every point follows (default :class:`TimingPolicy`'s).
         device: ``cpu`` or ``cuda[:N]``.
         measure: the timing function (:func:`~evsmap.measure.speed.measure_speed`).
-        speed_options: more keyword arguments of ``measure`` (``backend``, ``autocast``,
-            ``threads``, ``roofline``, ...), the same for every point.
+        speed_options: more keyword arguments of ``measure`` (``backend``, a
+            :class:`~evsmap.measure.speed_backends.Backend`; ``threads``, ``roofline``, ...),
+            the same for every point.
 
     Raises:
         DeviceUnavailableError: the device is not on this machine.
@@ -175,7 +176,7 @@ def _time_point(net: SweepNetwork, batch: int, policy: TimingPolicy, device: str
     macs = net.macs * batch if net.macs is not None else None
     try:
         record = measure(net.module, repeat_batch(net.inputs, batch), policy=policy,
-                         device=device, macs=macs, key=net.name, **options)
+                         device=device, macs=macs, **options)
     except Exception as exc:  # out of memory only; anything else is a real failure
         if not is_out_of_memory(exc):
             raise

@@ -78,6 +78,32 @@ class TimingPolicy:
                 f">= {self.warmup_s:g} s)")
 
 
+@dataclass(frozen=True)
+class RoundsPolicy:
+    """A fixed count of passes (``evsmap speed --runs N --warmup N``): ``warmup`` untimed
+    passes, then rounds of ``runs`` timed ones until one has ``IQR / median <=
+    stable_rel_iqr``, at most ``max_rounds``; the record keeps that round, else the steadiest
+    one and says it never was stable. One round (the default) is ``runs`` passes and no more.
+    The sweeps and the runner's cells time under a :class:`TimingPolicy` instead: until the
+    median is precise enough."""
+
+    runs: int = 20
+    warmup: int = 3
+    max_rounds: int = 1
+    stable_rel_iqr: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.runs < 1 or self.warmup < 0 or self.max_rounds < 1:
+            raise ValueError(f"need runs >= 1, warmup >= 0 and max_rounds >= 1 (got "
+                             f"runs={self.runs}, warmup={self.warmup}, "
+                             f"max_rounds={self.max_rounds})")
+
+
+SpeedPolicy = TimingPolicy | RoundsPolicy
+"""When a speed measurement stops: until precise (:class:`TimingPolicy`) or after a fixed count
+of passes (:class:`RoundsPolicy`)."""
+
+
 QUICK_POLICY = TimingPolicy(target_rel_ci=0.05, min_runs=3, budget_s=3.0, max_runs=30,
                             warmup=1, warmup_s=0.0)
 """``--quick``'s rule: a smoke test, not a figure to quote."""

@@ -142,6 +142,7 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
         severity,
     )
     from evsmap.measure.speed import measure_speed
+    from evsmap.measure.speed_backends import make_backend
 
     network = cell_network(spec)
     segmenter = build_segmenter(network, input_size=spec.input_size)
@@ -170,15 +171,15 @@ def run_speed(spec: CellSpec, ctx: RunContext) -> CellRecord:
         gc.collect()
         trim_heap()
 
+    backend = make_backend(ctx.speed_backend, onnx=None if export is None else {
+        "onnx_path": export.path, "free_dimensions": export.free_dimensions(h, w),
+        "input_names": tuple(segmenter.input_names), "key": network.spec})
+
     def measure() -> SpeedRecord:
         # on a GPU the timing definition's one host thread (evsmap.measure.pass_timing)
-        return measure_speed(module, inputs, backend=ctx.speed_backend,
+        return measure_speed(module, inputs, backend=backend,
                              threads=ctx.threads if ctx.device == "cpu" else None, macs=macs,
-                             input_names=segmenter.input_names,
-                             key=network.spec, calibration_log=log, policy=policy,
-                             roofline=roofline,
-                             onnx_path=export.path if export else None,
-                             free_dimensions=export.free_dimensions(h, w) if export else None,
+                             calibration_log=log, policy=policy, roofline=roofline,
                              device=ctx.device)
 
     rec = measure()

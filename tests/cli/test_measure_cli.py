@@ -154,9 +154,11 @@ def test_bad_options(capsys, tiny_segmenter, argv):
 
 
 def test_backends_match_measure_module():
-    from evsmap.cli.speed_cmd import BACKENDS
+    from evsmap.cli.speed_cmd import BACKENDS, COMPILE_MODES
+    from evsmap.measure import speed_backends
 
-    assert sorted(BACKENDS) == sorted(speed_module.BACKENDS)
+    assert sorted(BACKENDS) == sorted(speed_backends.BACKENDS)
+    assert COMPILE_MODES == speed_backends.COMPILE_MODES
 
 
 # -- evsmap map -------------------------------------------------------------------------------

@@ -57,7 +57,7 @@ def _sweep(module, patterns, **kw):
 def test_gpu_only_variants_are_refused_in_one_line_on_the_cpu(tmp_path):
     sweep = _sweep(nn.Conv2d(3, 4, 3, padding=1),
                    ["cuda-graph-*", "compile-reduce-overhead-fp32", "onnxruntime-*"],
-                   cache_dir=tmp_path)
+                   onnx={"cache_dir": tmp_path})
     ref = sweep.result(REFERENCE)
     assert (ref.status, ref.label_agreement, ref.qualifies, ref.speedup) == ("timed", 1.0, True,
                                                                              1.0)
@@ -95,9 +95,9 @@ def test_bf16_of_an_ordinary_network_keeps_its_labels_within_the_tolerance():
 
 def test_a_variant_that_breaks_is_its_own_row_and_eager_fp32_is_not_optional():
     def measure(module, inputs, **kw):
-        if kw["backend"] == "torch" and kw.get("autocast") == "bf16":
+        if kw["backend"].name == "torch" and kw["backend"].autocast == "bf16":
             raise RuntimeError("a kernel failed\nwith a second line")
-        if kw.get("autocast") == "fp16":
+        if kw["backend"].autocast == "fp16":
             raise torch.OutOfMemoryError("CUDA out of memory")
         return measure_speed(module, inputs, **kw)
 

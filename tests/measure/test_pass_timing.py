@@ -21,7 +21,8 @@ from evsmap.measure.pass_timing import (
     kernel_intervals,
     pass_timing,
 )
-from evsmap.measure.speed import prepare_pass
+from evsmap.measure.speed_backends import TorchEager, make_backend
+from evsmap.measure.timing_policy import RoundsPolicy
 
 needs_affinity = pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="no affinity")
 
@@ -96,7 +97,8 @@ def test_timer_keeps_wall_and_dispatch_and_resets():
 
 
 def test_speed_record_states_its_timing_and_where_the_time_goes():
-    rec = measure_speed(net(), x(), runs=5, warmup=1, threads=1, roofline_size=32)
+    rec = measure_speed(net(), x(), policy=RoundsPolicy(runs=5, warmup=1), threads=1,
+                        roofline_size=32)
     assert rec.timing["host_threads"] == 1 and rec.timing["clock"] == "host clock"
     if hasattr(os, "sched_getaffinity"):
         assert rec.timing["cpus"] == [min(os.sched_getaffinity(0))]
@@ -109,28 +111,29 @@ def test_speed_record_states_its_timing_and_where_the_time_goes():
 
 def test_channels_last_runs_and_gives_the_same_labels():
     module, inputs = net(), x()
-    eager = prepare_pass(module, [inputs])
-    last = prepare_pass(module, [inputs], channels_last=True)
+    eager = TorchEager().prepare(module, [inputs])
+    last = TorchEager(channels_last=True).prepare(module, [inputs])
     with eager.context():
         a = eager.call()
     with last.context():
         b = last.call()
     assert torch.equal(a.argmax(1), b.argmax(1))
     assert next(module.parameters()).is_contiguous()  # the caller's module is left as it was
-    rec = measure_speed(module, inputs, runs=3, warmup=0, channels_last=True, roofline_size=32)
+    rec = measure_speed(module, inputs, backend=TorchEager(channels_last=True),
+                        policy=RoundsPolicy(runs=3, warmup=0), roofline_size=32)
     assert rec.channels_last and rec.compile_mode is None
 
 
 def test_gpu_only_and_mismatched_settings_refused_in_one_line():
     with pytest.raises(DeviceUnavailableError, match="needs a GPU") as info:
-        prepare_pass(net(), [x()], backend="torch-cuda-graph")
+        make_backend("torch-cuda-graph").prepare(net(), [x()])
     assert "\n" not in str(info.value)
     with pytest.raises(UnknownNameError, match="compile mode"):
-        prepare_pass(net(), [x()], backend="torch-compile", compile_mode="fastest")
+        make_backend("torch-compile", compile_mode="fastest")
     with pytest.raises(InvalidDataError, match="needs backend torch-compile"):
-        prepare_pass(net(), [x()], backend="torch", compile_mode="reduce-overhead")
+        make_backend("torch", compile_mode="reduce-overhead")
     with pytest.raises(InvalidDataError, match="channels-last"):
-        prepare_pass(net(), [x()], backend="onnxruntime", channels_last=True)
+        make_backend("onnxruntime", channels_last=True)
 
 
 def test_speed_cells_say_where_a_gpu_pass_went():
@@ -145,5 +148,5 @@ def test_speed_cells_say_where_a_gpu_pass_went():
 @pytest.mark.skipif(torch.cuda.is_available(), reason="a machine with a GPU")
 def test_a_gpu_asked_of_a_machine_without_one_is_one_line():
     with pytest.raises(DeviceUnavailableError) as info:
-        measure_speed(net(), x(), runs=3, device="cuda:7", roofline_size=32)
+        measure_speed(net(), x(), device="cuda:7", roofline_size=32)
     assert "\n" not in str(info.value) and "--device cuda:7" in str(info.value)

@@ -6,6 +6,8 @@ from torch import nn
 
 from evsmap.errors import EvsmapError, UnknownNameError
 from evsmap.measure import SpeedRecord, measure_complexity, measure_speed, roofline_gmacs
+from evsmap.measure.speed_backends import make_backend
+from evsmap.measure.timing_policy import RoundsPolicy
 
 
 class TwoInputNet(nn.Module):
@@ -27,9 +29,9 @@ def inputs() -> tuple[torch.Tensor, torch.Tensor]:
 def test_record_is_consistent(backend, tmp_path):
     net, x = TwoInputNet().train(), inputs()
     before = torch.get_num_threads()
-    rec = measure_speed(net, x, backend=backend, runs=3, warmup=1, threads=1,
-                        input_names=("rgb", "depth"), key="tiny", cache_dir=tmp_path,
-                        roofline_size=64)
+    onnx = {"input_names": ("rgb", "depth"), "key": "tiny", "cache_dir": tmp_path}
+    rec = measure_speed(net, x, backend=make_backend(backend, onnx=onnx),
+                        policy=RoundsPolicy(runs=3, warmup=1), threads=1, roofline_size=64)
     assert isinstance(rec, SpeedRecord)
     assert torch.get_num_threads() == before and net.training
     assert (rec.backend, rec.height, rec.width) == (backend, 8, 12)
@@ -54,8 +56,8 @@ def test_iqr_from_quartiles(monkeypatch):
     import evsmap.measure.speed as speed
 
     monkeypatch.setattr(speed, "_time_calls", lambda *a: [0.004, 0.001, 0.002, 0.003, 0.005])
-    rec = measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), runs=5, warmup=0,
-                        macs=2_000_000, roofline_size=32)
+    rec = measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4),
+                        policy=RoundsPolicy(runs=5, warmup=0), macs=2_000_000, roofline_size=32)
     assert rec.ms_median == pytest.approx(3.0)
     assert rec.ms_iqr == pytest.approx(4.0 - 2.0)
     assert rec.fps_iqr == pytest.approx(1000 / 2.0 - 1000 / 4.0)
@@ -65,16 +67,21 @@ def test_iqr_from_quartiles(monkeypatch):
 
 def test_unknown_backend_lists_valid_ones():
     with pytest.raises(UnknownNameError) as info:
-        measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), backend="tensorrt")
+        make_backend("tensorrt")
     assert isinstance(info.value, EvsmapError)
     message = str(info.value)
     assert "tensorrt" in message and "torch" in message and "onnxruntime" in message
 
 
-@pytest.mark.parametrize("kwargs", [{"runs": 0}, {"warmup": -1}, {"threads": 0}])
+@pytest.mark.parametrize("kwargs", [{"runs": 0}, {"warmup": -1}, {"max_rounds": 0}])
 def test_bad_counts(kwargs):
     with pytest.raises(ValueError):
-        measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), **kwargs)
+        RoundsPolicy(**kwargs)
+
+
+def test_bad_threads():
+    with pytest.raises(ValueError, match="threads"):
+        measure_speed(nn.Conv2d(1, 1, 1), torch.zeros(1, 1, 4, 4), threads=0)
 
 
 def test_roofline_is_finite():
@@ -94,19 +101,20 @@ def test_repeats_until_stable_and_flags_what_never_is(monkeypatch):
     monkeypatch.setattr(contention, "calibration_gmacs", lambda: 50.0)
     module = torch.nn.Conv2d(3, 4, 3)
     inputs = torch.zeros(1, 3, 8, 8)
-    rec = speed.measure_speed(module, inputs, runs=4, warmup=0, macs=1, max_rounds=3,
-                              stable_rel_iqr=0.05)
+    rec = speed.measure_speed(module, inputs, macs=1, policy=RoundsPolicy(
+        runs=4, warmup=0, max_rounds=3, stable_rel_iqr=0.05))
     assert rec.rounds == 2 and rec.stable and rec.ms_median == pytest.approx(1000.0)
     assert rec.flag is None and rec.contention["slowdown"] == 1.0
     rounds = iter([[1.0, 2.0, 3.0, 4.0], [1.0, 1.5, 2.0, 2.5]])
-    rec = speed.measure_speed(module, inputs, runs=4, warmup=0, macs=1, max_rounds=2,
-                              stable_rel_iqr=0.05)
+    rec = speed.measure_speed(module, inputs, macs=1, policy=RoundsPolicy(
+        runs=4, warmup=0, max_rounds=2, stable_rel_iqr=0.05))
     assert rec.rounds == 2 and rec.stable is False and "unstable" in rec.flag
     assert rec.ms_median == pytest.approx(1750.0)  # the steadier second round is kept
     log = contention.CalibrationLog()
     log.best(200.0)  # the run once calibrated at 200 G MAC/s: 50 now is a 4x slowdown
     rounds = iter([[1.0, 1.0, 1.0, 1.0]])
-    rec = speed.measure_speed(module, inputs, runs=4, warmup=0, macs=1, calibration_log=log)
+    rec = speed.measure_speed(module, inputs, policy=RoundsPolicy(runs=4, warmup=0), macs=1,
+                              calibration_log=log)
     assert rec.contention["contended"] and "4.00x slower" in rec.flag
 
 

@@ -13,7 +13,8 @@ from torch import nn
 from evsmap.devices import DeviceUnavailableError
 from evsmap.errors import InvalidDataError, UnknownNameError
 from evsmap.measure import measure_speed
-from evsmap.measure.timing_policy import TimingPolicy, time_until_precise
+from evsmap.measure.speed_backends import make_backend
+from evsmap.measure.timing_policy import RoundsPolicy, TimingPolicy, time_until_precise
 from evsmap.models.ort_providers import check_used, provider_chain
 
 
@@ -31,9 +32,13 @@ class DtypeProbe(nn.Module):
         return y
 
 
-def _speed(module, **kw):
-    return measure_speed(module, torch.rand(1, 3, 16, 16), runs=3, warmup=1, threads=1,
-                         roofline=1.0, macs=1, **kw)
+def _speed(module, *, backend="torch", autocast=None, provider=None, device="cpu", **onnx):
+    """Three passes of ``module`` on the backend these settings name (``make_backend``)."""
+    return measure_speed(module, torch.rand(1, 3, 16, 16),
+                         backend=make_backend(backend, autocast=autocast, provider=provider,
+                                              onnx=onnx),
+                         policy=RoundsPolicy(runs=3, warmup=1), threads=1, roofline=1.0,
+                         macs=1, device=device)
 
 
 @pytest.mark.parametrize("autocast, dtype", [(None, torch.float32), ("bf16", torch.bfloat16)])
