@@ -46,7 +46,7 @@ if TYPE_CHECKING:  # the oracle is imported where it is used
 
 ORACLE_STAGE = "oracle"
 """The stage of a segmenter that reads ground truth (no network): kept apart from ``predict``
-so that an end-to-end rate never counts it as a network's time."""
+so that a segmentation + update rate never counts it as a network's time."""
 
 
 # ------------------------------------------------------------------------------------- timing

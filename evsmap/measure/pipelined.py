@@ -16,7 +16,10 @@ between them.
 Each stage records its own per-frame times in its own :class:`StageTimes` (merged at the end):
 under contention a stage's time is its wall time while sharing the cores, so the per-stage medians
 of a pipelined run are larger than the sequential run's; the figure the pipeline improves is the
-end-to-end rate, frames / wall time (``MappingPass.wall_s``).
+end-to-end rate, ``wall_hz``: frames / wall time of the whole loop, reading included
+(``MappingPass.wall_s``); what a robot streaming the sequence gets. The sum of the stages'
+medians (``segment_update_hz``, Table IV's Runtime) is another quantity: the segmentation +
+update rate.
 
 The threads of each stage are set for the loop (:class:`StageThreads`; :data:`PIPELINED` on 2
 cores, :func:`evsmap.measure.thread_plan.thread_plan` for the cores and device at hand):

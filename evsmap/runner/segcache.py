@@ -10,9 +10,9 @@
   fixes the bytes every later cell of the run maps, whichever machine or executor it runs on.
 * Segmentation times (ms per frame) of a network are stored next to them: when no trained weights
   are given, mapping uses the oracle's labels and the untrained network is only timed (its speed
-  does not depend on its weights), which is what the end-to-end rate needs. It is timed on the
-  sequence's frames in order under the run's timing policy (until its median is precise enough
-  or its budget is spent), not on every frame.
+  does not depend on its weights), which is what the segmentation + update rate needs. It is
+  timed on the sequence's frames in order under the run's timing policy (until its median is
+  precise enough or its budget is spent), not on every frame.
 
 Entries are keyed by a hash of everything that determines them and written atomically (a
 temporary folder renamed into place), so an interrupted run never leaves half an entry.

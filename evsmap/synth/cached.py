@@ -3,7 +3,7 @@
 Rendering a 640x480 frame (Embree ray casting, texture, shading, noise) costs about 70 ms of one
 core, several times what decoding a recorded frame costs (TUM: about 12 ms). Where the synthetic
 room stands in for a recorded sequence - Table IV's mapping runs, ``evsmap map synthetic``'s
-end-to-end rate - its frames are rendered once into ``<cache>/sequences/`` in the TUM RGB-D
+rates - its frames are rendered once into ``<cache>/sequences/`` in the TUM RGB-D
 layout (with labels and ``evsmap.json``) and read back: PNG images and the text files are
 lossless and the poses are written at full precision, so every frame is bit for bit the one
 rendered (``tests/synth/test_cached.py``). The folder is keyed by the options and a digest of

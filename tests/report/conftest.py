@@ -80,7 +80,7 @@ def make_records() -> list[CellRecord]:
         # Table IV
         rec("table4", "evsmap", "mapping/tum+", "MVSMMap", "mapping", ["runtime"], "ok",
             values={"runtime": 3.21}, inputs={"sequence": "synthetic"},
-            notes=["end-to-end rate measured on synthetic"]),
+            notes=["segmentation + update rate measured on synthetic"]),
         rec("table4", "evsmap", "mapping/tum@", "MVSMMap", "mapping", ["size_seq1"], "na",
             needs=["weights:feagnet-v2@nyuv2"], reason="n/a - needs trained weights "
             "(feagnet-v2@nyuv2) (tum has no ground-truth labels for the oracle)"),
