@@ -25,7 +25,7 @@ from evsmap.runner.context import RunContext
 from evsmap.runner.estimate import Budget, Estimator, cell_duration, format_duration
 from evsmap.runner.executors import CellExecutor
 from evsmap.runner.mapping_labels import lacks_labels
-from evsmap.runner.mapping_plan import open_mapping_sequence
+from evsmap.runner.mapping_plan import missing_dataset, open_mapping_sequence
 from evsmap.runner.matrix import Plan, plan, run_matrix
 from evsmap.runner.records import CellRecord, RecordStore
 from evsmap.runner.runfile import RUN_FILE, RunFile, RunSettings
@@ -254,7 +254,8 @@ def _estimator(ctx: RunContext) -> Estimator:
 
 def pending_cells(ctx: RunContext, the_plan: Plan, *, resume: bool) -> list[tuple[str, str]]:
     """``(key, kind)`` of the cells this run will measure (not those that need what is not
-    here, nor Table IV's, which are read from the mapping runs, nor, resuming, those done)."""
+    here: weights, labels or a sequence's dataset, nor Table IV's, which are read from the
+    mapping runs, nor, resuming, those done)."""
     store = RecordStore(ctx.out) if resume else None
 
     def done(key: str) -> bool:
@@ -267,7 +268,8 @@ def pending_cells(ctx: RunContext, the_plan: Plan, *, resume: bool) -> list[tupl
              if not s.needs and s.kind != "mapping" and not done(s.key)]
     labels: dict[str, bool] = {}
     items += [(r.key, "mapping") for r in the_plan.runs
-              if not done(r.key) and not lacks_labels(ctx, r, labels)]
+              if not done(r.key) and missing_dataset(ctx, r.sequence) is None
+              and not lacks_labels(ctx, r, labels)]
     return items
 
 

@@ -131,3 +131,17 @@ def test_a_record_whose_peak_is_not_an_integer_is_one_clear_error(value):
             "metrics": [], "status": "ok", "cell_peak_rss_bytes": value}
     with pytest.raises(DataFormatError, match="'cell_peak_rss_bytes' must be an integer"):
         CellRecord.from_json(data, source="f.json")
+
+
+def test_a_mapping_run_without_its_dataset_is_not_pending(full_ctx):
+    """ScanNet's detail runs are n/a without the dataset: they cost no time and so are not
+    in the estimate (they had cost a default 60 s each: 3 min on a 2.8 min --quick run)."""
+    from evsmap.runner.reproduce import pending_cells
+
+    the_plan = matrix.plan(full_ctx, ["table4"])
+    sequences = {r.sequence for r in the_plan.runs}
+    assert "scannet" in sequences and "synthetic" in sequences
+    pending = {key for key, kind in pending_cells(full_ctx, the_plan, resume=False)
+               if kind == "mapping"}
+    assert pending and not any("scannet" in key for key in pending)
+    assert any(key.endswith("synthetic@0.02m") for key in pending)
