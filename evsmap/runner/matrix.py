@@ -63,6 +63,7 @@ from evsmap.runner.executors import (
     fresh_process,
     spawn_pool,
 )
+from evsmap.runner.mapping_dedup import copied_record, same_runs
 from evsmap.runner.mapping_labels import lacks_labels, unlabelled_record
 from evsmap.runner.mapping_plan import MappingRun, mapping_runs, with_synthetic_labels
 from evsmap.runner.records import CellRecord, RecordStore
@@ -478,8 +479,16 @@ def _run_group(ctx: RunContext, specs: list[CellSpec], runs: list[MappingRun],
                 keep(rec)
                 continue
             to_map.append(run)
+    to_map, copies = same_runs(to_map)
+    firsts = {r.key: r for r in to_map}
+
+    def keep_with_copies(record: CellRecord) -> None:
+        keep(record)
+        for run in copies.get(record.key, []):
+            keep(copied_record(record, firsts[record.key], run, ctx.out))
+
     with phase(clock, "mapping runs"):
-        _run_timed(to_map, time_run, slots, keep)
+        _run_timed(to_map, time_run, slots, keep_with_copies)
 
 
 def _run_pooled(ctx: RunContext, pooled: list[CellSpec], keep: Callable[[CellRecord], None],

@@ -24,6 +24,7 @@ from evsmap.runner.cell_base import environment
 from evsmap.runner.context import RunContext
 from evsmap.runner.estimate import Budget, Estimator, cell_duration, format_duration
 from evsmap.runner.executors import CellExecutor
+from evsmap.runner.mapping_dedup import same_runs
 from evsmap.runner.mapping_labels import lacks_labels
 from evsmap.runner.mapping_plan import missing_dataset, open_mapping_sequence
 from evsmap.runner.matrix import Plan, plan, run_matrix
@@ -267,7 +268,8 @@ def pending_cells(ctx: RunContext, the_plan: Plan, *, resume: bool) -> list[tupl
     items = [(s.key, s.kind) for s in the_plan.specs
              if not s.needs and s.kind != "mapping" and not done(s.key)]
     labels: dict[str, bool] = {}
-    items += [(r.key, "mapping") for r in the_plan.runs
+    to_map, _ = same_runs(the_plan.runs)  # a run under two rows is mapped once
+    items += [(r.key, "mapping") for r in to_map
               if not done(r.key) and missing_dataset(ctx, r.sequence) is None
               and not lacks_labels(ctx, r, labels)]
     return items
