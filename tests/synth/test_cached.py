@@ -7,7 +7,7 @@ import pytest
 
 from evsmap.errors import EvsmapError
 from evsmap.registry import READERS
-from evsmap.synth.cached import CachedSynthetic, cache_folder
+from evsmap.synth.cached import CachedSynthetic, cache_folder, cached_ground_truth
 
 
 @pytest.fixture()
@@ -65,3 +65,13 @@ def test_ground_truth_is_computed_once_and_read_back_bit_for_bit(tmp_path, monke
         assert np.array_equal(truth.keys, fresh.keys) and truth.keys.dtype == fresh.keys.dtype
         assert np.array_equal(truth.labels, fresh.labels)
         assert truth.labels.dtype == fresh.labels.dtype and truth.resolution == 0.1
+
+
+def test_the_frames_identity_ignores_what_is_cached_beside_the_frames(cache):
+    from evsmap.runner.mapping_labels import sequence_identity
+
+    seq = CachedSynthetic(frames=2, width=80, height=60)
+    before = sequence_identity(seq)
+    cached_ground_truth({"frames": 2, "width": 80, "height": 60}, 0.1)  # written beside them
+    assert sequence_identity(CachedSynthetic(frames=2, width=80, height=60)) == before
+    assert str(seq.folder.resolve()) in before
