@@ -34,7 +34,7 @@ whole)."""
 
 def headline_rows(loaded: LoadedRun) -> list[tuple[str, str, str, str, str]]:
     """(claim, paper, ours, verdict, machine) per claim of one run."""
-    from evsmap.runner.mapping_cells import TABLE4_READING
+    from evsmap.runner.table4_reading import TABLE4_READING
 
     machine = machine_text(loaded.run)
     rows = claim_rows(checked_claims(loaded.frames), loaded.extras, loaded.detail,
@@ -48,7 +48,11 @@ def headline_rows(loaded: LoadedRun) -> list[tuple[str, str, str, str, str]]:
 
 
 def _cut(text: str) -> str:
-    return text if len(text) <= WHY_LIMIT else text[:WHY_LIMIT - 4].rstrip() + "...)"
+    """``text`` cut to :data:`WHY_LIMIT` characters (a code span cut open is closed)."""
+    if len(text) <= WHY_LIMIT:
+        return text
+    cut = text[:WHY_LIMIT - 4].rstrip()
+    return cut + ("`" if cut.count("`") % 2 else "") + "...)"
 
 
 def headline_markdown(runs: Sequence[LoadedRun], names: Sequence[str]) -> str:
