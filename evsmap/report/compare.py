@@ -100,6 +100,7 @@ class Column:
     gpu: str | None = None
     kind: str | None = None
     environment: dict[str, Any] = field(default_factory=dict)
+    timing: str = "-"
     values: dict[str, Value] = field(default_factory=dict)
     cells: dict[str, Cell] = field(default_factory=dict)
 
@@ -142,10 +143,22 @@ def run_column(loaded: LoadedRun, name: str | None = None) -> Column:
     column = Column(name=name or loaded.path.name, path=str(loaded.path),
                     machine=machine_text(run), commit=commit_of(run),
                     quick=bool(run.get("quick")), started=str(run.get("started") or ""),
-                    gpu=gpu_of(run), environment=loaded.environment)
+                    gpu=gpu_of(run), environment=loaded.environment,
+                    timing=timing_text(run.get("context") or {}))
     for cell, value in [*table_values(loaded), *extra_values(loaded.extras)]:
         column.add(cell, value)
     return column
+
+
+def timing_text(context: Mapping[str, Any]) -> str:
+    """How a run timed its speed cells: ``onnxruntime, 2 threads, target +-3 %, 10 s`` (two
+    runs timed otherwise differ by more than the machine)."""
+    policy = context.get("timing") or {}
+    parts = [str(context.get("speed_backend") or "?"), f"{context.get('threads') or '?'} threads"]
+    if isinstance(policy, Mapping) and policy.get("target_rel_ci") is not None:
+        parts.append(f"target +-{100 * float(policy['target_rel_ci']):g} %, "
+                     f"{float(policy.get('budget_s') or 0):g} s")
+    return ", ".join(parts)
 
 
 def paper_column(loaded: LoadedRun) -> Column:

@@ -68,8 +68,9 @@ def machines_markdown(comparison: Comparison) -> list[str]:
         ("commit", lambda c: c.commit[:12] if c.commit != "-" else "-"),
         ("run", lambda c: "-" if c.is_paper else
          ("quick (`--quick`)" if c.quick else "full") + (f", {c.started}" if c.started else "")),
+        ("speed cells timed with", lambda c: c.timing),
         ("folder", lambda c: f"`{c.path}`" if c.path else "-"),
-        ("cells measured", lambda c: str(len(c.values))),
+        ("cells with a value", lambda c: str(len(c.values))),
     ]
     for name, get in rows:
         out.append(f"| {name} | " + " | ".join(md_escape(get(c)) for c in cols) + " |")
@@ -181,7 +182,8 @@ def compare_frame(comparison: Comparison) -> pd.DataFrame:
 
 def _column_json(col: Column) -> dict[str, Any]:
     return {"name": col.name, "path": col.path, "machine": col.machine, "kind": col.kind,
-            "commit": col.commit, "quick": col.quick, "started": col.started, "gpu": col.gpu}
+            "commit": col.commit, "quick": col.quick, "started": col.started, "gpu": col.gpu,
+            "timing": col.timing}
 
 
 def _value_json(value: Value | None) -> dict[str, Any] | None:
