@@ -24,13 +24,11 @@ import numpy as np
 
 from baselines import classic_semantic_kernels, semantic_slam_fusion
 from baselines.semantic_slam_node import voc_colormap
-from evsmap.data import Frame, SemanticObservation
 from evsmap.mapping import fusion
-from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
-from evsmap.mapping.occupancy import ScanUpdate
+from evsmap.mapping.front_end import DirectScan
+from evsmap.mapping.node_type import NODE_TYPES, Column, FileTree, NodeType
 from evsmap.mapping.tree import Tree
 from evsmap.updaters.base import (
-    FramePoints,
     OctreeUpdater,
     strongest_child,
 )
@@ -49,17 +47,18 @@ def voxel_distributions(voxel: np.ndarray, classes: np.ndarray, probs: np.ndarra
 _NO_COLOURS = np.zeros((0, 3), np.uint8)
 
 
-def _update(updater: ClassicSemanticMap, frame: Frame, points: FramePoints, update: ScanUpdate,
-            observation: SemanticObservation) -> None:
+def _update(updater: ClassicSemanticMap, scan: DirectScan) -> None:
     """The frame's colours and semantics on its hit voxels: ``averageNodeColor`` and one
     fusion per voxel of the mean distribution of its points: the compiled kernel
     (:mod:`baselines.classic_semantic_kernels`), or the numpy reference (:func:`fuse_frame`)
     with ``kernels="reference"``."""
-    pixels, voxels, local = updater.endpoint_voxels(points)
+    observation = scan.observation
+    assert observation is not None  # uses_semantics: integrate checked it
+    pixels, voxels, local = updater.endpoint_voxels(scan.points)
     if not voxels.size:
         return
     m = updater.map
-    colors = frame.colors()
+    colors = scan.frame.colors()
     k = observation.k
     args = (m.payload("sem_classes"), m.payload("sem_conf"), m.payload("rgb"), voxels, local,
             pixels, observation.classes.reshape(-1, k), observation.probs.reshape(-1, k))
@@ -101,7 +100,7 @@ def fuse_frame(sem_classes: np.ndarray, sem_conf: np.ndarray, rgb: np.ndarray,
 _strongest = strongest_child("conf")
 
 
-def _publish(updater: ClassicSemanticMap, tree: Tree):
+def _publish(tree: Tree) -> FileTree:
     """semantic_slam's own file: its node type reports ``ColorOcTree`` and ``writeData``
     writes the float log-odds and the top class's colour (semantic_slam's VOC colour map;
     ``getSemanticColor``: white, 255/255/255, for a node without semantics), 8 bytes a node
@@ -113,7 +112,7 @@ def _publish(updater: ClassicSemanticMap, tree: Tree):
     known = top >= 0
     if known.any():
         colours[known] = voc_colormap(int(top.max()) + 1)[top[known]]
-    return "ColorOcTree", replace(tree, payload=colours), None
+    return FileTree("ColorOcTree", replace(tree, payload=colours), None)
 
 
 def _node_type(rule: str) -> NodeType:
@@ -136,12 +135,10 @@ def _node_type(rule: str) -> NodeType:
         columns=(Column("rgb", np.uint8, (3,), fill=255),
                  Column("sem_classes", np.int16, (slots,), fill=fusion.EMPTY),
                  Column("sem_conf", np.float32, (slots,), fill=0.0)),
-        update=_update, inner=lambda updater, kids, group, n: _strongest(kids, group, n),
         prune_on=("sem_classes", "sem_conf"),
         # semantic_slam: a max node is 32 B and a Bayesian node 48 B in RAM
         node_bytes=48 if rule == "bayes" else 32,
-        label="sem_classes", colour="rgb", encode=encode, decode=decode, publish=_publish,
-        uses_semantics=True,
+        label="sem_classes", colour="rgb", encode=encode, decode=decode, uses_semantics=True,
         description=f"[14] direct-front-end variant, {rule} fusion: RGB + {slots} x (class, conf)"))
 
 
@@ -171,3 +168,14 @@ class ClassicSemanticMap(OctreeUpdater):
         super().__init__(node_type=NODE_TYPES_BY_RULE[fusion_rule],
                          name="classic-semantic" if fusion_rule == "bayes"
                          else "classic-semantic-max", **kwargs)
+
+    # -- the tree's rules: semantic_slam's update, the strongest child, its published file
+    def update_payload(self, scan: DirectScan) -> None:
+        _update(self, scan)
+
+    def inner_payload(self, children: np.ndarray, group: np.ndarray,
+                      n_groups: int) -> np.ndarray:
+        return _strongest(children, group, n_groups)
+
+    def published_file(self, tree: Tree) -> FileTree:
+        return _publish(tree)

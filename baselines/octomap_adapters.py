@@ -18,11 +18,14 @@ from evsmap.data import Frame, SemanticObservation
 from evsmap.fileio import atomic_write_bytes
 from evsmap.geometry import transform_points
 from evsmap.interfaces import MapStats, MapUpdater, PointQuery, check_file_format
+from evsmap.mapping.front_end import FramePoints, compact
 from evsmap.mapping.fusion.colour import mean_per_voxel
 from evsmap.mapping.keys import key_to_coord, unpack
+from evsmap.mapping.options import OCTREE_DEFAULTS
 from evsmap.mapping.raycast import frame_points
-from evsmap.mapping.sensor_model import OCTOMAP
-from evsmap.updaters.base import FramePoints, compact
+
+_D = OCTREE_DEFAULTS
+_SENSOR = OCTREE_DEFAULTS.sensor
 
 
 class OctoMapAdapter(MapUpdater):
@@ -34,11 +37,11 @@ class OctoMapAdapter(MapUpdater):
         occupancy_threshold: OctoMap's parameters.
     """
 
-    def __init__(self, *, color: bool = False, resolution: float = 0.05,
-                 max_range: float = 5.0, discretize: bool = True,
-                 prob_hit: float = OCTOMAP.prob_hit, prob_miss: float = OCTOMAP.prob_miss,
-                 clamp_min: float = OCTOMAP.clamp_min, clamp_max: float = OCTOMAP.clamp_max,
-                 occupancy_threshold: float = OCTOMAP.occupancy_threshold) -> None:
+    def __init__(self, *, color: bool = False, resolution: float = _D.resolution,
+                 max_range: float = _D.max_range, discretize: bool = _D.discretize,
+                 prob_hit: float = _SENSOR.prob_hit, prob_miss: float = _SENSOR.prob_miss,
+                 clamp_min: float = _SENSOR.clamp_min, clamp_max: float = _SENSOR.clamp_max,
+                 occupancy_threshold: float = _SENSOR.occupancy_threshold) -> None:
         import octomap
 
         self.color = color

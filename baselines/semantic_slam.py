@@ -31,15 +31,20 @@ state and reload. The defaults are semantic_slam's ``octomap_generator.yaml``: `
 ``raycast_range`` 2, clamping 0.12 / 0.97, hit 0.7, miss 0.4.
 
 The node types (:mod:`baselines.semantic_slam_node`, ``.ot`` ids ``SemanticSlamOcTreeBayes`` /
-``SemanticSlamOcTreeMax``) declare the file record, the memory model, the label and colour
-columns of the leaf view and the published file; the update, the tree and the restore are the
-node pool's, so this updater does them itself.
+``SemanticSlamOcTreeMax``) declare the file record, the memory model and the label and colour
+columns of the leaf view. The storage is the node pool's: this updater derives from the
+tree-level base :class:`~evsmap.updaters.tree_map.OctreeMap` (files, restore, queries), beside
+evsmap's leaf arrays, and states the frame update, the tree, its leaf view and how a read tree
+fills the pool; the front end is the shared
+:class:`~evsmap.mapping.front_end.GeneratorFrontEnd` with semantic_slam's own cloud fields and
+voxel grid.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, replace
 from os import PathLike
+from typing import Any
 
 import numpy as np
 
@@ -48,34 +53,36 @@ from baselines.semantic_slam_node import (
     FUSION_RULES,
     NODE_TYPES_BY_RULE,
     pack_rgb,
+    unpack_rgb,
     voc_colormap,
 )
 from evsmap.data import Frame, SemanticObservation
-from evsmap.errors import DataFormatError, InvalidDataError
-from evsmap.mapping.generator import (
-    as_float_parameter,
-    camera_points,
-    sensor_distance,
-    to_world,
-)
+from evsmap.errors import InvalidDataError
+from evsmap.mapping.front_end import GeneratorFrontEnd
+from evsmap.mapping.generator import as_float_parameter
 from evsmap.mapping.keys import pack, unpack
+from evsmap.mapping.node_type import FileTree
 from evsmap.mapping.occupancy import OccupancyMap
+from evsmap.mapping.options import OCTREE_DEFAULTS
 from evsmap.mapping.raycast import octomap_keys, scan_keys
-from evsmap.mapping.sensor_model import OCTOMAP
-from evsmap.mapping.threads import kernel_threads
 from evsmap.mapping.tree import Tree
-from evsmap.updaters.base import OctreeUpdater, check_observation
+from evsmap.updaters.tree_map import FrontEndCounts, OctreeMap
 
 WHITE = k.WHITE
 
-ROS_DEFAULTS = {"resolution": 0.05, "max_range": 5.0,
-                **asdict(replace(OCTOMAP, clamp_min=0.12, clamp_max=0.97))}
+ROS_DEFAULTS: dict[str, float] = {
+    "resolution": OCTREE_DEFAULTS.resolution, "max_range": 5.0,
+    **asdict(replace(OCTREE_DEFAULTS.sensor, clamp_min=0.12, clamp_max=0.97))}
 """semantic_slam's ``params/octomap_generator.yaml`` but for the resolution (its 0.02 m; evsmap's
-updaters default to 0.05 m and Table IV sets its own), each rounded to ``float`` as the node
-reads them."""
+updaters default to :data:`~evsmap.mapping.options.OCTREE_DEFAULTS`' and Table IV sets its own),
+each rounded to ``float`` as the node reads them."""
+
+Pool = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""The node pool's arrays as the kernels take them: state, children, value, rgb, colours,
+confidences."""
 
 
-class SemanticSlamMap(OctreeUpdater):
+class SemanticSlamMap(OctreeMap):
     """semantic_slam's semantic octree, Bayesian (top 3) or max fusion, on the
     ``octomap_generator`` front end (:mod:`evsmap.mapping.generator`).
 
@@ -84,14 +91,15 @@ class SemanticSlamMap(OctreeUpdater):
         raycast_range: free space is cast up to here; farther points are hits without rays.
         max_range: centroids beyond it are not inserted (their semantics still fuse into
             existing nodes, as in semantic_slam).
-        (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`; ``discretize`` is
+        (other arguments: :class:`~evsmap.updaters.tree_map.OctreeMap`; ``discretize`` is
         always on, as semantic_slam calls ``insertPointCloud``)
     """
 
     front_end = "generator"
+    has_leaf_map = True
 
     def __init__(self, *, fusion_rule: str = "bayes", raycast_range: float = 2.0,
-                 **kwargs) -> None:
+                 **kwargs: Any) -> None:
         if fusion_rule not in FUSION_RULES:
             raise InvalidDataError(f"unknown fusion rule {fusion_rule!r} (known: bayes, max)")
         if not (isinstance(raycast_range, (int, float)) and np.isfinite(raycast_range)
@@ -121,9 +129,11 @@ class SemanticSlamMap(OctreeUpdater):
         self._hi = np.float32(p.clamp_max_logodds)
         self._hit = np.float32(p.hit_logodds)
         self._miss = np.float32(p.miss_logodds)
-        self._allocate(1 << 12)
 
     # ---- the node pool
+    def init_storage(self) -> None:
+        self._allocate(1 << 12)
+
     def _allocate(self, capacity: int) -> None:
         self._state = np.array([-1, 0, 0], dtype=np.int64)
         self._children = np.full((capacity, 8), -1, dtype=np.int32)
@@ -136,7 +146,7 @@ class SemanticSlamMap(OctreeUpdater):
     def _grow(self) -> None:
         cap = len(self._value) * 2
 
-        def grow(a, fill):
+        def grow(a: np.ndarray, fill: float) -> np.ndarray:
             out = np.empty((cap, *a.shape[1:]), dtype=a.dtype)
             out[:len(a)] = a
             out[len(a):] = fill
@@ -146,10 +156,10 @@ class SemanticSlamMap(OctreeUpdater):
         self._value = grow(self._value, 0)
         self._rgb = grow(self._rgb, 255)
         self._colors = grow(self._colors, WHITE)
-        self._conf = grow(self._conf, self.default_conf)
+        self._conf = grow(self._conf, float(self.default_conf))
         self._free = grow(self._free, 0)
 
-    def _pool(self):
+    def _pool(self) -> Pool:
         return (self._state, self._children, self._value, self._rgb, self._colors, self._conf)
 
     def _update(self, keys: np.ndarray, hits: np.ndarray) -> None:
@@ -176,13 +186,13 @@ class SemanticSlamMap(OctreeUpdater):
     # ---- the leaf view (queries, PLY, scores) is built from the tree when asked for
     @property
     def map(self) -> OccupancyMap:
+        """The leaf view, built from the tree when first asked for after a change."""
         if self._leaves is None:
             self._leaves = self._materialize()
         return self._leaves
 
-    @map.setter
-    def map(self, value: OccupancyMap) -> None:
-        self._leaves = value
+    def leaves(self) -> OccupancyMap:
+        return self.map
 
     def _materialize(self) -> OccupancyMap:
         tree = self.tree()
@@ -216,66 +226,66 @@ class SemanticSlamMap(OctreeUpdater):
         self._leaves = None
         self._tree = None
 
-    # ---- MapUpdater
-    def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
-        # the compiled kernels on evsmap.mapping.threads' number of threads (numba's setting
-        # is per thread: a pipelined loop gives the update one)
-        with kernel_threads():
-            self._integrate(frame, observation)
-
-    def _integrate(self, frame: Frame, observation: SemanticObservation | None) -> None:
-        observation = check_observation(frame, observation, self.name)
+    # ---- one frame
+    def update_frame(self, frame: Frame, observation: SemanticObservation | None
+                     ) -> FrontEndCounts:
+        assert observation is not None  # uses_semantics: integrate checked it
         self.num_classes = max(self.num_classes if self.frames else 0,
                                int(observation.num_classes))
-        cam, pixels = camera_points(frame, self.name)
-        # the cloud's float fields: packed class colours (as float bits) and confidences
-        slots = self.slots
-        palette = pack_rgb(voc_colormap(self.num_classes))
         colors = frame.colors()
-        fields, rgb = k.cloud_fields(
-            pixels, np.ascontiguousarray(observation.classes.reshape(-1, observation.k)),
-            np.ascontiguousarray(observation.probs.reshape(-1, observation.k), np.float32),
-            slots, palette,
-            np.zeros((0, 3), np.uint8) if colors is None
-            else np.ascontiguousarray(colors.reshape(-1, 3), np.uint8))
-        inverse = np.float32(np.float32(1.0) / np.float32(self.resolution))
-        cent, avg, cent_rgb = k.voxel_grid(cam, inverse, fields, rgb)
-        self.centroids += len(cent)
-        world, origin = to_world(cent, frame.pose)
-        d = world - origin
-        dist = sensor_distance(world, origin)
+        cloud = GeneratorFrontEnd(self.name, self.resolution, grid=k.voxel_grid).cloud(
+            frame, lambda pixels: self._cloud_fields(observation, colors, pixels))
+        self.centroids += len(cloud.centroids)
+        world, origin = cloud.centroids, cloud.origin
+        dist = cloud.distance()
         inside = dist.astype(np.float64) <= self.max_range
         near = inside & (dist.astype(np.float64) <= self.raycast_range)
         far = inside & ~near
         ends = world.copy()
         if far.any():
-            # point3d::normalized (float norm, double sqrt, divide by the float length), then
-            # origin + direction * float(raycast_range + 2 res)
-            df = d[far]
-            length = np.sqrt(((df[:, 0] * df[:, 0] + df[:, 1] * df[:, 1])
-                              + df[:, 2] * df[:, 2]).astype(np.float64)).astype(np.float32)
-            direction = df / length[:, None]
-            scale = np.float32(self.raycast_range + self.resolution * 2)
-            ends[far] = origin + direction * scale
+            ends[far] = self._cut_rays(world[far] - origin, origin)
             fk, fok = octomap_keys(world[far], self.resolution)
             self._update(fk[fok], np.ones(int(fok.sum()), dtype=bool))
-        cloud = ends[inside]
-        if len(cloud):
-            keys = scan_keys(cloud, origin.astype(np.float64), self.resolution,
+        rays = ends[inside]
+        if len(rays):
+            keys = scan_keys(rays, origin.astype(np.float64), self.resolution,
                              max_range=self.raycast_range, discretize=True,
                              kernels=self.kernels)
             self._update(unpack(keys.free), np.zeros(len(keys.free), dtype=bool))
             self._update(unpack(keys.occupied), np.ones(len(keys.occupied), dtype=bool))
         # colours and semantics of every centroid, in the voxel grid's order
         ck, cok = octomap_keys(world, self.resolution)
-        sem = np.ascontiguousarray(avg[:, :slots]).view(np.uint32)
-        conf = np.ascontiguousarray(avg[:, slots:])
-        self.fusions += int(k.fuse_points(ck, cok, cent_rgb, sem, conf, colors is not None,
+        sem = np.ascontiguousarray(cloud.fields[:, :self.slots]).view(np.uint32)
+        conf = np.ascontiguousarray(cloud.fields[:, self.slots:])
+        self.fusions += int(k.fuse_points(ck, cok, cloud.rgb, sem, conf, colors is not None,
                                           *self._pool(), self.bayes))
-        self.count_front_end(centroids=len(cent), hits=int(np.count_nonzero(inside)),
-                             rays=len(cloud))
-        self.frames += 1
         self._stale()
+        return FrontEndCounts(centroids=len(world), hits=int(np.count_nonzero(inside)),
+                              rays=len(rays))
+
+    def _cloud_fields(self, observation: SemanticObservation, colors: np.ndarray | None,
+                      pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``semantic_cloud.py``'s float fields: packed class colours (as float bits) and
+        confidences, and the colours."""
+        palette = pack_rgb(voc_colormap(self.num_classes))
+        fields, rgb = k.cloud_fields(
+            pixels, np.ascontiguousarray(observation.classes.reshape(-1, observation.k)),
+            np.ascontiguousarray(observation.probs.reshape(-1, observation.k), np.float32),
+            self.slots, palette,
+            np.zeros((0, 3), np.uint8) if colors is None
+            else np.ascontiguousarray(colors.reshape(-1, 3), np.uint8))
+        return fields, rgb
+
+    def _cut_rays(self, d: np.ndarray, origin: np.ndarray) -> np.ndarray:
+        """The end of each far centroid's ray: ``point3d::normalized`` (float norm, double
+        sqrt, divide by the float length), then origin + direction * float(raycast_range + 2
+        res)."""
+        length = np.sqrt(((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+                          + d[:, 2] * d[:, 2]).astype(np.float64)).astype(np.float32)
+        direction = d / length[:, None]
+        scale = np.float32(self.raycast_range + self.resolution * 2)
+        ends: np.ndarray = origin + direction * scale
+        return ends
 
     # ---- the tree, files
     def tree(self) -> Tree:
@@ -290,20 +300,23 @@ class SemanticSlamMap(OctreeUpdater):
                               value.astype(np.float32), payload)
         return self._tree
 
-    def restore(self, path: str | PathLike[str]) -> SemanticSlamMap:
-        from evsmap.mapping.octree_io import read_ot
+    def published_file(self, tree: Tree) -> FileTree:
+        """semantic_slam's file: ``writeData`` writes the log-odds and ``getSemanticColor`` (the
+        first semantic colour; white when unset) of every node under the type ``ColorOcTree``."""
+        assert tree.payload is not None  # a tree of this node type has its payload
+        top = np.asarray(tree.payload["colors"]).reshape(tree.num_nodes, self.slots)[:, 0]
+        return FileTree("ColorOcTree", replace(tree, payload=unpack_rgb(top)), None)
 
-        tree_id, resolution, tree = read_ot(path, payload_format={self.tree_id:
-                                                                  self.node_type.record})
-        if tree_id != self.tree_id:
-            raise DataFormatError(f"{path}: a {tree_id} file, not a {self.tree_id} map")
-        # OctoMap writes "res" with 6 significant digits: 0.1f comes back as 0.1
-        if as_float_parameter(resolution) != self.resolution:
-            raise DataFormatError(f"{path}: resolution {resolution} m, this map uses "
-                                  f"{self.resolution} m")
+    def colour_file(self, tree: Tree) -> FileTree:
+        """The published file (it is a ``ColorOcTree``)."""
+        return self.published_file(tree)
+
+    def load_tree(self, tree: Tree, path: str | PathLike[str]) -> None:
+        """The read tree into the node pool."""
         n = tree.num_nodes
         self._allocate(max(n + k.HEADROOM, 1 << 12))
         if n:
+            assert tree.payload is not None  # read with this node type's record
             parents = tree.parents()
             index = tree.child_index()
             rows = np.arange(1, n)
@@ -314,4 +327,3 @@ class SemanticSlamMap(OctreeUpdater):
             self._conf[:n] = tree.payload["conf"].reshape(n, self.slots)
             self._state[:] = (0, n, 0)
         self._stale()
-        return self

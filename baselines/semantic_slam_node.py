@@ -7,28 +7,18 @@ The full ``.ot`` record is the node pool's state: colour, the packed class colou
 colours ``0x00RRGGBB``, semantic_slam keeps classes as colours) and their confidences. The leaf
 view of :class:`baselines.semantic_slam.SemanticSlamMap` holds the colour, the packed colours and
 the classes they are the colours of. A node is 48 B (Bayesian) or 32 B (max) in semantic_slam's
-memory; its published file is a ``ColorOcTree`` with the top class colour.
+memory; its published file (:meth:`baselines.semantic_slam.SemanticSlamMap.published_file`) is a
+``ColorOcTree`` with the top class colour.
 """
 
 from __future__ import annotations
-
-from dataclasses import replace
 
 import numpy as np
 
 from evsmap.mapping.generator import WHITE, pack_rgb, unpack_rgb, voc_colormap  # noqa: F401
 from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
-from evsmap.mapping.tree import Tree
 
 FUSION_RULES = ("bayes", "max")
-
-
-
-def _publish(updater, tree: Tree):
-    """semantic_slam's file: ``writeData`` writes the log-odds and ``getSemanticColor`` (the
-    first semantic colour; white when unset) of every node under the type ``ColorOcTree``."""
-    top = np.asarray(tree.payload["colors"]).reshape(tree.num_nodes, updater.slots)[:, 0]
-    return "ColorOcTree", replace(tree, payload=unpack_rgb(top)), None
 
 
 def _node_type(rule: str) -> NodeType:
@@ -42,8 +32,7 @@ def _node_type(rule: str) -> NodeType:
                  Column("sem_classes", np.int16, (slots,), fill=-1)),
         # semantic_slam's node in RAM: a max node 32 B, a Bayesian node 48 B
         node_bytes=48 if rule == "bayes" else 32,
-        label="sem_classes", colour="rgb", publish=_publish, colour_only=_publish,
-        uses_semantics=True,
+        label="sem_classes", colour="rgb", uses_semantics=True,
         description=f"[14] semantic_slam's node, {rule} fusion: RGB + {slots} x (packed class "
                     f"colour, conf)"))
 

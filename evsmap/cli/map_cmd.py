@@ -16,6 +16,7 @@ from evsmap.cli.sequence_args import add_sequence_options, reader_options, skipp
 from evsmap.cli.weights_args import add_weights_options, announce_weights, make_segmenter
 from evsmap.errors import EvsmapError
 from evsmap.interfaces import FILE_FORMATS
+from evsmap.mapping.options import OCTREE_DEFAULTS
 from evsmap.readers.detect import open_sequence
 from evsmap.readers.skipping import SkippedFrames
 
@@ -52,10 +53,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_weights_options(p, depends="The classes in a semantic map")
     p.add_argument("--backend", choices=("torch", "onnxruntime"),
                    help="inference backend of a network segmenter (default torch)")
-    p.add_argument("--resolution", type=positive_float, default=0.05, metavar="R",
-                   help="leaf size in metres (default 0.05)")
-    p.add_argument("--max-range", type=_range, default=5.0, metavar="M",
-                   help="sensor max range in metres, negative for unlimited (default 5)")
+    p.add_argument("--resolution", type=positive_float, default=OCTREE_DEFAULTS.resolution,
+                   metavar="R", help=f"leaf size in metres (default {OCTREE_DEFAULTS.resolution})")
+    p.add_argument("--max-range", type=_range, default=OCTREE_DEFAULTS.max_range, metavar="M",
+                   help=f"sensor max range in metres, negative for unlimited (default "
+                        f"{OCTREE_DEFAULTS.max_range:g})")
     p.add_argument("--frames", type=positive_int, metavar="N", help="first N frames only")
     p.add_argument("--out", type=Path, metavar="FILE",
                    help="write the map here (.ot full state; .bt occupancy only); an existing "

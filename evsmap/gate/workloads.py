@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from evsmap.errors import EvsmapError
+from evsmap.mapping.options import OCTREE_DEFAULTS
 
 if TYPE_CHECKING:  # torch is heavy to import; only type checkers need it here
     import torch
@@ -44,7 +45,9 @@ if TYPE_CHECKING:  # torch is heavy to import; only type checkers need it here
     from evsmap.interfaces import MapUpdater
 
 NETWORK_SIZE = (480, 640)
-RESOLUTIONS = {"5cm": 0.05, "2cm": 0.02}
+RESOLUTIONS = {f"{OCTREE_DEFAULTS.resolution * 100:g}cm": OCTREE_DEFAULTS.resolution,
+               "2cm": 0.02}
+"""The leaf sizes every updater is gated at: the default (5 cm) and Table IV's 2 cm."""
 MAX_RANGE = 4.0
 UPDATE_FRAMES = tuple(range(0, 37, 4))
 """TUM fr1_xyz frames every updater integrates: every 4th of the 37, across the trajectory."""
@@ -110,7 +113,8 @@ def plan(context: dict[str, Any]) -> list[Workload]:
                                 calibration="memory"))
     out.append(Workload(f"map/{MAP_NETWORK}+{MAP_UPDATER}", "map",
                         f"evsmap map's pipeline: {MAP_FRAMES} TUM frames, {MAP_NETWORK} "
-                        f"(torch), {MAP_UPDATER} at 0.05 m, the map file written",
+                        f"(torch), {MAP_UPDATER} at {OCTREE_DEFAULTS.resolution:g} m, the map file "
+                        f"written",
                         needs=("tum",)))
     out.append(Workload("read/tum", "read", "open the TUM fr1_xyz sample and read its 37 frames",
                         needs=("tum",)))
@@ -341,7 +345,8 @@ class MapCommand(Job):
         self.record = None
         torch.manual_seed(0)  # the network's random weights
         segmenter = SEGMENTERS.create(MAP_NETWORK)
-        updater = UPDATERS.create(MAP_UPDATER, resolution=0.05, max_range=MAX_RANGE)
+        updater = UPDATERS.create(MAP_UPDATER, resolution=OCTREE_DEFAULTS.resolution,
+                                  max_range=MAX_RANGE)
         self.record = map_sequence(tum_sequence(self.tum), updater, updater_name=MAP_UPDATER,
                                    segmenter=segmenter, segmenter_name=MAP_NETWORK,
                                    frames=self.frames, out=self.tmp / "map.ot")

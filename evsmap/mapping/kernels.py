@@ -15,8 +15,8 @@ in order (a grid's marked cells, a depth image's valid pixels) is counted per bl
 numbered with a prefix sum over the blocks, then written per block.
 
 Each has a pure-numpy counterpart (:func:`evsmap.mapping.raycast._ray_keys`'s merge,
-:func:`evsmap.updaters.base.group_keys`, ``np.searchsorted`` ...) that computes the same results;
-the tests compare them.
+:func:`evsmap.mapping.front_end.group_keys`, ``np.searchsorted`` ...) that computes the same
+results; the tests compare them.
 
 The DDA kernel runs the exact loop of ``OcTreeBaseImpl::computeRayKeys`` from per-ray start values
 that :func:`evsmap.mapping.raycast._ray_keys` computes with OctoMap's float/double arithmetic:

@@ -1,11 +1,12 @@
 """Node types: what one kind of octree keeps in a node, declared once, registered by its ``.ot``
 id.
 
-OctoMap makes a tree kind one C++ node class (``OcTreeNode``, ``ColorOcTreeNode``, ...): its
-data, how an update changes it, how children aggregate into an inner node, when 8 children are
-equal enough to prune, its ``writeData`` / ``readData``, and its ``sizeof``; the tree class is
-registered under the id its ``.ot`` files carry (``AbstractOcTree::createTree``). A
-:class:`NodeType` is evsmap's equivalent, as data:
+OctoMap splits a tree kind in two: the node class (``OcTreeNode``, ``ColorOcTreeNode``, ...) holds
+the data, reads and writes it (``readData`` / ``writeData``) and says when children are equal
+enough to prune; the tree class (``OcTree``, ``ColorOcTree``, ...) holds the rules - how an update
+changes a node (``updateNode``, ``averageNodeColor``), inner nodes (``updateInnerOccupancy``),
+pruning (``pruneNode``) - and is registered under the id its ``.ot`` files carry
+(``AbstractOcTree::createTree``). evsmap does the same: a :class:`NodeType` is the node, as data:
 
 * ``tree_id``: the ``.ot`` id (``ColorOcTree``, ``MultiClassBayesOcTree``, ...);
 * ``columns``: the per-leaf payload arrays an updater keeps beside the log-odds (name, dtype,
@@ -13,60 +14,54 @@ registered under the id its ``.ot`` files carry (``AbstractOcTree::createTree``)
 * ``record``: the payload as the ``.ot`` stores it after the ``float32`` log-odds (a numpy
   dtype, written little-endian), with ``encode`` / ``decode`` between the columns and the
   records (default: field ``f`` is column ``f``; a plain record is the only column);
-* ``update``: how a scan changes the payload, after OctoMap's occupancy update;
-* ``inner``: how the children's payloads aggregate into an inner node; ``pruned``: the payload
-  of a pruned node (``"first"``: child 0's, OctoMap's ``copyData``);
-* ``prune_on``: the columns that must be exactly equal, besides the log-odds, for 8 leaf
-  children to be pruned;
+* ``prune_on``: its pruning predicate, the columns that must be exactly equal, besides the
+  log-odds, for 8 leaf children to be pruned;
 * ``node_bytes``: bytes of one node in the compared C++ system's memory (OctoMap's
   ``memoryUsage()`` model: ``MapStats.octomap_memory_bytes``);
 * ``label`` / ``colour``: the column holding the most likely class (first slot) and the RGB
-  colour, for queries, evaluation and PLY export;
-* ``publish``: the file the compared system itself saves (``--file-format published``), when
-  that is not the full state; ``message``: its full map as its ROS node sends it
+  colour, for queries, evaluation, PLY export and the colour-only file;
+* ``message_tree_id``: the ``.ot`` id of the nodes of its ROS node's full map message
   (``--file-format message``), when that differs from the saved file;
-  is not the full state;
-* ``uses_semantics``: whether ``update`` reads a segmenter's observation.
+* ``uses_semantics``: whether its tree's update reads a segmenter's observation.
 
-The rules (``update``, ``inner``, ``pruned`` callables, ``publish``) take the updater first, so
-they can read its options (``theta``, ``psi``, ...), its map (``updater.map``) and helpers
-(``updater.endpoint_voxels``). :data:`NODE_TYPES` maps ``.ot`` ids to node types; registering
-a taken id raises, and :mod:`evsmap.mapping.octree_io` reads a file by its id through it.
-OctoMap's own ``OcTree`` and ``ColorOcTree`` are registered here.
+The rules are typed methods of the tree, :class:`evsmap.updaters.base.OctreeUpdater` and its
+subclasses (``update_payload``, ``inner_payload``, ``pruned_payload``, ``prune_columns``,
+``published_file``, ``message_file``, ``colour_file``), so mypy checks them against the options
+they read. :data:`NODE_TYPES` maps ``.ot`` ids to node types; registering a taken id raises, and
+:mod:`evsmap.mapping.octree_io` reads a file by its id through it. OctoMap's own ``OcTree`` and
+``ColorOcTree`` are registered here; evsmap's other built-in types are known by id from
+:data:`BUILTIN_NODE_MODULES`, their modules imported when an id is first asked for.
 """
 
 from __future__ import annotations
 
+import importlib
 import re
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import NamedTuple, TypeAlias
 
 import numpy as np
+import numpy.typing as npt
 
 from evsmap.errors import DuplicateNameError, InvalidDataError, UnknownNameError
-from evsmap.mapping.fusion.colour import average_frame_colours
-from evsmap.mapping.tree import Tree, octomap_colour_average, octomap_colour_prune
+from evsmap.mapping.tree import Tree
 
-if TYPE_CHECKING:
-    from evsmap.data import Frame, SemanticObservation
+__all__ = ["BUILTIN_NODE_MODULES", "COLOR_FORMAT", "COLOR_OCTREE", "NODE_TYPES", "OCTREE",
+           "Column", "FileTree", "NodeType", "NodeTypeRegistry", "RecordFormat"]
 
-__all__ = ["COLOR_FORMAT", "COLOR_OCTREE", "NODE_TYPES", "OCTREE", "Column", "NodeType",
-           "NodeTypeRegistry"]
+RecordFormat: TypeAlias = "np.dtype[np.generic]"
+"""A node payload's ``.ot`` record layout (a numpy dtype)."""
 
-#: ``update(updater, frame, points, scan, observation)``: fuse a frame into the payload columns
-#: after the occupancy update (``points``: :class:`evsmap.updaters.base.FramePoints`, ``scan``:
-#: :class:`evsmap.mapping.occupancy.ScanUpdate`, ``observation``: the segmenter's, or None).
-UpdateRule = Callable[..., None]
 
-#: ``rule(updater, child_records, group, n_groups) -> records``: one payload record per parent
-#: from its children's (``group``: the parent of every child row, sorted, children of a parent
-#: in child order; see :data:`evsmap.mapping.tree.Aggregator`).
-InnerRule = Callable[[Any, np.ndarray, np.ndarray, int], np.ndarray]
+class FileTree(NamedTuple):
+    """What one ``.ot`` file holds: its tree id, the tree, the payload record layout (None for a
+    layout the reader knows by the id)."""
 
-#: ``publish(updater, tree) -> (tree id, tree, record dtype or None)``: the file the compared
-#: system writes.
-PublishRule = Callable[[Any, Tree], tuple[str, Tree, np.dtype | None]]
+    tree_id: str
+    tree: Tree
+    record: RecordFormat | None
+
 
 _ID = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
@@ -83,13 +78,20 @@ class Column:
     """
 
     name: str
-    dtype: Any
+    dtype: npt.DTypeLike
     shape: tuple[int, ...] = ()
-    fill: Any = 0
+    fill: float | np.generic = 0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dtype", np.dtype(self.dtype))
         object.__setattr__(self, "shape", tuple(int(s) for s in self.shape))
+
+
+Encoder = Callable[[Mapping[str, np.ndarray], int], np.ndarray]
+"""``encode(columns, n) -> records``: the ``.ot`` records of ``n`` leaves from their columns."""
+
+Decoder = Callable[[np.ndarray], Mapping[str, np.ndarray]]
+"""``decode(records) -> {column: array}``: the inverse of an :data:`Encoder`."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,42 +102,29 @@ class NodeType:
         tree_id: the ``.ot`` id, one identifier-like ASCII word.
         record: the ``.ot`` payload after the log-odds (numpy dtype), or None (occupancy only).
         columns: the per-leaf payload arrays.
-        update: how a scan changes the columns (None: occupancy only).
-        inner: payload of an inner node from its children's records (None: zero records).
-        pruned: payload of a pruned node: ``"first"`` (child 0's) or an inner rule.
         prune_on: columns that must be equal, besides the log-odds, for pruning.
         node_bytes: in-memory bytes of one node (OctoMap's ``memoryUsage`` model).
         label: column whose first slot is the most likely class, or None.
         colour: column holding ``uint8`` r, g, b, or None.
         encode: ``encode(columns, n) -> records``; default by field name.
         decode: ``decode(records) -> {column: array}``; default by field name.
-        publish: the file the compared system itself saves, or None (the full file is what it
-            writes).
-        message: its full map as its ROS node publishes it (``octomap_full``), when that is not
-            the saved file, or None. Written to an ``.ot`` only under a tree id whose node
-            layout it has (an OctoMap tool must refuse it, not misread it).
-        colour_only: its ``ColorOcTree`` form (log-odds and one colour a node), or None: the
-            VOC colour of the label column's first slot for a semantic type, the colour column
-            otherwise (:meth:`~evsmap.updaters.base.OctreeUpdater.colour_only`).
-        uses_semantics: ``update`` needs a segmenter's observation.
+        message_tree_id: the ``.ot`` id under which the tree writes its ROS node's full map
+            (``octomap_full``) when that is not the saved file, or None. An id whose node
+            layout the message has (an OctoMap tool must refuse it, not misread it).
+        uses_semantics: the tree's update needs a segmenter's observation.
         description: one line for listings.
     """
 
     tree_id: str
-    record: Any = None
+    record: RecordFormat | None = None
     columns: tuple[Column, ...] = ()
-    update: UpdateRule | None = None
-    inner: InnerRule | None = None
-    pruned: str | InnerRule = "first"
     prune_on: tuple[str, ...] = ()
     node_bytes: int = 16
     label: str | None = None
     colour: str | None = None
-    encode: Callable[[Mapping[str, np.ndarray], int], np.ndarray] | None = None
-    decode: Callable[[np.ndarray], Mapping[str, np.ndarray]] | None = None
-    publish: PublishRule | None = None
-    message: PublishRule | None = None
-    colour_only: PublishRule | None = None
+    encode: Encoder | None = None
+    decode: Decoder | None = None
+    message_tree_id: str | None = None
     uses_semantics: bool = False
     description: str = ""
     _names: tuple[str, ...] = field(default=(), init=False, repr=False)
@@ -162,9 +151,9 @@ class NodeType:
         if not (isinstance(self.node_bytes, int) and self.node_bytes > 0):
             raise InvalidDataError(f"node type {self.tree_id}: node_bytes must be a positive "
                                    f"int, got {self.node_bytes!r}")
-        if not (self.pruned == "first" or callable(self.pruned)):
-            raise InvalidDataError(f"node type {self.tree_id}: pruned must be 'first' or a "
-                                   f"rule, got {self.pruned!r}")
+        if self.message_tree_id is not None and not _ID.fullmatch(self.message_tree_id):
+            raise InvalidDataError(f"node type {self.tree_id}: message_tree_id must be one "
+                                   f"ASCII identifier, got {self.message_tree_id!r}")
 
     @property
     def column_names(self) -> tuple[str, ...]:
@@ -184,11 +173,11 @@ class NodeType:
             return None
         if self.encode is not None:
             return self.encode(columns, n)
-        self._check_default_codec()
-        if self.record.names is None:
-            return np.asarray(columns[self._names[0]]).astype(self.record.base)
-        rec = np.empty(n, dtype=self.record.newbyteorder("="))
-        for name in self.record.names:
+        record = self._default_codec()
+        if record.names is None:
+            return np.asarray(columns[self._names[0]]).astype(record.base)
+        rec = np.empty(n, dtype=record.newbyteorder("="))
+        for name in record.names:
             rec[name] = columns[name]
         return rec
 
@@ -196,15 +185,16 @@ class NodeType:
         """The columns held in ``record`` (inverse of :meth:`to_record`)."""
         if self.decode is not None:
             return dict(self.decode(record))
-        self._check_default_codec()
-        if self.record.names is None:
+        layout = self._default_codec()
+        if layout.names is None:
             return {self._names[0]: record}
-        return {name: record[name] for name in self.record.names}
+        return {name: record[name] for name in layout.names}
 
-
-    def _check_default_codec(self) -> None:
-        """The default encode/decode needs record fields named like columns, or a plain record
-        and one column."""
+    def _default_codec(self) -> RecordFormat:
+        """The record, checked for the default encode/decode: record fields named like columns,
+        or a plain record and one column."""
+        if self.record is None:
+            raise InvalidDataError(f"node type {self.tree_id} has no payload record")
         fields = self.record.names or ()
         if fields and not set(fields) <= set(self._names):
             raise InvalidDataError(
@@ -213,13 +203,25 @@ class NodeType:
         if not fields and len(self._names) != 1:
             raise InvalidDataError(f"node type {self.tree_id}: a plain record needs exactly one "
                                    f"column, or encode and decode")
+        return self.record
+
+
+BUILTIN_NODE_MODULES: Mapping[str, str] = {
+    "MultiClassBayesOcTree": "evsmap.mapping.mcb_nodes",
+    "MultiClassBayesGeneratorOcTree": "evsmap.mapping.mcb_nodes",
+    "SSMISemanticOcTreeMessage": "evsmap.mapping.mcb_nodes",
+}
+"""evsmap's own node types beyond OctoMap's, by ``.ot`` id: the module that registers each (data
+and codec only, no kernels), imported when the id is first asked for, so that reading a file
+needs no updater imported first."""
 
 
 class NodeTypeRegistry:
-    """Node types by ``.ot`` id."""
+    """Node types by ``.ot`` id; ``builtins`` (id -> module) are registered on first use."""
 
-    def __init__(self) -> None:
+    def __init__(self, builtins: Mapping[str, str] | None = None) -> None:
         self._types: dict[str, NodeType] = {}
+        self._builtins = dict(builtins or {})
 
     def add(self, node_type: NodeType) -> NodeType:
         """Register ``node_type`` under its id; returns it.
@@ -242,11 +244,12 @@ class NodeTypeRegistry:
         del self._types[tree_id]
 
     def get(self, tree_id: str) -> NodeType:
-        """The node type with id ``tree_id``.
+        """The node type with id ``tree_id`` (a built-in one's module imported first).
 
         Raises:
             UnknownNameError: naming the known ids.
         """
+        self._load(tree_id)
         try:
             return self._types[tree_id]
         except KeyError:
@@ -254,17 +257,25 @@ class NodeTypeRegistry:
                                    f"{', '.join(self.names())}; a plug-in's node type is known "
                                    f"once its module is imported)") from None
 
+    def _load(self, tree_id: str) -> None:
+        """Import the module of built-in ``tree_id`` if it is not registered yet."""
+        if tree_id not in self._types and tree_id in self._builtins:
+            importlib.import_module(self._builtins[tree_id])
+
     def names(self) -> list[str]:
-        return sorted(self._types)
+        """The ids registered and the built-in ones."""
+        return sorted(set(self._types) | set(self._builtins))
 
     def __contains__(self, tree_id: object) -> bool:
-        return tree_id in self._types
+        return tree_id in self._types or tree_id in self._builtins
 
     def __iter__(self) -> Iterator[NodeType]:
+        for tree_id in self._builtins:
+            self._load(tree_id)
         return iter(list(self._types.values()))
 
 
-NODE_TYPES = NodeTypeRegistry()
+NODE_TYPES = NodeTypeRegistry(BUILTIN_NODE_MODULES)
 """Every node type evsmap can read, by ``.ot`` id."""
 
 
@@ -279,26 +290,14 @@ def _registered(tree_id: str) -> NodeType:
 COLOR_FORMAT = np.dtype((np.uint8, (3,)))
 
 
-def _average_hit_colours(updater: Any, frame: Frame, points: Any, scan: Any,
-                         observation: SemanticObservation | None) -> None:
-    """``ColorOcTree::averageNodeColor`` of every hit voxel with its points' mean colour."""
-    pixels, voxels, local = updater.endpoint_voxels(points)
-    if voxels.size:
-        average_frame_colours(updater.map.payload("rgb"), frame.colors(), pixels, voxels, local)
-
-
 OCTREE = NODE_TYPES.add(NodeType(
     "OcTree", description="OctoMap OcTree: float log-odds (5 B a node in .ot)"))
 """OctoMap's occupancy-only tree."""
 
 COLOR_OCTREE = NODE_TYPES.add(NodeType(
     "ColorOcTree", record=COLOR_FORMAT, columns=(Column("rgb", np.uint8, (3,), fill=255),),
-    update=_average_hit_colours,
-    inner=lambda updater, kids, group, n: octomap_colour_average(kids, group, n),
-    pruned=lambda updater, kids, group, n: octomap_colour_prune(kids, group, n),
     colour="rgb", description="OctoMap ColorOcTree: log-odds + averaged r, g, b (8 B a node in "
                               ".ot); white = no colour"))
-"""OctoMap's ``ColorOcTree``: a hit voxel's colour is ``averageNodeColor`` of its stored colour
-and its points' mean (the first colour is copied; white, 255/255/255, is "no colour"); pruning
-ignores colour; an inner node's colour is the average of its children's set colours
-(``updateInnerOccupancy``), a pruned node's as ``ColorOcTree::pruneNode`` sets it."""
+"""OctoMap's ``ColorOcTreeNode``: log-odds and r, g, b (white, 255/255/255, is "no colour");
+pruning ignores colour. Its tree's rules (``averageNodeColor``, inner and pruned colours) are
+:class:`evsmap.updaters.orgb.ORGBMap`'s."""

@@ -84,7 +84,7 @@ def octomap_keys(points: np.ndarray, resolution: float) -> tuple[np.ndarray, np.
     return keys, ok
 
 
-def _norm(d: np.ndarray) -> np.ndarray:
+def vector_norm(d: np.ndarray) -> np.ndarray:
     """OctoMap's ``Vector3::norm``: float sum of squares, double square root."""
     sq = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2]
     norm: npt.NDArray[np.float64] = np.sqrt(sq.astype(np.float64))
@@ -123,7 +123,7 @@ def scan_keys(points: np.ndarray, origin: np.ndarray, resolution: float, *,
     if not len(pts):
         return ScanKeys(empty, empty)
 
-    dist = _norm(pts - org)
+    dist = vector_norm(pts - org)
     inside = dist <= max_range if max_range >= 0 else np.ones(len(pts), dtype=bool)
     okeys, ok = octomap_keys(pts[inside], resolution)
     occupied = pack(okeys[ok])
@@ -188,7 +188,7 @@ def _ray_keys(org: np.ndarray, ends: np.ndarray, resolution: float,
 
     # ---- per-ray DDA set-up (computeRayKeys' initialisation), float/double as OctoMap
     d = ends - org
-    length = _norm(d).astype(np.float32)
+    length = vector_norm(d).astype(np.float32)
     direction = (d / length[:, None]).astype(np.float64)
     step = np.sign(direction).astype(np.int64)
     moving = step != 0

@@ -31,10 +31,8 @@ import numpy as np
 from numba import njit
 
 from evsmap.mapping.generator import WHITE
+from evsmap.mapping.mcb_nodes import LOGINIT
 from evsmap.mapping.ssmi_prune import expand, prune_up
-
-LOGINIT = np.float32(-0.1)
-"""``Semantics.h``: an unset slot's and an unset others' log-odds."""
 
 LOG_ALPHA = np.float32(math.log(0.8))
 LOG_MINUS_ALPHA = np.float32(math.log(0.2))

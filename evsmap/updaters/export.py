@@ -1,6 +1,6 @@
 """Point-cloud export of an octree map: the centres of its occupied leaves as a binary PLY file.
 
-:func:`occupied_points` reads any :class:`~evsmap.updaters.base.OctreeUpdater`'s finest-level
+:func:`occupied_points` reads any :class:`~evsmap.updaters.tree_map.OctreeMap`'s finest-level
 leaves (the map is stored expanded, so a pruned block is its 8**k voxels here too) and keeps those
 OctoMap calls occupied (log-odds ``>=`` the threshold's). Colour comes from the node type's
 colour column (:attr:`~evsmap.mapping.node_type.NodeType.colour`: ``rgb`` for ``orgb`` and
@@ -24,9 +24,10 @@ import numpy as np
 
 from evsmap.errors import DataFormatError, InvalidDataError
 from evsmap.fileio import atomic_path, quiet_native_output
-from evsmap.interfaces import OCCUPIED
+from evsmap.interfaces import OCCUPIED, MapUpdater
 from evsmap.mapping.keys import key_to_coord, unpack
-from evsmap.updaters.base import OctreeUpdater
+from evsmap.mapping.occupancy import OccupancyMap
+from evsmap.updaters.tree_map import OctreeMap
 
 __all__ = ["COLOR_BY", "check_color_by", "class_colors", "default_color_by", "export_ply",
            "occupied_points"]
@@ -41,25 +42,29 @@ UNLABELLED_RGB = (0, 0, 0)
 """Colour of an occupied voxel without a class when colouring by class (void is black)."""
 
 
-def _occupancy_map(updater):
-    if not isinstance(updater, OctreeUpdater):
+def _octree(updater: MapUpdater) -> OctreeMap:
+    if not isinstance(updater, OctreeMap):
         raise InvalidDataError(f"PLY export needs an octree map updater (evsmap's own, e.g. orgb "
                                f"or multiclass-bayes), got {type(updater).__name__}")
-    return updater.map
+    return updater
 
 
-def _colour_and_label(updater) -> tuple[str | None, str | None]:
+def _occupancy_map(updater: MapUpdater) -> OccupancyMap:
+    return _octree(updater).leaves()
+
+
+def _colour_and_label(updater: MapUpdater) -> tuple[str | None, str | None]:
     """The node type's colour and label columns (None where it has none)."""
-    _occupancy_map(updater)
-    node_type = updater.node_type
+    node_type = _octree(updater).node_type
     return node_type.colour, node_type.label
 
 
-def occupied_points(updater) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+def occupied_points(updater: MapUpdater
+                    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Centres, colours and labels of a map's occupied finest-level voxels.
 
     Args:
-        updater: an :class:`~evsmap.updaters.base.OctreeUpdater`.
+        updater: an :class:`~evsmap.updaters.tree_map.OctreeMap`.
 
     Returns:
         ``(centres, rgb, labels)``: ``float64`` (N, 3) voxel centres in metres (OctoMap's
@@ -84,12 +89,12 @@ def occupied_points(updater) -> tuple[np.ndarray, np.ndarray | None, np.ndarray 
     return centres, rgb, labels
 
 
-def default_color_by(updater) -> str:
+def default_color_by(updater: MapUpdater) -> str:
     """``"class"`` for an updater that fuses semantics, ``"rgb"`` otherwise."""
     return "class" if updater.uses_semantics else "rgb"
 
 
-def check_color_by(updater, color_by: str | None = None) -> str:
+def check_color_by(updater: MapUpdater, color_by: str | None = None) -> str:
     """The colouring :func:`export_ply` will use for ``updater`` (``color_by``, or
     :func:`default_color_by` when None), checked before any mapping work is done.
 
@@ -103,7 +108,7 @@ def check_color_by(updater, color_by: str | None = None) -> str:
     if color_by not in COLOR_BY:
         raise InvalidDataError(f"unknown PLY colouring {color_by!r} (known: "
                                f"{', '.join(COLOR_BY)})")
-    name = getattr(updater, "name", "") or type(updater).__name__
+    name = _octree(updater).name or type(updater).__name__
     if color_by == "rgb" and colour is None:
         raise InvalidDataError(f"map updater {name!r} stores no colours: export it coloured by "
                                "class (--ply-color class; color_by='class' in Python)")
@@ -127,11 +132,12 @@ def class_colors(labels: np.ndarray) -> np.ndarray:
     return out
 
 
-def export_ply(updater, path: str | os.PathLike[str], *, color_by: str | None = None) -> int:
+def export_ply(updater: MapUpdater, path: str | os.PathLike[str], *,
+               color_by: str | None = None) -> int:
     """Write the map's occupied voxel centres as a binary PLY point cloud (Open3D).
 
     Args:
-        updater: an :class:`~evsmap.updaters.base.OctreeUpdater`.
+        updater: an :class:`~evsmap.updaters.tree_map.OctreeMap`.
         path: the file to write (replaced if it exists); always PLY, whatever its suffix.
         color_by: ``"rgb"`` (the stored colours) or ``"class"`` (the palette colour of each
             voxel's most likely class); default :func:`default_color_by`.

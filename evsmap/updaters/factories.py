@@ -3,8 +3,8 @@
 As timm's model variants, a registered factory is a constructor with a few options added or
 their defaults changed: :func:`octree_factory` makes one from the function that builds the
 updater and those options. Its signature is every option of
-:class:`~evsmap.updaters.base.OctreeUpdater`'s constructor (:data:`OCTREE_OPTIONS`, the sensor
-model's from :class:`~evsmap.mapping.sensor_model.OccupancyParams`) and the ones stated, so each
+:class:`~evsmap.updaters.tree_map.OctreeMap`'s constructor (:data:`OCTREE_OPTIONS`, from
+:class:`~evsmap.mapping.options.OctreeOptions`) and the ones stated, so each
 is reachable with ``-o`` / a systems file, checked by name and type
 (:meth:`evsmap.registry.Registry.create`) and named in the error that lists them.
 
@@ -17,17 +17,15 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Callable
-from dataclasses import asdict
 from typing import Any, TypeVar
 
-from evsmap.mapping.sensor_model import OCTOMAP
+from evsmap.mapping.options import OCTREE_DEFAULTS
 
 T = TypeVar("T")
 
-OCTREE_OPTIONS: dict[str, Any] = {"resolution": 0.05, "max_range": 5.0, "discretize": True,
-                                  **asdict(OCTOMAP), "kernels": "compiled"}
-"""The options of :class:`~evsmap.updaters.base.OctreeUpdater`'s constructor, with its
-defaults (a test holds the two equal)."""
+OCTREE_OPTIONS: dict[str, Any] = OCTREE_DEFAULTS.as_options()
+"""The options of :class:`~evsmap.updaters.tree_map.OctreeMap`'s constructor, with its defaults
+(:data:`~evsmap.mapping.options.OCTREE_DEFAULTS`, which the constructor reads too)."""
 
 _TYPES = {bool: "bool", int: "int", float: "float", str: "str"}
 

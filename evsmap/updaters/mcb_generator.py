@@ -52,62 +52,51 @@ mask. SSMI sends it under the id ``ColorOcTree`` too, which no OctoMap reader ca
 writes it under :data:`MESSAGE_TREE_ID`, which OctoMap's tools refuse as unknown and evsmap reads.
 In memory a node is 48 bytes (children pointer, float value, colour, the 28-byte semantics and
 two flags, 8-byte aligned).
+
+The node (columns, records, the message layout) is declared in :mod:`evsmap.mapping.mcb_nodes`;
+SSMI's tree rules are :class:`GeneratorMultiClassBayesMap`'s methods: the frame
+(:meth:`~GeneratorMultiClassBayesMap.update_frame`, on the shared
+:class:`~evsmap.mapping.front_end.GeneratorFrontEnd`), inner and pruned nodes, the pruning
+predicate, the inner occupancy and the files.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 from os import PathLike
-from typing import Self
 
 import numpy as np
 
 from evsmap.data import Frame, SemanticObservation
 from evsmap.errors import InvalidDataError
 from evsmap.mapping import fusion
+from evsmap.mapping.front_end import GeneratorCloud, GeneratorFrontEnd
 from evsmap.mapping.fusion import MCBState
-from evsmap.mapping.generator import (
-    WHITE,
-    as_float_parameter,
-    camera_points,
-    pack_rgb,
-    sensor_distance,
-    to_world,
-    unpack_rgb,
-    voc_colormap,
-)
+from evsmap.mapping.generator import WHITE, as_float_parameter, pack_rgb, unpack_rgb, voc_colormap
 from evsmap.mapping.kernels import Kernels
 from evsmap.mapping.keys import TREE_DEPTH, morton, pack, unpack
-from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
+from evsmap.mapping.mcb_nodes import (
+    GENERATOR_NODE,
+    LOGINIT,
+    MESSAGE_TREE_ID,
+    NODE_BYTES,
+    PUBLISHED,
+    RECORD,
+    TREE_ID,
+    colour_classes,
+)
+from evsmap.mapping.node_type import FileTree
+from evsmap.mapping.options import OCTREE_DEFAULTS
 from evsmap.mapping.raycast import octomap_keys, scan_keys
-from evsmap.mapping.sensor_model import OCTOMAP
-from evsmap.mapping.ssmi_kernel import LOGINIT, frame_update, occupancies, tree_constants
-from evsmap.mapping.threads import kernel_threads
+from evsmap.mapping.ssmi_kernel import frame_update, occupancies, tree_constants
 from evsmap.mapping.tree import Tree, octomap_colour_average, octomap_colour_prune
-from evsmap.mapping.voxel_grid import voxel_grid
-from evsmap.updaters.base import OctreeUpdater, check_observation
+from evsmap.updaters.base import OctreeUpdater
+from evsmap.updaters.tree_map import FrontEndCounts
 
-TREE_ID = "MultiClassBayesGeneratorOcTree"
+__all__ = ["LOGINIT", "MESSAGE_TREE_ID", "NODE_BYTES", "NODE_TYPE", "PRUNED_LEAVES", "PUBLISHED",
+           "RECORD", "ROS_DEFAULTS", "TREE_ID", "GeneratorMultiClassBayesMap", "colour_classes"]
 
-RECORD = np.dtype([("rgb", "u1", (3,)), ("colors", "<u4", (3,)), ("logodds", "<f4", (3,)),
-                   ("others", "<f4")])
-"""The ``full`` file's node payload after the float value: the node's colour, its 3 class
-colours (``0x00RRGGBB``, white = unset), their log-odds and others."""
-
-SEMANTICS_STRUCT = np.dtype([("color", "u1", (3,)), ("pad", "u1"), ("logodds", "<f4")])
-PUBLISHED = np.dtype([("color", "u1", (3,)), ("slots", SEMANTICS_STRUCT, (3,)),
-                      ("others", "<f4")])
-"""SSMI's ``writeData`` with the semantics, after the value: ``Color`` (3 bytes) and
-``sizeof(SemanticsLogOdds)`` = 3 x ``ColorWithLogOdds`` (3 colour bytes, 1 padding byte, float)
-+ float others = 28 bytes: the nodes of its ``octomap_full`` message."""
-
-MESSAGE_TREE_ID = "SSMISemanticOcTreeMessage"
-"""The ``.ot`` id of SSMI's message nodes as evsmap writes them (SSMI itself never writes them
-to a file, and the id it sends, ``ColorOcTree``, has another node layout)."""
-
-NODE_BYTES = 48
-"""``sizeof(SemanticOcTreeNode<SemanticsLogOdds>)`` on x86-64: children pointer 8, value 4,
-colour 3, semantics 28 (4-aligned), two bools, padded to 8."""
+NODE_TYPE = GENERATOR_NODE
 
 ROS_DEFAULTS = {"max_range": 5.0, "raycast_range": 2.0, "clamp_min": 1e-4, "clamp_max": 0.9999}
 """The generator's ranges as semantic_slam's ``octomap_generator.yaml`` sets them (TESAMap's, so
@@ -118,41 +107,6 @@ max_range 15 and raycast_range 10 for 0.5 m outdoor maps."""
 
 PRUNED_LEAVES = ("copies", "own")
 """What the leaves of a block SSMI prunes hold (:class:`GeneratorMultiClassBayesMap`)."""
-
-
-def _columns() -> tuple[Column, ...]:
-    return (Column("rgb", np.uint8, (3,), fill=255),
-            Column("sem_colors", np.uint32, (3,), fill=WHITE),
-            Column("class_logodds", np.float32, (3,), fill=LOGINIT),
-            Column("others", np.float32, (), fill=LOGINIT),
-            Column("classes", np.int16, (3,), fill=-1),
-            Column("pruned_level", np.uint8, (), fill=0))
-
-
-def _encode(columns, n: int) -> np.ndarray:
-    rec = np.empty(n, dtype=RECORD)
-    rec["rgb"] = columns["rgb"]
-    rec["colors"] = columns["sem_colors"]
-    rec["logodds"] = columns["class_logodds"]
-    rec["others"] = columns["others"]
-    return rec
-
-
-def _decode(record: np.ndarray) -> dict[str, np.ndarray]:
-    colours = np.asarray(record["colors"], dtype=np.uint32)
-    return {"rgb": record["rgb"], "sem_colors": colours, "class_logodds": record["logodds"],
-            "others": record["others"], "classes": colour_classes(colours, 256)}
-
-
-def colour_classes(colours: np.ndarray, num_classes: int) -> np.ndarray:
-    """Class ids of packed class colours under the VOC colour map; -1 for white and for colours
-    that are no class's (an averaged colour)."""
-    table = pack_rgb(voc_colormap(max(int(num_classes), 1)))
-    order = np.argsort(table, kind="stable")
-    sorted_table = table[order]
-    c = np.asarray(colours, dtype=np.uint32)
-    pos = np.clip(np.searchsorted(sorted_table, c), 0, len(table) - 1)
-    return np.where(sorted_table[pos] == c, order[pos], -1).astype(np.int16)
 
 
 def _semantics_state(payload: np.ndarray) -> tuple[MCBState, np.ndarray]:
@@ -166,78 +120,21 @@ def _semantics_state(payload: np.ndarray) -> tuple[MCBState, np.ndarray]:
                     np.asarray(payload["others"], np.float32)), palette
 
 
-def _inner(updater: GeneratorMultiClassBayesMap, child: np.ndarray, group: np.ndarray,
-           n_groups: int) -> np.ndarray:
-    """An inner node: Algorithm 1 over the children that have semantics, in child order (SSMI
-    skips the others; a parent with none keeps the unset semantics), the average child colour."""
-    out = np.zeros(n_groups, dtype=RECORD)
-    out["colors"] = WHITE
-    out["logodds"] = LOGINIT
-    out["others"] = LOGINIT
-    has = (np.asarray(child["colors"]) != WHITE).any(axis=1)
-    if has.any():
-        state, palette = _semantics_state(child[has])
-        g = group[has]
-        owners = np.unique(g)
-        local = np.searchsorted(owners, g)
-        merged = fusion.fold_algorithm1(state, local, len(owners), updater.theta,
-                                        pairing=updater.pairing)
-        cls = merged.classes.astype(np.int64)
-        out["colors"][owners] = np.where(cls >= 0, palette[np.maximum(cls, 0)], WHITE)
-        out["logodds"][owners] = np.where(cls >= 0, merged.logodds, LOGINIT)
-        out["others"][owners] = merged.others
-    out["rgb"] = octomap_colour_average(child["rgb"], group, n_groups)
-    return out
-
-
-def _pruned(updater: GeneratorMultiClassBayesMap, child: np.ndarray, group: np.ndarray,
-            n_groups: int) -> np.ndarray:
-    """SSMI's ``pruneNode``: child 0's copy, the colour averaged over the children."""
-    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
-    out = child[first].copy()
-    out["rgb"] = octomap_colour_prune(child["rgb"], group, n_groups)
-    return out
-
-
 def _payload(tree: Tree) -> np.ndarray:
     """The tree's payload records (every tree of this node type has them)."""
     assert tree.payload is not None, "a tree of the generator's node type has a payload"
     return tree.payload
 
 
-def _message(updater: GeneratorMultiClassBayesMap, tree: Tree
-             ) -> tuple[str, Tree, np.dtype | None]:
-    """SSMI's ``writeData`` with the semantics (the ``octomap_full`` message's nodes), under
-    :data:`MESSAGE_TREE_ID`."""
-    rec = np.zeros(tree.num_nodes, dtype=PUBLISHED)
-    pay = _payload(tree)
-    rec["color"] = unpack_rgb(pay["colors"][:, 0])
-    rec["slots"]["color"] = unpack_rgb(pay["colors"])
-    rec["slots"]["logodds"] = pay["logodds"]
-    rec["others"] = pay["others"]
-    return MESSAGE_TREE_ID, replace(tree, payload=rec), PUBLISHED
+class _Hits:
+    """One frame's hits on the generator front end: voxel codes (a code may repeat), their
+    class colours and colours."""
 
-
-def _colour_only(updater: GeneratorMultiClassBayesMap, tree: Tree
-                 ) -> tuple[str, Tree, np.dtype | None]:
-    """``writeData`` with ``write_semantics`` off: value and the top semantic colour (the file
-    SSMI saves, and its colour-only form)."""
-    colours = unpack_rgb(_payload(tree)["colors"][:, 0])
-    return "ColorOcTree", replace(tree, payload=colours), None
-
-
-NODE_TYPE = NODE_TYPES.add(NodeType(
-    TREE_ID, record=RECORD, columns=_columns(), inner=_inner, pruned=_pruned,
-    prune_on=("sem_colors", "class_logodds", "others"), node_bytes=NODE_BYTES,
-    label="classes", colour="rgb", encode=_encode, decode=_decode, publish=_colour_only,
-    message=_message, colour_only=_colour_only, uses_semantics=True,
-    description="EVSMaP's node as SSMI keeps it: colour + 3 x (class colour, log-odds) + others"))
-
-
-NODE_TYPES.add(NodeType(
-    MESSAGE_TREE_ID, record=PUBLISHED, node_bytes=NODE_BYTES,
-    description="SSMI's octomap_full message nodes: value, top semantic colour, "
-                "SemanticsLogOdds (read only: it restores no map)"))
+    def __init__(self, cloud: GeneratorCloud, inside: np.ndarray, resolution: float) -> None:
+        keys, ok = octomap_keys(cloud.centroids[inside], resolution)
+        self.codes = pack(keys[ok])
+        self.colour = np.ascontiguousarray(cloud.fields[inside][ok, 0]).view(np.uint32)
+        self.rgb = np.ascontiguousarray(cloud.rgb[inside][ok])
 
 
 class GeneratorMultiClassBayesMap(OctreeUpdater):
@@ -269,11 +166,12 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
     def __init__(self, *, psi: float = fusion.PSI, phi: float = fusion.PHI,
                  theta: float = fusion.THETA, pairing: str = "printed",
                  raycast_range: float = ROS_DEFAULTS["raycast_range"],
-                 resolution: float = 0.05, max_range: float = ROS_DEFAULTS["max_range"],
+                 resolution: float = OCTREE_DEFAULTS.resolution,
+                 max_range: float = ROS_DEFAULTS["max_range"],
                  clamp_min: float = ROS_DEFAULTS["clamp_min"],
                  clamp_max: float = ROS_DEFAULTS["clamp_max"],
-                 occupancy_threshold: float = OCTOMAP.occupancy_threshold,
-                 kernels: Kernels = "compiled", pruned_leaves: str = "copies") -> None:
+                 occupancy_threshold: float = OCTREE_DEFAULTS.sensor.occupancy_threshold,
+                 kernels: Kernels = OCTREE_DEFAULTS.kernels, pruned_leaves: str = "copies") -> None:
         if pruned_leaves not in PRUNED_LEAVES:
             raise InvalidDataError(f"multiclass-bayes: pruned_leaves must be one of "
                                    f"{', '.join(PRUNED_LEAVES)}; got {pruned_leaves!r}")
@@ -298,40 +196,37 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
             tree_constants(psi=psi, phi=phi, clamp_min=clamp_min, clamp_max=clamp_max)
 
     # ---- one frame
-    def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
-        # the compiled kernels on evsmap.mapping.threads' number of threads (numba's setting
-        # is per thread: a pipelined loop gives the update one)
-        with kernel_threads():
-            self._integrate(frame, observation)
-
-    def _integrate(self, frame: Frame, observation: SemanticObservation | None) -> None:
-        observation = check_observation(frame, observation, self.name)
+    def update_frame(self, frame: Frame, observation: SemanticObservation | None
+                     ) -> FrontEndCounts:
+        """SSMI's ``insertPointCloud``: the semantic cloud's centroids within ``max_range``
+        are hits, the free space is cast up to ``raycast_range``."""
+        assert observation is not None  # uses_semantics: integrate checked it
         if int(observation.num_classes) > self.num_classes:  # the colour map grew: relabel
             self.num_classes = int(observation.num_classes)
             self.map.payload("classes")[:] = colour_classes(self.map.payload("sem_colors"),
                                                             self.num_classes)
-        cam, pixels = camera_points(frame, self.name)
+        cloud = GeneratorFrontEnd(self.name, self.resolution).cloud(
+            frame, lambda pixels: self._cloud_fields(frame, observation, pixels))
+        valid = np.all(np.isfinite(cloud.centroids), axis=1)
+        inside = valid & (cloud.distance().astype(np.float64) <= self.max_range)
+        hits = _Hits(cloud, inside, self.resolution)
+        keys = scan_keys(cloud.centroids[valid], cloud.origin.astype(np.float64),
+                         self.resolution, max_range=self.raycast_range, discretize=True,
+                         kernels=self.kernels)
+        self.apply_updates(hits.codes, hits.colour, hits.rgb, keys.free)
+        return FrontEndCounts(centroids=len(cloud.centroids), hits=len(hits.codes),
+                              rays=int(np.count_nonzero(valid)))
+
+    def _cloud_fields(self, frame: Frame, observation: SemanticObservation,
+                      pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """SSMI's semantic cloud fields: the top class's colour packed in a float, the colour."""
         palette = pack_rgb(voc_colormap(max(self.num_classes, 1)))
         top = observation.classes.reshape(-1, observation.k)[pixels, 0].astype(np.int64)
         packed = np.where(top >= 0, palette[np.maximum(top, 0)], WHITE).astype(np.uint32)
         colours = frame.colors()
         rgb = (np.zeros((len(pixels), 3), np.uint8) if colours is None
                else np.ascontiguousarray(colours.reshape(-1, 3)[pixels], np.uint8))
-        inverse = np.float32(np.float32(1.0) / np.float32(self.resolution))
-        cent, fields, cent_rgb = voxel_grid(cam, inverse, packed.view(np.float32)[:, None], rgb)
-        world, origin = to_world(cent, frame.pose)
-        valid = np.all(np.isfinite(world), axis=1)
-        inside = valid & (sensor_distance(world, origin).astype(np.float64) <= self.max_range)
-        hit_keys, hit_ok = octomap_keys(world[inside], self.resolution)
-        hit_codes = pack(hit_keys[hit_ok])
-        hit_colour = np.ascontiguousarray(fields[inside][hit_ok, 0]).view(np.uint32)
-        hit_rgb = np.ascontiguousarray(cent_rgb[inside][hit_ok])
-        keys = scan_keys(world[valid], origin.astype(np.float64), self.resolution,
-                         max_range=self.raycast_range, discretize=True, kernels=self.kernels)
-        self.apply_updates(hit_codes, hit_colour, hit_rgb, keys.free)
-        self.count_front_end(centroids=len(cent), hits=len(hit_codes),
-                             rays=int(np.count_nonzero(valid)))
-        self.frames += 1
+        return packed.view(np.float32)[:, None], rgb
 
     def apply_updates(self, hit_codes: np.ndarray, hit_colour: np.ndarray, hit_rgb: np.ndarray,
                       free_codes: np.ndarray) -> None:
@@ -357,22 +252,40 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
         m.payload("classes")[touched] = colour_classes(m.payload("sem_colors")[touched],
                                                        self.num_classes)
 
-    # ---- the tree
-    def restore(self, path: str | PathLike[str]) -> Self:
-        """:meth:`OctreeUpdater.restore`, then each leaf's ``pruned_level`` from the file's
-        pruned nodes (a leaf of the file at depth d holds its voxels 16 - d levels up)."""
-        super().restore(path)
-        if self.map.num_leaves:
-            tree = self.tree()
-            leaf = tree.child_mask == 0
-            start = tree.morton[leaf]
-            voxel = morton(unpack(self.map.codes)).astype(np.int64)
-            holder = np.searchsorted(start, voxel, side="right") - 1
-            depth = tree.depth[leaf][holder].astype(np.int64)
-            self.map.payload("pruned_level")[:] = (TREE_DEPTH - depth).astype(np.uint8)
-        return self
+    # ---- the tree's rules
+    def inner_payload(self, children: np.ndarray, group: np.ndarray,
+                      n_groups: int) -> np.ndarray:
+        """An inner node: Algorithm 1 over the children that have semantics, in child order
+        (SSMI skips the others; a parent with none keeps the unset semantics), the average child
+        colour."""
+        out = np.zeros(n_groups, dtype=RECORD)
+        out["colors"] = WHITE
+        out["logodds"] = LOGINIT
+        out["others"] = LOGINIT
+        has = (np.asarray(children["colors"]) != WHITE).any(axis=1)
+        if has.any():
+            state, palette = _semantics_state(children[has])
+            g = group[has]
+            owners = np.unique(g)
+            local = np.searchsorted(owners, g)
+            merged = fusion.fold_algorithm1(state, local, len(owners), self.theta,
+                                            pairing=self.pairing)
+            cls = merged.classes.astype(np.int64)
+            out["colors"][owners] = np.where(cls >= 0, palette[np.maximum(cls, 0)], WHITE)
+            out["logodds"][owners] = np.where(cls >= 0, merged.logodds, LOGINIT)
+            out["others"][owners] = merged.others
+        out["rgb"] = octomap_colour_average(children["rgb"], group, n_groups)
+        return out
 
-    def _equal_columns(self) -> list[np.ndarray]:
+    def pruned_payload(self, children: np.ndarray, group: np.ndarray,
+                       n_groups: int) -> np.ndarray:
+        """SSMI's ``pruneNode``: child 0's copy, the colour averaged over the children."""
+        first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+        out = children[first].copy()
+        out["rgb"] = octomap_colour_prune(children["rgb"], group, n_groups)
+        return out
+
+    def prune_columns(self) -> list[np.ndarray]:
         """SSMI's ``isNodeCollapsible``: equal value and semantics, or equal value with the
         first child free - the semantics of free leaves are left out of the comparison."""
         m = self.map
@@ -382,17 +295,50 @@ class GeneratorMultiClassBayesMap(OctreeUpdater):
         ot = np.where(free, 0, m.payload("others"))
         return [m.logodds, cols, lo, ot]
 
-    def _build_tree(self) -> Tree:
-        """The pruned tree; an inner node's value is ``getOccFromSem`` of its merged semantics
-        (-0.1 for the unset semantics of a parent of free leaves only)."""
-        tree = super()._build_tree()
-        if tree.num_nodes:
-            inner = np.flatnonzero(tree.child_mask != 0)
-            pay = _payload(tree)[inner]
-            value = tree.value.copy()
-            value[inner] = occupancies(np.ascontiguousarray(pay["colors"], np.uint32),
-                                       np.ascontiguousarray(pay["logodds"], np.float32),
-                                       np.ascontiguousarray(pay["others"], np.float32))
-            tree = replace(tree, value=value)
-        return tree
+    def inner_occupancy(self, tree: Tree) -> Tree:
+        """An inner node's value is ``getOccFromSem`` of its merged semantics (-0.1 for the
+        unset semantics of a parent of free leaves only)."""
+        if not tree.num_nodes:
+            return tree
+        inner = np.flatnonzero(tree.child_mask != 0)
+        pay = _payload(tree)[inner]
+        value = tree.value.copy()
+        value[inner] = occupancies(np.ascontiguousarray(pay["colors"], np.uint32),
+                                   np.ascontiguousarray(pay["logodds"], np.float32),
+                                   np.ascontiguousarray(pay["others"], np.float32))
+        return replace(tree, value=value)
 
+    def load_tree(self, tree: Tree, path: str | PathLike[str]) -> None:
+        """The leaves, then each leaf's ``pruned_level`` from the file's pruned nodes (a leaf of
+        the file at depth d holds its voxels 16 - d levels up)."""
+        super().load_tree(tree, path)
+        if self.map.num_leaves:
+            built = self.tree()
+            leaf = built.child_mask == 0
+            start = built.morton[leaf]
+            voxel = morton(unpack(self.map.codes)).astype(np.int64)
+            holder = np.searchsorted(start, voxel, side="right") - 1
+            depth = built.depth[leaf][holder].astype(np.int64)
+            self.map.payload("pruned_level")[:] = (TREE_DEPTH - depth).astype(np.uint8)
+
+    # ---- files
+    def message_file(self, tree: Tree) -> FileTree:
+        """SSMI's ``writeData`` with the semantics (the ``octomap_full`` message's nodes),
+        under :data:`MESSAGE_TREE_ID`."""
+        rec = np.zeros(tree.num_nodes, dtype=PUBLISHED)
+        pay = _payload(tree)
+        rec["color"] = unpack_rgb(pay["colors"][:, 0])
+        rec["slots"]["color"] = unpack_rgb(pay["colors"])
+        rec["slots"]["logodds"] = pay["logodds"]
+        rec["others"] = pay["others"]
+        return FileTree(MESSAGE_TREE_ID, replace(tree, payload=rec), PUBLISHED)
+
+    def colour_file(self, tree: Tree) -> FileTree:
+        """``writeData`` with ``write_semantics`` off: value and the top semantic colour (the
+        file SSMI saves, and its colour-only form)."""
+        colours = unpack_rgb(_payload(tree)["colors"][:, 0])
+        return FileTree("ColorOcTree", replace(tree, payload=colours), None)
+
+    def published_file(self, tree: Tree) -> FileTree:
+        """The file SSMI saves: :meth:`colour_file`."""
+        return self.colour_file(tree)

@@ -25,139 +25,104 @@ OctoMap's separate hit/miss log-odds. The ``.ot`` node payload is the full state
 ``docs/mapping.md``), so a saved map reloads into the same state
 (:func:`load_multiclass_bayes`).
 
-The node type (:data:`NODE_TYPE`, ``.ot`` id ``MultiClassBayesOcTree``) holds all of this; the
-updater class only adds the options and checks them.
+The node (:data:`NODE_TYPE`, ``.ot`` id ``MultiClassBayesOcTree``: columns, record, pruning) is
+declared in :mod:`evsmap.mapping.mcb_nodes`; the tree's rules (the frame update, Algorithm 1 on
+inner nodes) are :class:`MultiClassBayesMap`'s methods, its options one :class:`MCBRule`.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from os import PathLike
+from typing import Any
 
 import numpy as np
 
-from evsmap.data import Frame, SemanticObservation
+from evsmap.data import SemanticObservation
+from evsmap.errors import InvalidDataError
 from evsmap.mapping import fusion
+from evsmap.mapping.front_end import DirectScan, GroupedHits
 from evsmap.mapping.fusion import MCBState
 from evsmap.mapping.mcb_kernel import frame_update
-from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
-from evsmap.mapping.occupancy import ScanUpdate
-from evsmap.updaters.base import FramePoints, OctreeUpdater
+from evsmap.mapping.mcb_nodes import (
+    EMPTY_ID,
+    MCB_NODE,
+    MCB_RECORD,
+    MCB_TREE_ID,
+    encode_mcb,
+    from_ids,
+)
+from evsmap.mapping.node_type import RecordFormat
+from evsmap.mapping.occupancy import OccupancyMap
+from evsmap.updaters.base import OctreeUpdater
 
-PAYLOAD_FORMAT = np.dtype([("classes", "u1", (3,)), ("logodds", "<f4", (3,)),
-                           ("others", "<f4")])
-"""Per-node payload after the float32 occupancy log-odds in the ``.ot`` stream (19 bytes): class
-ids (255 = empty slot) and the class and "others" log-odds, float32 as the map keeps them."""
-EMPTY_ID = 255
-TREE_ID = "MultiClassBayesOcTree"
+__all__ = ["EMPTY_ID", "LEAF_UPDATES", "MAX_RESTORE_VOXELS", "NODE_TYPE", "OCCUPANCIES",
+           "PAYLOAD_FORMAT", "TREE_ID", "MCBRule", "MultiClassBayesMap", "load_multiclass_bayes"]
+
+PAYLOAD_FORMAT = MCB_RECORD
+"""The node's ``.ot`` payload (:data:`evsmap.mapping.mcb_nodes.MCB_RECORD`)."""
+TREE_ID = MCB_TREE_ID
+NODE_TYPE = MCB_NODE
 LEAF_UPDATES = ("bayes", "average")
 OCCUPANCIES = ("semantic", "octomap")
 
 
-def _to_ids(classes: np.ndarray) -> np.ndarray:
-    """Class slots as the file stores them: ``uint8``, 255 for an empty slot."""
-    return np.where(classes < 0, EMPTY_ID, classes)
+@dataclass(frozen=True)
+class MCBRule:
+    """The options of the multi-class Bayesian update, as the frame kernel takes them.
+
+    Attributes:
+        psi, phi: eq. 9's log-odds steps (hit, miss).
+        theta: Algorithm 1's punishment value.
+        empty_floor: the floor of ``others`` on a voxel without classes (OctoMap's clamping
+            minimum).
+        leaf_update, pairing, occupancy: :class:`MultiClassBayesMap`'s variants.
+    """
+
+    psi: float
+    phi: float
+    theta: float
+    empty_floor: float
+    leaf_update: str
+    pairing: str
+    occupancy: str
 
 
-def _from_ids(ids: np.ndarray) -> np.ndarray:
-    ids = ids.astype(np.int16)
-    return np.where(ids == EMPTY_ID, fusion.EMPTY, ids)
+@dataclass(frozen=True)
+class MCBLeaves:
+    """The map's columns the frame kernel writes: class slots, their log-odds, others and the
+    occupancy log-odds (views into the leaf map)."""
+
+    classes: np.ndarray
+    class_logodds: np.ndarray
+    others: np.ndarray
+    occupancy: np.ndarray
+
+    @classmethod
+    def of(cls, leaves: OccupancyMap) -> MCBLeaves:
+        return cls(leaves.payload("classes"), leaves.payload("class_logodds"),
+                   leaves.payload("others"), leaves.logodds_for_writing())
 
 
-def _encode(columns, n: int) -> np.ndarray:
-    rec = np.empty(n, dtype=PAYLOAD_FORMAT)
-    rec["classes"] = _to_ids(columns["classes"])
-    rec["logodds"] = columns["class_logodds"]
-    rec["others"] = columns["others"]
-    return rec
-
-
-def _decode(record: np.ndarray) -> dict[str, np.ndarray]:
-    return {"classes": _from_ids(record["classes"]), "class_logodds": record["logodds"],
-            "others": record["others"]}
-
-
-def _update(updater: MultiClassBayesMap, frame: Frame, points: FramePoints, update: ScanUpdate,
-            observation: SemanticObservation) -> None:
-    """A frame's semantics on the leaves it observed: the compiled kernel
-    (:mod:`evsmap.mapping.mcb_kernel`), or the numpy reference with ``kernels="reference"``."""
-    updater.check_classes(observation)
-    if updater.kernels == "compiled" and frame_update is not None:
-        pixels, voxels, local_index = updater.endpoint_voxels(points)
-        span = int(observation.classes.max()) + 1 if observation.classes.size else 0
-        if 0 < span and len(voxels) * span <= fusion.DENSE_LIMIT:
-            k = observation.k
-            m = updater.map
-            frame_update(
-                m.payload("classes"), m.payload("class_logodds"), m.payload("others"),
-                m.logodds_for_writing(), update.free_index, voxels, local_index, pixels,
-                observation.classes.reshape(-1, k), observation.probs.reshape(-1, k),
-                span, updater.psi, updater.phi, updater.theta, fusion.MIN_LOGODDS,
-                fusion.MAX_LOGODDS, fusion.PROB_MIN, updater.empty_floor,
-                updater.leaf_update == "bayes", updater.pairing == "printed",
-                updater.occupancy == "semantic")
-            return
-    _update_numpy(updater, points, update, observation)
-
-
-def _update_numpy(updater: MultiClassBayesMap, points: FramePoints, update: ScanUpdate,
-                  observation: SemanticObservation) -> None:
-    """The reference implementation (numpy, whole arrays)."""
-    semantic = updater.occupancy == "semantic"
-    # rays: eq. 9's free case on the traversed voxels (with OctoMap occupancy, only those
-    # holding classes have a semantic state to lower)
-    free = update.free_index
-    if not semantic and free.size:
-        free = free[updater.map.payload("classes")[free, 0] >= 0]
-    if free.size:
-        updater._store(free, fusion.mcb_miss(updater.state(free), phi=updater.phi,
-                                             empty_min_logodds=updater.empty_floor))
-    # end points: the frame's node per voxel, from its points' top-k
-    pixels, voxels, local_index = updater.endpoint_voxels(points)
-    if voxels.size:
-        classes = observation.classes.reshape(-1, observation.k)[pixels]
-        probs = observation.probs.reshape(-1, observation.k)[pixels]
-        local = fusion.build_local(local_index, classes, probs, len(voxels), hit=updater.psi)
-        current = updater.state(voxels)
-        if updater.leaf_update == "bayes":  # eq. 7: one observation, the majority class
-            updater._store(voxels, fusion.mcb_observe(current, local.classes[:, 0],
-                                                      psi=updater.psi, phi=updater.phi))
-        else:  # the local node merged with Algorithm 1; a first observation takes it
-            known = current.has_semantics
-            merged = fusion.merge_algorithm1(current.take(known), local.take(known),
-                                             updater.theta, pairing=updater.pairing)
-            updater._store(voxels[known], merged)
-            updater._store(voxels[~known], local.take(~known))
-    if semantic:
-        touched = np.concatenate([free, voxels])
-        updater.map.logodds_for_writing()[touched] = fusion.mcb_occupancy(
-            updater.state(touched))
-
-
-def _inner(updater: MultiClassBayesMap, child_payload: np.ndarray, group: np.ndarray,
-           n_groups: int) -> np.ndarray:
-    """Algorithm 1 where nodes merge: an inner node's state is its children's, merged pairwise
-    in child order (:func:`~evsmap.mapping.fusion.fold_algorithm1`)."""
-    children = MCBState(_from_ids(child_payload["classes"]), child_payload["logodds"],
-                        child_payload["others"])
-    merged = fusion.fold_algorithm1(children, group, n_groups, updater.theta,
-                                    pairing=updater.pairing)
-    return _encode({"classes": merged.classes, "class_logodds": merged.logodds,
-                    "others": merged.others}, n_groups)
-
-
-NODE_TYPE = NODE_TYPES.add(NodeType(
-    TREE_ID, record=PAYLOAD_FORMAT,
-    columns=(Column("classes", np.int16, (3,), fill=fusion.EMPTY),
-             Column("class_logodds", np.float32, (3,), fill=0),
-             Column("others", np.float32, (), fill=0)),
-    update=_update, inner=_inner, prune_on=("classes", "class_logodds", "others"),
-    # OctoMap node: 4 B log-odds + children pointer (8 B) + this payload, 8-byte aligned
-    node_bytes=-(-(4 + 8 + PAYLOAD_FORMAT.itemsize) // 8) * 8,
-    label="classes", encode=_encode, decode=_decode, uses_semantics=True,
-    description="EVSMaP multi-class Bayesian node: 3 classes + log-odds + others"))
-"""EVSMaP's node. Published file = the full one: the node "maintain[s] only the probabilities of
-the three most likely semantic classes ... all other classes are consolidated into an others
-class": 3 class ids, their 3 log-odds and others, which is exactly the full payload."""
+def compiled_update(leaves: MCBLeaves, free: np.ndarray, hits: GroupedHits,
+                    observation: SemanticObservation, rule: MCBRule) -> bool:
+    """One frame's semantics by the compiled kernel (:mod:`evsmap.mapping.mcb_kernel`): rays
+    on the ``free`` leaves, one observation per hit voxel; False (nothing done) where the kernel
+    does not apply: numba missing, an empty observation or a local map beyond
+    :data:`fusion.DENSE_LIMIT`."""
+    if frame_update is None:
+        return False
+    span = int(observation.classes.max()) + 1 if observation.classes.size else 0
+    if not (0 < span and len(hits.voxels) * span <= fusion.DENSE_LIMIT):
+        return False
+    k = observation.k
+    frame_update(
+        leaves.classes, leaves.class_logodds, leaves.others, leaves.occupancy, free,
+        hits.voxels, hits.local, hits.pixels, observation.classes.reshape(-1, k),
+        observation.probs.reshape(-1, k), span, rule.psi, rule.phi, rule.theta,
+        fusion.MIN_LOGODDS, fusion.MAX_LOGODDS, fusion.PROB_MIN, rule.empty_floor,
+        rule.leaf_update == "bayes", rule.pairing == "printed", rule.occupancy == "semantic")
+    return True
 
 
 class MultiClassBayesMap(OctreeUpdater):
@@ -174,7 +139,7 @@ class MultiClassBayesMap(OctreeUpdater):
             ``"printed"`` (the holding node's own, as printed) or ``"ssmi"`` (the other node's).
         occupancy: ``"semantic"`` (the leaf's occupancy log-odds derived from its class vector,
             eq. 5) or ``"octomap"`` (OctoMap's separate hit/miss log-odds).
-        (other arguments: :class:`~evsmap.updaters.base.OctreeUpdater`)
+        (other arguments: :class:`~evsmap.updaters.tree_map.OctreeMap`)
     """
 
     semantics_within_range = True
@@ -184,9 +149,7 @@ class MultiClassBayesMap(OctreeUpdater):
 
     def __init__(self, *, psi: float = fusion.PSI, phi: float = fusion.PHI,
                  theta: float = fusion.THETA, leaf_update: str = "bayes",
-                 pairing: str = "printed", occupancy: str = "semantic", **kwargs) -> None:
-        from evsmap.errors import InvalidDataError
-
+                 pairing: str = "printed", occupancy: str = "semantic", **kwargs: Any) -> None:
         for option, value, known in (("leaf_update", leaf_update, LEAF_UPDATES),
                                      ("pairing", pairing, fusion.PAIRINGS),
                                      ("occupancy", occupancy, OCCUPANCIES)):
@@ -200,12 +163,19 @@ class MultiClassBayesMap(OctreeUpdater):
         # clamps (SSMI's fuseObsFree on such voxels)
         self.empty_floor = float(self.params.clamp_min_logodds)
 
+    @property
+    def rule(self) -> MCBRule:
+        """The update's options as one bundle."""
+        return MCBRule(self.psi, self.phi, self.theta, self.empty_floor, self.leaf_update,
+                       self.pairing, self.occupancy)
+
     def state(self, index: np.ndarray | slice = slice(None)) -> MCBState:
         m = self.map
         return MCBState(m.payload("classes")[index], m.payload("class_logodds")[index],
                         m.payload("others")[index])
 
-    def _store(self, index: np.ndarray, state: MCBState) -> None:
+    def store(self, index: np.ndarray, state: MCBState) -> None:
+        """Write ``state`` into the leaves ``index``."""
         m = self.map
         m.payload("classes")[index] = state.classes
         m.payload("class_logodds")[index] = state.logodds
@@ -218,10 +188,68 @@ class MultiClassBayesMap(OctreeUpdater):
             InvalidDataError: the observation's label set has more than 255 classes.
         """
         if observation.num_classes > EMPTY_ID:
-            from evsmap.errors import InvalidDataError
-
             raise InvalidDataError(f"multiclass-bayes stores class ids in one byte: at most "
                                    f"{EMPTY_ID} classes, got {observation.num_classes}")
+
+    # -- the tree's rules -------------------------------------------------------------------
+    def update_payload(self, scan: DirectScan) -> None:
+        """A frame's semantics on the leaves it observed: the compiled kernel
+        (:func:`compiled_update`), or the numpy reference with ``kernels="reference"``."""
+        observation = scan.observation
+        assert observation is not None  # uses_semantics: integrate checked it
+        self.check_classes(observation)
+        if self.kernels == "compiled":
+            hits = self.endpoint_voxels(scan.points)
+            if compiled_update(MCBLeaves.of(self.map), scan.occupancy.free_index, hits,
+                               observation, self.rule):
+                return
+        self.update_reference(scan, observation)
+
+    def update_reference(self, scan: DirectScan, observation: SemanticObservation) -> None:
+        """The reference implementation (numpy, whole arrays)."""
+        semantic = self.occupancy == "semantic"
+        # rays: eq. 9's free case on the traversed voxels (with OctoMap occupancy, only those
+        # holding classes have a semantic state to lower)
+        free = scan.occupancy.free_index
+        if not semantic and free.size:
+            free = free[self.map.payload("classes")[free, 0] >= 0]
+        if free.size:
+            self.store(free, fusion.mcb_miss(self.state(free), phi=self.phi,
+                                             empty_min_logodds=self.empty_floor))
+        # end points: the frame's node per voxel, from its points' top-k
+        pixels, voxels, local_index = self.endpoint_voxels(scan.points)
+        if voxels.size:
+            self._observe(voxels, local_index, observation.classes.reshape(-1, observation.k)[
+                pixels], observation.probs.reshape(-1, observation.k)[pixels])
+        if semantic:
+            touched = np.concatenate([free, voxels])
+            self.map.logodds_for_writing()[touched] = fusion.mcb_occupancy(self.state(touched))
+
+    def _observe(self, voxels: np.ndarray, local_index: np.ndarray, classes: np.ndarray,
+                 probs: np.ndarray) -> None:
+        """The hit voxels' update from their points' top-k (numpy)."""
+        local = fusion.build_local(local_index, classes, probs, len(voxels), hit=self.psi)
+        current = self.state(voxels)
+        if self.leaf_update == "bayes":  # eq. 7: one observation, the majority class
+            self.store(voxels, fusion.mcb_observe(current, local.classes[:, 0], psi=self.psi,
+                                                  phi=self.phi))
+        else:  # the local node merged with Algorithm 1; a first observation takes it
+            known = current.has_semantics
+            merged = fusion.merge_algorithm1(current.take(known), local.take(known),
+                                             self.theta, pairing=self.pairing)
+            self.store(voxels[known], merged)
+            self.store(voxels[~known], local.take(~known))
+
+    def inner_payload(self, children: np.ndarray, group: np.ndarray,
+                      n_groups: int) -> np.ndarray:
+        """Algorithm 1 where nodes merge: an inner node's state is its children's, merged
+        pairwise in child order (:func:`~evsmap.mapping.fusion.fold_algorithm1`)."""
+        state = MCBState(from_ids(children["classes"]), children["logodds"],
+                         children["others"])
+        merged = fusion.fold_algorithm1(state, group, n_groups, self.theta,
+                                        pairing=self.pairing)
+        return encode_mcb({"classes": merged.classes, "class_logodds": merged.logodds,
+                           "others": merged.others}, n_groups)
 
 
 MAX_RESTORE_VOXELS = 10_000_000
@@ -229,7 +257,7 @@ MAX_RESTORE_VOXELS = 10_000_000
 each while restoring, so ~1.1 GB; a small file whose coarse leaves claim more is refused."""
 
 
-def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBayesMap:
+def load_multiclass_bayes(path: str | PathLike[str], **kwargs: Any) -> MultiClassBayesMap:
     """A :class:`MultiClassBayesMap` restored from its ``.ot`` file (mapping can continue);
     ``kwargs`` are the map's options.
 
@@ -237,11 +265,11 @@ def load_multiclass_bayes(path: str | PathLike[str], **kwargs) -> MultiClassBaye
         DataFormatError: unreadable or corrupt file, another tree id, or leaves covering more
             than :data:`MAX_RESTORE_VOXELS` finest voxels (names the file).
     """
-    from evsmap.errors import DataFormatError, InvalidDataError
+    from evsmap.errors import DataFormatError
     from evsmap.mapping.keys import TREE_DEPTH
     from evsmap.mapping.octree_io import read_ot
 
-    formats: dict[str, np.dtype] = {TREE_ID: PAYLOAD_FORMAT}
+    formats: dict[str, RecordFormat] = {TREE_ID: PAYLOAD_FORMAT}
     saved = read_ot(path, payload_format=formats)
     resolution, tree = saved.resolution, saved.tree
     depth = tree.leaves()[0].astype(np.float64)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from evsmap.errors import DataFormatError, DuplicateNameError, InvalidDataError, UnknownNameError
+from evsmap.mapping.front_end import DirectScan
 from evsmap.mapping.keys import pack
 from evsmap.mapping.node_type import COLOR_OCTREE, NODE_TYPES, OCTREE, Column, NodeType
 from evsmap.mapping.octree_io import read_ot, write_ot
@@ -17,24 +18,26 @@ from evsmap.updaters.base import OctreeUpdater
 VISITS_ID = "TestVisitCountOcTree"
 
 
-def count_visits(updater, frame, points, scan, observation):
-    """Every hit voxel counts one more visit."""
-    _, voxels, _ = updater.endpoint_voxels(points)
-    updater.map.payload("visits")[voxels] += 1
+class VisitCounter(OctreeUpdater):
+    """A tree whose node counts the frames that hit it; inner nodes hold the most visits."""
 
+    def update_payload(self, scan: DirectScan) -> None:
+        """Every hit voxel counts one more visit."""
+        _, voxels, _ = self.endpoint_voxels(scan.points)
+        self.map.payload("visits")[voxels] += 1
 
-def most_visits(updater, children, group, n_groups):
-    out = np.zeros(n_groups, dtype=children.dtype)
-    np.maximum.at(out, group, children)
-    return out
+    def inner_payload(self, children: np.ndarray, group: np.ndarray,
+                      n_groups: int) -> np.ndarray:
+        out = np.zeros(n_groups, dtype=children.dtype)
+        np.maximum.at(out, group, children)
+        return out
 
 
 @pytest.fixture
 def visits():
     node_type = NODE_TYPES.add(NodeType(
         VISITS_ID, record=np.dtype("<u2"), columns=(Column("visits", np.uint16),),
-        update=count_visits, inner=most_visits, prune_on=("visits",), node_bytes=24,
-        description="visits per voxel (test)"))
+        prune_on=("visits",), node_bytes=24, description="visits per voxel (test)"))
     yield node_type
     NODE_TYPES.remove(VISITS_ID)
 
@@ -93,7 +96,7 @@ def test_reading_an_unknown_id_is_a_clear_error(tmp_path):
     ({"tree_id": "X", "label": "classes"}, "label names no column"),
     ({"tree_id": "X", "prune_on": ("c",)}, "prune_on names no column"),
     ({"tree_id": "X", "node_bytes": 0}, "node_bytes"),
-    ({"tree_id": "X", "pruned": "last"}, "pruned"),
+    ({"tree_id": "X", "message_tree_id": "two words"}, "message_tree_id"),
 ])
 def test_declaration_errors(kwargs, match):
     with pytest.raises(InvalidDataError, match=match):
@@ -108,7 +111,7 @@ def test_default_codec_needs_matching_names():
 
 
 def test_custom_node_type_round_trips_through_write_and_restore(visits, frames, tmp_path):
-    updater = OctreeUpdater(node_type=visits, resolution=0.1)
+    updater = VisitCounter(node_type=visits, resolution=0.1)
     assert updater.name == VISITS_ID and updater.tree_id == VISITS_ID
     assert not updater.uses_semantics
     for frame in frames:
@@ -125,13 +128,13 @@ def test_custom_node_type_round_trips_through_write_and_restore(visits, frames, 
     assert tree.payload.dtype == np.uint16
     data = path.read_bytes()
     assert len(data) - data.index(b"data\n") - 5 == 7 * tree.num_nodes
-    # inner nodes aggregate with the node type's rule: the max of their children
+    # inner nodes aggregate with the tree's rule: the max of their children
     assert tree.payload[0] == counts.max()
     # memory model: node_bytes per node
     stats = updater.stats()
     assert stats.octomap_memory_bytes == 320 + 24 * stats.nodes + 64 * (stats.nodes
                                                                          - stats.leaves)
-    again = OctreeUpdater(node_type=visits, resolution=0.1).restore(path)
+    again = VisitCounter(node_type=visits, resolution=0.1).restore(path)
     assert np.array_equal(again.map.codes, updater.map.codes)
     assert np.array_equal(again.map.payload("visits"), counts)
     again.write(tmp_path / "again.ot")
@@ -168,3 +171,42 @@ def test_pruning_compares_the_prune_on_columns(visits):
     assert updater.stats().leaves == 1  # 8 equal leaves (value 0, visits 0) prune
     updater.map.payload("visits")[3] = 1
     assert updater.stats().leaves == 8
+
+
+def test_a_node_type_is_data_its_rules_are_the_trees():
+    """OctoMap's split: a node type holds data, codec and pruning predicate; the rules are the
+    tree's (OctreeUpdater's typed methods)."""
+    import dataclasses
+
+    fields = {f.name for f in dataclasses.fields(NodeType)}
+    assert not fields & {"update", "inner", "pruned", "publish", "message", "colour_only"}
+    with pytest.raises(TypeError):
+        NodeType("WithARule", update=lambda *a: None)
+
+
+def test_evsmaps_own_node_types_read_by_id_in_a_fresh_interpreter(tmp_path):
+    """A multiclass-bayes map's file reads by its id without the caller importing an updater
+    module (it failed with "unknown tree id 'MultiClassBayesGeneratorOcTree'")."""
+    import subprocess
+    import sys
+
+    updater = UPDATERS.create("multiclass-bayes", resolution=0.2)
+    seq = READERS.create("synthetic", frames=1, width=60, height=45)
+    frame = seq.frame(0)
+    from evsmap.registry import SEGMENTERS
+
+    updater.integrate(frame, SEGMENTERS.create("oracle").predict(frame))
+    updater.write(tmp_path / "m.ot")
+    code = ("import sys; from evsmap.mapping.octree_io import read_ot; "
+            "kind, res, tree = read_ot(sys.argv[1]); "
+            "assert 'evsmap.updaters.mcb_generator' not in sys.modules; "
+            "print(kind, tree.payload.dtype.itemsize, tree.num_nodes)")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "m.ot")],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    kind, itemsize, nodes = out.stdout.split()
+    from evsmap.mapping.mcb_nodes import RECORD
+
+    assert kind == "MultiClassBayesGeneratorOcTree" and int(itemsize) == RECORD.itemsize
+    assert int(nodes) == updater.stats().nodes
+    assert "MultiClassBayesOcTree" in NODE_TYPES and "MultiClassBayesOcTree" in NODE_TYPES.names()

@@ -36,7 +36,7 @@ def _inner_in_chunks(updater, child, group, n_groups, chunk=4000):
     for start in range(0, n_groups, chunk):
         sel = (group >= start) & (group < start + chunk)
         stop = min(start + chunk, n_groups)
-        out[start:stop] = gen._inner(updater, child[sel], group[sel] - start, stop - start)
+        out[start:stop] = updater.inner_payload(child[sel], group[sel] - start, stop - start)
     return out
 
 
@@ -63,7 +63,7 @@ def test_inner_nodes_over_65536_distinct_colours_equal_their_own_childrens_merge
     group = np.repeat(np.arange(n_groups), 2)
     assert len(np.unique(child["colors"][child["colors"] != WHITE])) > 65_536
     updater = UPDATERS.create("multiclass-bayes")
-    whole = gen._inner(updater, child, group, n_groups)
+    whole = updater.inner_payload(child, group, n_groups)
     reference = _inner_in_chunks(updater, child, group, n_groups)
     assert np.array_equal(whole["colors"], reference["colors"])
     assert np.array_equal(whole["logodds"].view(np.uint32), reference["logodds"].view(np.uint32))

@@ -72,7 +72,7 @@ def _siblings_map(states: list[fu.MCBState]):
     m.map = OccupancyMap.from_leaves(0.1, codes, fu.mcb_occupancy(state), params=m.params)
     m._init_payloads()
     order = np.argsort(codes)
-    m._store(np.arange(8), state.take(np.argsort(order)))
+    m.store(np.arange(8), state.take(np.argsort(order)))
     return m
 
 
