@@ -44,8 +44,16 @@ def main() -> int:
     parser.add_argument("run", type=Path, help="the first run's folder (an empty cache)")
     parser.add_argument("--warm", type=Path, default=None,
                         help="a second run's folder, same machine and cache")
+    parser.add_argument("--fill", type=Path, nargs=2, default=None, metavar=("FIRST", "SECOND"),
+                        help="an earlier pair of runs (first, second) on the same kind of "
+                             "machine whose cells the runs above lack (e.g. the TUM sample's, "
+                             "when they ran without it) fill the gaps")
     args = parser.parse_args()
     run, cells, outside = durations(args.run)
+    fill_first, fill_second = ((durations(f)[1] for f in args.fill) if args.fill
+                               else ({}, {}))
+    filled = sorted(set(fill_first) - set(cells))
+    cells.update({k: fill_first[k] for k in filled})
     calibration = json.loads((args.run / "cache" / "calibration.json").read_text())
     env = run.get("environment") or {}
     data: dict[str, Any] = {
@@ -56,8 +64,11 @@ def main() -> int:
                 "git_commit": env.get("git_commit"), "quick": run.get("quick"),
                 "extended": (run.get("settings") or {}).get("extended")},
         "outside": outside, "cells": dict(sorted(cells.items()))}
+    if filled:
+        data["filled"] = {"from": [str(f) for f in args.fill], "cells": filled}
     if args.warm is not None:
         warm_run, warm_cells, warm_outside = durations(args.warm)
+        warm_cells.update({k: fill_second[k] for k in filled if k in fill_second})
         if bool(warm_run.get("quick")) != bool(run.get("quick")):
             parser.error(f"{args.warm}: not the same kind of run as {args.run} (--quick)")
         data["warm"] = {"started": warm_run.get("started"), "outside": warm_outside,

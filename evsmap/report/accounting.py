@@ -46,6 +46,10 @@ def accounting_markdown(accounting: dict[str, Any] | None,
            f"The run took **{wall / 60:.1f} min** from its process's start to `run.json`'s last "
            f"write (the report's build follows; the command prints its time). Every phase:", "",
            "| phase | min | share |", "|---|---:|---:|"]
+    if accounting.get("estimate_s"):
+        estimate = float(accounting["estimate_s"])
+        out[2:2] = [f"Its start line estimated **{estimate / 60:.1f} min** "
+                    f"({100 * (estimate / wall - 1):+.0f} % of the wall time).", ""]
     for name in PHASES:
         if name in phases:
             out.append(f"| {name} | {phases[name] / 60:.2f} | {_share(phases[name], wall)} |")

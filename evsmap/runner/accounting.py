@@ -68,6 +68,9 @@ class RunClock:
     def __init__(self) -> None:
         self.begun = stamp()
         self.seconds: dict[str, float] = {}
+        self.estimate_s: float | None = None
+        """The start line's estimate of the run (:mod:`evsmap.runner.estimate`), kept beside
+        the wall time so that a run says how well it was estimated."""
 
     def add(self, name: str, seconds: float) -> None:
         if name not in PHASES:
@@ -87,8 +90,11 @@ class RunClock:
         and what no phase holds."""
         wall = stamp() - self.begun + self.seconds.get("start-up", 0.0)
         phases = {name: round(self.seconds[name], 3) for name in PHASES if name in self.seconds}
-        return {"wall_s": round(wall, 3), "phases": phases,
-                "unaccounted_s": round(wall - sum(self.seconds.values()), 3)}
+        out: dict[str, Any] = {"wall_s": round(wall, 3), "phases": phases,
+                               "unaccounted_s": round(wall - sum(self.seconds.values()), 3)}
+        if self.estimate_s is not None:
+            out["estimate_s"] = round(self.estimate_s, 1)
+        return out
 
 
 def phase(clock: RunClock | None, name: str) -> contextlib.AbstractContextManager[None]:

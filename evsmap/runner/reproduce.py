@@ -151,7 +151,8 @@ def _measure(ctx: RunContext, job: Reproduction, the_plan: Plan, run: RunFile,
     with clock.phase("estimate"):
         estimator = _estimator(ctx)
         pending = pending_cells(ctx, the_plan, resume=job.resume and not job.force)
-        _announce(the_plan, pending, estimator, estimator.run_s(pending), s.budget)
+        clock.estimate_s = estimator.run_s(pending)
+        _announce(the_plan, pending, estimator, clock.estimate_s, s.budget)
     budget = Budget(s.budget) if s.budget else None
     watch = _Progress(len(the_plan.keys), pending, estimator)
     with job.executor as executor:
@@ -243,13 +244,16 @@ def describe_sequence(ctx: RunContext, name: str) -> dict[str, Any]:
 
 
 def _estimator(ctx: RunContext) -> Estimator:
-    """This machine's estimator (:mod:`evsmap.runner.estimate`), scaled by a calibration
-    taken now with the run's threads."""
-    from evsmap.measure.contention import calibration_gmacs
+    """This machine's estimator (:mod:`evsmap.runner.estimate`), scaled by its calibration
+    with the run's threads: the one taken now, or the best this machine has shown
+    (:class:`~evsmap.measure.contention.CalibrationLog`) when that is higher, so a burst of
+    other work at the start does not multiply the estimate (a load of 5.7 on 2 cores made one
+    ten times too long); the running correction follows the machine as it is."""
+    from evsmap.measure.contention import CalibrationLog, calibration_gmacs, machine_log_path
     from evsmap.models.module_utils import torch_threads
 
     with torch_threads(ctx.threads):
-        gmacs = calibration_gmacs()
+        gmacs = CalibrationLog(machine_path=machine_log_path()).best(calibration_gmacs())
     return Estimator.load(threads=ctx.threads, calibration_gmacs=gmacs, quick=ctx.quick)
 
 

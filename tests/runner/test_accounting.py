@@ -91,3 +91,14 @@ def test_the_report_section_adds_up_and_names_the_parts():
     assert "process spawn and imports 0.67 min" in md and "none of these" not in md
     assert around_totals([rec])["timed cells"]["start_s"] == 40.0
     assert accounting_markdown(None, [rec]) == []  # a run made before the accounting
+
+
+def test_the_start_estimate_is_kept_beside_the_wall_time_and_reported():
+    clock = RunClock()
+    assert "estimate_s" not in clock.as_dict()
+    clock.estimate_s = 1380.04
+    assert clock.as_dict()["estimate_s"] == 1380.0
+    accounting = {"wall_s": 1200.0, "phases": {"timed cells": 1200.0}, "unaccounted_s": 0.0,
+                  "estimate_s": 1380.0}
+    md = "\n".join(accounting_markdown(accounting, []))
+    assert "Its start line estimated **23.0 min** (+15 % of the wall time)." in md
