@@ -352,15 +352,11 @@ def compare_columns(columns: Sequence[Column]) -> Comparison:
                       ratios=ratios)
 
 
-def compare_runs(names: Sequence[str | Path], *, paper: bool = False,
-                 kinds: Mapping[str, str] | None = None) -> Comparison:
-    """Read ``names`` (:func:`read_columns`) and compare them (:func:`compare_columns`);
-    ``kinds``: each run path's machine kind id, where the caller knows it."""
-    columns = read_columns(names, paper=paper)
-    for column in columns:
-        if kinds and column.path in kinds:
-            column.kind = kinds[column.path]
-    return compare_columns(columns)
+def compare_runs(names: Sequence[str | Path], *, paper: bool = False) -> Comparison:
+    """Read ``names`` (:func:`read_columns`) and compare them (:func:`compare_columns`); the
+    machine kinds are left to the caller (``evsmap compare`` names them by the gate's
+    :func:`evsmap.gate.baseline.machine_kind`, a layer above this one)."""
+    return compare_columns(read_columns(names, paper=paper))
 
 
 def relative_text(rel: float | None) -> str:
