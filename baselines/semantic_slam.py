@@ -197,13 +197,12 @@ class SemanticSlamMap(OctreeMap):
     def _materialize(self) -> OccupancyMap:
         tree = self.tree()
         out = OccupancyMap(self.resolution, self.params)
+        payload = np.zeros(0, dtype=self.node_type.record)
         if tree.num_nodes:
-            codes, values, payload = tree.expand()
+            codes, values, expanded = tree.expand()
+            assert expanded is not None  # the pool's tree has its payload
             out = OccupancyMap.from_leaves(self.resolution, codes, values, self.params)
-            order = np.argsort(codes, kind="stable")
-            payload = payload[order]
-        else:
-            payload = np.zeros(0, dtype=self.node_type.record)
+            payload = expanded[np.argsort(codes, kind="stable")]
         out.add_payload("rgb", np.uint8, (3,), fill=255)[:] = payload["rgb"]
         out.add_payload("sem_colors", np.uint32, (self.slots,), fill=WHITE)[:] = \
             payload["colors"].reshape(-1, self.slots)

@@ -72,7 +72,7 @@ def fuse_bayes(classes1: np.ndarray, conf1: np.ndarray, classes2: np.ndarray,
     b = np.asarray(classes2).astype(np.int64)
     fa = np.asarray(conf1, dtype=np.float64)
     fb = np.asarray(conf2, dtype=np.float64)
-    av, bv = a >= 0, b >= 0
+    av, bv = np.asarray(a >= 0), np.asarray(b >= 0)
     fa = np.where(av, fa, 0.0)
     fb = np.where(bv, fb, 0.0)
     m, na = a.shape
@@ -80,8 +80,8 @@ def fuse_bayes(classes1: np.ndarray, conf1: np.ndarray, classes2: np.ndarray,
     o1 = np.maximum(1.0 - fa.sum(axis=1), EPSILON)
     o2 = np.maximum(1.0 - fb.sum(axis=1), EPSILON)
     match = match_slots(a, av, b, bv)
-    a_in_b = match.any(axis=2)
-    b_in_a = match.any(axis=1)
+    a_in_b = np.asarray(match.any(axis=2))
+    b_in_a = np.asarray(match.any(axis=1))
     fb_for_a = np.where(match, fb[:, None, :], 0.0).sum(axis=2)
 
     # Candidates: a's slots, then b's classes that a lacks; first and second confidences.
@@ -109,7 +109,7 @@ def fuse_bayes(classes1: np.ndarray, conf1: np.ndarray, classes2: np.ndarray,
     out_conf = np.where(out_valid, np.take_along_axis(post, idx, axis=1), 0.0)
 
     # A side without semantics: the other side unchanged.
-    set_a, set_b = av.any(axis=1), bv.any(axis=1)
+    set_a, set_b = np.asarray(av.any(axis=1)), np.asarray(bv.any(axis=1))
     copy_b = ~set_a
     copy_a = set_a & ~set_b
     out_cls = np.where(copy_b[:, None], pad_slots(b, SLOTS, EMPTY), out_cls)

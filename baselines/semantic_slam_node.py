@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsmap.mapping.generator import WHITE, pack_rgb, unpack_rgb, voc_colormap  # noqa: F401
+from evsmap.mapping.generator import WHITE, pack_rgb, unpack_rgb, voc_colormap
 from evsmap.mapping.node_type import NODE_TYPES, Column, NodeType
+
+__all__ = ["FUSION_RULES", "NODE_TYPES_BY_RULE", "WHITE", "pack_rgb", "unpack_rgb", "voc_colormap"]
 
 FUSION_RULES = ("bayes", "max")
 

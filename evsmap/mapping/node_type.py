@@ -176,7 +176,7 @@ class NodeType:
         record = self._default_codec()
         if record.names is None:
             return np.asarray(columns[self._names[0]]).astype(record.base)
-        rec = np.empty(n, dtype=record.newbyteorder("="))
+        rec: npt.NDArray[np.void] = np.empty(n, dtype=record.newbyteorder("="))
         for name in record.names:
             rec[name] = columns[name]
         return rec
@@ -188,7 +188,8 @@ class NodeType:
         layout = self._default_codec()
         if layout.names is None:
             return {self._names[0]: record}
-        return {name: record[name] for name in layout.names}
+        fields: npt.NDArray[np.void] = record
+        return {name: fields[name] for name in layout.names}
 
     def _default_codec(self) -> RecordFormat:
         """The record, checked for the default encode/decode: record fields named like columns,

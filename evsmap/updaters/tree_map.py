@@ -198,9 +198,12 @@ class OctreeMap(MapUpdater):
         if not self.uses_semantics or frame.depth is None or frame.points is not None:
             return None
         depth = frame.depth
+        pixels: np.ndarray
         if self.semantics_within_range and self.max_range >= 0:
-            return (depth > 0) & (depth <= np.float32(self.max_range + 2 * self.resolution))
-        return (depth > 0) & np.isfinite(depth)
+            pixels = (depth > 0) & (depth <= np.float32(self.max_range + 2 * self.resolution))
+        else:
+            pixels = (depth > 0) & np.isfinite(depth)
+        return pixels
 
     def integrate(self, frame: Frame, observation: SemanticObservation | None = None) -> None:
         if self.uses_semantics:

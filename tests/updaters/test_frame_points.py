@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import evsmap.updaters.base as base
+import evsmap.mapping.front_end as front_end
 from evsmap.data import Frame, Intrinsics
 from evsmap.mapping.keys import pack
 from evsmap.mapping.raycast import octomap_keys
@@ -19,13 +19,13 @@ def tum_frame(tum_dir):
 
 
 def _both(frame, resolution, max_range=5.0, discretize=True):
-    return [base.FramePoints(frame, resolution, max_range, discretize, kernels)
+    return [front_end.FramePoints(frame, resolution, max_range, discretize, kernels)
             for kernels in ("compiled", "reference")]
 
 
 @pytest.mark.parametrize("resolution", [0.02, 0.05, 0.1])
 def test_kernel_and_numpy_grouping_agree(tum_frame, resolution):
-    if base.group_points is None:
+    if front_end.group_points is None:
         missing("numba cannot be imported: the compiled grouping is untested")
     a, b = _both(tum_frame, resolution)
     assert np.array_equal(a.voxel_codes, b.voxel_codes)
@@ -51,7 +51,7 @@ def test_points_outside_the_key_range_are_left_out():
 
 
 def test_a_huge_box_falls_back_to_sorting(monkeypatch, tum_frame):
-    monkeypatch.setattr(base, "_DENSE_BOX", 10)
+    monkeypatch.setattr(front_end, "_DENSE_BOX", 10)
     a, b = _both(tum_frame, 0.05)
     assert np.array_equal(a.voxel_codes, b.voxel_codes)
     assert np.array_equal(a.point_voxel, b.point_voxel)
