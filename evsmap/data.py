@@ -20,6 +20,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -462,7 +463,11 @@ class Sequence(abc.ABC):
             the reader does not say (or the frames have no labels). A reader sets the attribute
             or passes ``meta["class_names"]`` (and ``meta["num_classes"]``).
         num_classes: the size of that label set where known, else None.
+        folder: the folder (or file: a bag) the frames are read from, set by the reader; None
+            for frames not read from one place on disk (held in memory, generated).
     """
+
+    folder: Path | None = None
 
     def __init__(self, name: str, intrinsics: Intrinsics | None, meta: dict | None = None
                  ) -> None:
@@ -513,8 +518,8 @@ class Sequence(abc.ABC):
     def frames_identity(self) -> str | None:
         """What the frames (and their labels) are, for caches of what is computed from them
         (the runner's segmentation cache): a string that changes whenever a frame could, or
-        None to let the caller use the sequence's folder and its modification time (the
-        default)."""
+        None to let the caller use the sequence's :attr:`folder` and its modification time
+        (the default)."""
         return None
 
     @property

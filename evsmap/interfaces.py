@@ -40,6 +40,8 @@ class Segmenter(abc.ABC):
             (:meth:`set_input_size`); None for a segmenter that takes frames as they come.
         last_timings: milliseconds of the last :meth:`predict`'s stages (e.g. ``preprocess``,
             ``network``, ``postprocess``); empty where a segmenter does not split them.
+        network_threads: the intra-op threads a network's next forward pass runs with (its
+            logits depend on them); None for a segmenter that is not a network.
     """
 
     num_classes: int
@@ -105,6 +107,12 @@ class Segmenter(abc.ABC):
         on this count (docs/cli.md, "Thread independence"). Returns what it uses now (``{}``
         for a segmenter without such a runtime)."""
         return {}
+
+    @property
+    def network_threads(self) -> int | None:
+        """The intra-op threads the next forward pass runs with; None (the default) for a
+        segmenter that is not a network."""
+        return None
 
     def __call__(self, frame: Frame) -> SemanticObservation:
         return self.predict(frame)

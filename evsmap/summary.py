@@ -26,7 +26,7 @@ def summarize_sequence(
     label classes present (with pixel fractions of all labelled pixels). With ``skip_bad``,
     frames that cannot be read are left out and listed in ``skipped``. ``progress`` wraps the
     frame indices."""
-    names = class_names or getattr(sequence, "class_names", None) or NYU40_CLASSES
+    names = class_names or sequence.class_names or NYU40_CLASSES
     indices: Iterable[int] = range(len(sequence))
     if progress is not None:
         indices = progress(indices)

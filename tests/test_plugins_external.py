@@ -136,7 +136,7 @@ def test_the_doc_systems_map_beside_table_iv_in_the_runner(plugin_package, tmp_p
     full = matrix.plan(ctx, ["table4"], systems)
     mine = [r for r in full.runs if r.row == "maxconf"]
     assert len(mine) == len(full.sequences) == 1 and mine[0].own_labels
-    assert mine[0].key == f"extra/mapping/maxconf/synthetic@{ctx.voxel_size:g}m"
+    assert mine[0].key == f"extra/mapping/maxconf/synthetic@{ctx.resolution:g}m"
     [record] = matrix.run_matrix(ctx, matrix.Plan(specs=[], runs=mine, sequences=["synthetic"]),
                                  pool=lambda n: ThreadPoolExecutor(1),
                                  fresh=lambda: ThreadPoolExecutor(1))  # in this process

@@ -86,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
                           f"{source['split']}) has no frames")
     announce_weights(args, args.model, weights_record, command="evsmap eval", depends=True,
                      noise=noise)
-    precision = apply_precision(args, segmenter, sequence, count=total, what="eval")
+    precision = apply_precision(args, segmenter, sequence, name=args.model, count=total,
+                                what="eval")
     scored = run_segmentation(
         sequence, segmenter, frames=total, skip_bad=args.skip_bad,
         progress=lambda it: progress(it, total=total, desc=f"evaluating {args.model}"),

@@ -145,8 +145,8 @@ def run(args: argparse.Namespace) -> int:
             else f"--device {args.device}"
         raise EvsmapError(f"{option}: updater {args.updater!r} runs no segmenter (pass "
                           f"--segmenter NAME, a network)")
-    precision = {} if segmenter is None else apply_precision(
-        args, segmenter, sequence, count=args.frames, what="map")
+    precision = {} if segmenter is None or seg_name is None else apply_precision(
+        args, segmenter, sequence, name=seg_name, count=args.frames, what="map")
     count = len(sequence) if args.frames is None else min(args.frames, len(sequence))
     if seg_name is not None:  # a segmenter runs
         announce_weights(args, seg_name, weights_record, command="evsmap map",

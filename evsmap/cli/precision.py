@@ -131,7 +131,7 @@ def _require_network(model: str, option: str) -> None:
                           f"{option.split()[0]} out)")
 
 
-def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
+def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *, name: str,
                     count: int | None = None, what: str = "", place: bool = True
                     ) -> dict[str, Any]:
     """Place ``segmenter`` on ``--device`` at an autocast ``--precision``, or calibrate it to
@@ -142,6 +142,8 @@ def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
     Args:
         args: the parsed command line (:func:`add_precision_options`'s options).
         segmenter: the segmenter, created with :func:`backend_for`'s backend.
+        name: the name it is registered under (for the error on a segmenter that is not a
+            network).
         sequence: the sequence processed (calibration frames come from its first ``count``
             frames), or None where there is none (``--calibrate-on`` or the synthetic scene).
         count: how many of its frames are processed (default all).
@@ -152,7 +154,7 @@ def apply_precision(args: argparse.Namespace, segmenter: Any, sequence: Any, *,
     Raises:
         EvsmapError: int8 for a segmenter that is not a network, or no calibration frame.
     """
-    if place and _place(args, segmenter):
+    if place and _place(args, segmenter, name):
         from evsmap.environment import collect_gpu
 
         gpu = collect_gpu(args.device)
@@ -179,7 +181,7 @@ def _precision_fields(args: argparse.Namespace, segmenter: Any, sequence: Any,
         if source_name is None:
             label = "the built-in synthetic scene (no sequence to calibrate on)"
     else:
-        label = f"{getattr(sequence, 'name', 'the sequence')} (the frames processed)"
+        label = f"{sequence.name} (the frames processed)"
         count = len(sequence) if count is None else min(count, len(sequence))
     indices = evenly_spaced(count, args.calibration_frames)
     frames = [sequence.frame(i) for i in progress(indices, desc="int8 calibration frames")]
@@ -195,7 +197,7 @@ def _precision_fields(args: argparse.Namespace, segmenter: Any, sequence: Any,
     return segmenter.precision_record()
 
 
-def _place(args: argparse.Namespace, segmenter: Any) -> bool:
+def _place(args: argparse.Namespace, segmenter: Any, name: str) -> bool:
     """``--device`` and an autocast ``--precision`` applied to a network segmenter (refused in
     one line for a segmenter that is not one); whether it runs on a GPU."""
     device = getattr(args, "device", "cpu")
@@ -207,7 +209,7 @@ def _place(args: argparse.Namespace, segmenter: Any) -> bool:
 
     if not isinstance(segmenter, NetworkSegmenter):
         option = f"--device {device}" if device != "cpu" else f"--precision {autocast}"
-        raise EvsmapError(f"{option}: segmenter {getattr(segmenter, 'name', segmenter)!r} is "
+        raise EvsmapError(f"{option}: segmenter {name!r} is "
                           f"not a network (nothing to run on a device or in {autocast or 'it'})")
     segmenter.place(device=device, precision=autocast)
     return device != "cpu"

@@ -220,7 +220,8 @@ def run(args: argparse.Namespace) -> int:
         raise EvsmapError(f"{sequence.name!r} has no frames")
     announce_weights(args, args.model, weights_record, command="evsmap predict",
                      depends=True, noise=noise)
-    precision = apply_precision(args, segmenter, sequence, count=total, what="predict")
+    precision = apply_precision(args, segmenter, sequence, name=args.model, count=total,
+                                what="predict")
     from evsmap.environment import describe
 
     header = {

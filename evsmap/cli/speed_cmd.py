@@ -156,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
     int8_path = None
     if args.precision == "int8":
         segmenter.backend, segmenter.input_size = backend, (height, width)
-    precision = apply_precision(args, segmenter, None, what="speed", place=False)
+    precision = apply_precision(args, segmenter, None, name=args.model, what="speed",
+                                place=False)
     if args.precision == "int8":
         int8_path = segmenter.quantization.path
     autocast = args.precision if args.precision in ("fp16", "bf16") else None

@@ -110,6 +110,7 @@ class NYUv2Sequence(SegmentationSequence):
             if not ids:
                 raise DataFormatError(f"{split_file}: lists no frames")
         self.root = root
+        self.folder = Path(root)
         super().__init__(
             root.resolve().name, NYUV2_INTRINSICS, layout=NAME, split=split,
             class_names=NYU40_CLASSES, class_colors=palette(NUM_CLASSES), path=root,

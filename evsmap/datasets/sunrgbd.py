@@ -128,6 +128,7 @@ class SUNRGBDSequence(SegmentationSequence):
         if split == "all":
             wanted = tuple(s for s in SPLITS if (root / s).is_dir()) or SPLITS
         self.root = root
+        self.folder = Path(root)
         self.entries: list[tuple[str, str, Intrinsics]] = []
         for s in wanted:
             require_dir(root / s, f"SUN RGB-D {s} split")

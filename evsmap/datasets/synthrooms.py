@@ -363,6 +363,7 @@ class SynthRoomsSequence(SegmentationSequence):
                                       f"pick one room with -r room=N (rooms {_ranges(seq_rooms)} "
                                       f"here)"}
         self.root = root
+        self.folder = Path(root)
         self._poses = poses
         self._by_room = room is not None
         name = root.resolve().name + (f"-room{room}" if room is not None else "")

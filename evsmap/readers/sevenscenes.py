@@ -236,6 +236,7 @@ class SevenScenesSequence(Sequence):
             raise EvsmapError(f"frame_rate must be a positive number, got {frame_rate!r}")
         root, sequences, note = self._choose(given, sequence)
         self.root = root
+        self.folder = Path(root)
         self.depth_scale = float(depth_scale)
         self.frame_rate = float(frame_rate)
         listing = _scan(root)

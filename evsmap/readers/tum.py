@@ -273,6 +273,7 @@ class TumSequence(Sequence):
         if not (max_time_difference > 0):
             raise EvsmapError(f"max_time_difference must be positive, got {max_time_difference}")
         self.root = root
+        self.folder = Path(root)
         self.depth_scale = float(depth_scale)
         meta: dict = {"layout": "tum", "path": str(root)}
         meta_file = root / METADATA_FILE

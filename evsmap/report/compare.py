@@ -240,7 +240,7 @@ def extra_values(extras: Sequence[CellRecord]) -> list[tuple[Cell, Value]]:
 
 def _where(rec: CellRecord) -> str:
     seq = str(rec.inputs.get("sequence") or "?")
-    voxel = number(rec.inputs.get("voxel_size"))
+    voxel = number(rec.inputs.get("resolution"))
     return seq if voxel is None else f"{seq} at {voxel * 100:g} cm"
 
 

@@ -138,7 +138,7 @@ def detail_markdown(extras: Iterable[CellRecord]) -> list[str]:
     for seq, rows in sorted(_by_sequence(records).items(), key=lambda kv: (
             is_scannet_sequence(kv[0]), kv[0])):
         first = next(iter(rows.values()))
-        voxel = first.inputs.get("voxel_size")
+        voxel = first.inputs.get("resolution")
         if all(r.status != "ok" for r in rows.values()):
             out += [f"### {seq}", "", f"Not measured: {first.reason or first.status}", ""]
             continue

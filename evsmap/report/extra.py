@@ -32,7 +32,7 @@ EXTRA_COUNTS = frozenset({"map_bytes", "map_bytes_full", "map_bytes_colour", "ma
                           "rss_added_bytes", "peak_rss_bytes", "nodes", "leaves", "frames"})
 """Value keys that are counts (bytes, nodes, frames): integers in :func:`extra_frame`."""
 
-EXTRA_COLUMNS = ("key", "row", "label", "sequence", "voxel_size", "status", *EXTRA_VALUES,
+EXTRA_COLUMNS = ("key", "row", "label", "sequence", "resolution", "status", *EXTRA_VALUES,
                  "labels_from", "note")
 """Columns of :func:`extra_frame` (values in base units: Hz, bytes, fractions; ``labels_from``:
 the labels a semantic map was made with, :func:`evsmap.report.detail.labels_text`)."""
@@ -63,7 +63,7 @@ def extra_records(records: Iterable[CellRecord]) -> list[CellRecord]:
                                           "octomap-cpp"))}
     extras = [r for r in records if r.table == "extra" or r.key.startswith("extra/")]
     return sorted(extras, key=lambda r: (str(r.inputs.get("sequence", "")),
-                                         number(r.inputs.get("voxel_size")) or 0.0,
+                                         number(r.inputs.get("resolution")) or 0.0,
                                          order.get(r.row, len(order)), r.key))
 
 
@@ -74,7 +74,7 @@ def extra_frame(records: Iterable[CellRecord]) -> pd.DataFrame:
         line: dict[str, Any] = {
             "key": rec.key, "row": rec.row, "label": rec.label,
             "sequence": str(rec.inputs.get("sequence", "")),
-            "voxel_size": number(rec.inputs.get("voxel_size")),
+            "resolution": number(rec.inputs.get("resolution")),
             "status": {"na": "n/a"}.get(rec.status, rec.status),
             "labels_from": _labels_column(rec),
             "note": record_note(rec, sequence=False)}
@@ -82,7 +82,7 @@ def extra_frame(records: Iterable[CellRecord]) -> pd.DataFrame:
             line[key] = number(rec.values.get(key)) if rec.status == "ok" else None
         lines.append(line)
     frame = pd.DataFrame(lines, columns=list(EXTRA_COLUMNS))
-    for name in ("voxel_size", *EXTRA_VALUES):
+    for name in ("resolution", *EXTRA_VALUES):
         # counts stay integers in the CSV (nullable: a cell without a value stays empty)
         kind = "Int64" if name in EXTRA_COUNTS else "float64"
         frame[name] = pd.to_numeric(frame[name]).astype(kind)
@@ -142,7 +142,7 @@ def extra_markdown(records: Iterable[CellRecord]) -> list[str]:
     groups: dict[tuple[str, float | None], list[CellRecord]] = {}
     for rec in extras:
         key = (str(rec.inputs.get("sequence", "") or "unknown"),
-               number(rec.inputs.get("voxel_size")))
+               number(rec.inputs.get("resolution")))
         groups.setdefault(key, []).append(rec)
     for (seq, voxel), recs in groups.items():
         title = f"### Sequence `{seq}`"

@@ -48,7 +48,7 @@ def _runs(extras: Iterable[CellRecord]) -> dict[tuple[str, float], dict[str, Cel
     out: dict[tuple[str, float], dict[str, CellRecord]] = {}
     for r in extras:
         if r.status == "ok" and r.key.startswith("extra/mapping/"):
-            where = (str(r.inputs.get("sequence")), float(r.inputs.get("voxel_size") or 0.0))
+            where = (str(r.inputs.get("sequence")), float(r.inputs.get("resolution") or 0.0))
             out.setdefault(where, {})[r.row] = r
     return out
 

@@ -40,7 +40,7 @@ def mapping_entries(records: Iterable[CellRecord],
             return
         voxel = float(voxel) if isinstance(voxel, (int, float)) else None
         entry = entries.setdefault((str(seq), voxel, rec.row), {
-            "sequence": str(seq), "voxel_size": voxel, "row": rec.row,
+            "sequence": str(seq), "resolution": voxel, "row": rec.row,
             "label": rec.label or rec.row})
         for k, v in got.items():
             if (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -48,7 +48,7 @@ def mapping_entries(records: Iterable[CellRecord],
                 entry[k] = float(v)
 
     for rec in extras:
-        add(rec.inputs.get("sequence"), rec.inputs.get("voxel_size"), rec,
+        add(rec.inputs.get("sequence"), rec.inputs.get("resolution"), rec,
             {k: rec.values.get(k) for k in MAPPING_QUANTITIES})
     for rec in table4:
         seq = rec.inputs.get("sequence")  # the sequence actually measured, when recorded
@@ -56,23 +56,23 @@ def mapping_entries(records: Iterable[CellRecord],
             col = columns.get(cid)
             if col is None:
                 continue
-            voxel = rec.inputs.get("voxel_size", col.voxel_size)
+            voxel = rec.inputs.get("resolution", col.resolution)
             if col.quantity == "map_size" and (seq or col.datasets):
                 add(seq or col.datasets[0], voxel, rec, {"map_bytes": v})
             elif col.quantity == "runtime_hz" and seq:
                 add(seq, voxel, rec, {"segment_update_hz": v})
         if seq:
-            add(seq, rec.inputs.get("voxel_size"), rec,
+            add(seq, rec.inputs.get("resolution"), rec,
                 {k: rec.details.get(k) for k in MAPPING_QUANTITIES})
     # systems that could not map a sequence here (a network without trained weights on a
     # sequence without labels): an entry without values, so the plot says n/a
     for rec in records:
         if rec.status == "na" and rec.key.startswith("extra/mapping/"):
-            seq, voxel = rec.inputs.get("sequence"), rec.inputs.get("voxel_size")
+            seq, voxel = rec.inputs.get("sequence"), rec.inputs.get("resolution")
             voxel = float(voxel) if isinstance(voxel, (int, float)) else None
             if seq:
                 entries.setdefault((str(seq), voxel, rec.row), {
-                    "sequence": str(seq), "voxel_size": voxel, "row": rec.row,
+                    "sequence": str(seq), "resolution": voxel, "row": rec.row,
                     "label": rec.label or rec.row, "na": rec.reason})
     return [e for e in entries.values()
             if e.get("na") or any(e.get(k) is not None
@@ -88,15 +88,15 @@ def mapping_plot(records: Iterable[CellRecord], path: Path,
     entries = mapping_entries(records, tables)
     if not entries:
         return False
-    voxels = {e["voxel_size"] for e in entries}
+    voxels = {e["resolution"] for e in entries}
 
     def group_name(e: dict[str, Any]) -> str:
-        if len(voxels) > 1 and e["voxel_size"] is not None:
-            return f"{e['sequence']} ({e['voxel_size'] * 100:g} cm)"
+        if len(voxels) > 1 and e["resolution"] is not None:
+            return f"{e['sequence']} ({e['resolution'] * 100:g} cm)"
         return e["sequence"]
 
     groups = list(dict.fromkeys(group_name(e) for e in sorted(
-        entries, key=lambda e: (e["sequence"], e["voxel_size"] or 0.0))))
+        entries, key=lambda e: (e["sequence"], e["resolution"] or 0.0))))
     order = {r: i for i, r in enumerate(MAP_ROWS)}
     systems = sorted({(e["row"], e["label"]) for e in entries},
                      key=lambda s: (order.get(s[0], len(order)), s[0]))
@@ -184,7 +184,7 @@ def growth_plot(records: Iterable[CellRecord], path: Path) -> bool:
     for rec in records:
         growth = (rec.details or {}).get("growth") if rec.status == "ok" else None
         if rec.key.startswith("extra/mapping/") and growth:
-            where = (str(rec.inputs.get("sequence")), float(rec.inputs.get("voxel_size") or 0))
+            where = (str(rec.inputs.get("sequence")), float(rec.inputs.get("resolution") or 0))
             series.setdefault(where, {})[rec.row] = (rec.label or rec.row, growth)
     if not series:
         return False

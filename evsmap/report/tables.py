@@ -224,10 +224,10 @@ def _column_details(col: Column) -> str:
         h, w = col.input_size
         parts.append(f"input {w}x{h}" + (" (assumed)" if col.input_size_source == "assumed"
                                          else ""))
-    if col.voxel_size is not None:
-        parts.append(f"voxel {col.voxel_size:g} m" + (" (assumed)"
-                                                     if col.voxel_size_source == "assumed"
-                                                     else ""))
+    if col.resolution is not None:
+        parts.append(f"voxel {col.resolution:g} m" + (" (assumed)"
+                                                      if col.resolution_source == "assumed"
+                                                      else ""))
     if col.note:
         parts.append(col.note)
     return "; ".join(parts)

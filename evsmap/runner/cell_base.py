@@ -35,7 +35,7 @@ def spec_inputs(spec: CellSpec) -> dict[str, Any]:
             "updater": spec.updater.spec if spec.updater else None,
             "datasets": list(spec.datasets), "split": spec.split,
             "input_size": list(spec.input_size) if spec.input_size else None,
-            "voxel_size": spec.voxel_size, "hardware": spec.hardware,
+            "resolution": spec.resolution, "hardware": spec.hardware,
             "config_key": spec.config_key}
 
 

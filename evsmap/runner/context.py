@@ -39,7 +39,7 @@ MAPPING_SEQUENCES: dict[str, dict[str, Any]] = {
 LONG_SYNTHETIC: dict[str, Any] = {"scene": "living_room", "seed": 0, "frames": 640, "laps": 4,
                                   "width": 640, "height": 480, "noise": True}
 """``--extended``: the long synthetic sequence (4 laps of the room, 640 frames, with revisits)."""
-EXTENDED_VOXEL_SIZES = (0.05,)
+EXTENDED_RESOLUTIONS = (0.05,)
 """``--extended``: voxel sizes mapped beside Table IV's (OctoMap's customary 5 cm)."""
 
 
@@ -66,9 +66,9 @@ class RunContext:
         speed_runs: timed passes of each of the two networks the int8 row compares.
         strict_timing: refuse to time on a busy machine: a cell whose calibration shows
             contention is retried once after a pause, then recorded as not measured.
-        voxel_size: Table IV's voxel size (the paper gives none: semantic_slam's default 2 cm
+        resolution: Table IV's voxel size (the paper gives none: semantic_slam's default 2 cm
             is assumed).
-        voxel_sizes_beside: further voxel sizes every Table IV system maps (the extra
+        resolutions_beside: further voxel sizes every Table IV system maps (the extra
             section): OctoMap's customary 5 cm with ``--extended``, else none.
         reference_on_synthetic: the C++ OctoMap reference row also maps the built-in synthetic
             sequences (``--extended``; it maps the real ones always).
@@ -102,8 +102,8 @@ class RunContext:
     threads: int = field(default_factory=lambda: os.cpu_count() or 1)
     timing: dict[str, Any] = field(default_factory=lambda: TimingPolicy().as_dict())
     strict_timing: bool = False
-    voxel_size: float = 0.02
-    voxel_sizes_beside: tuple[float, ...] = ()
+    resolution: float = 0.02
+    resolutions_beside: tuple[float, ...] = ()
     reference_on_synthetic: bool = False
     oracle: dict[str, Any] = field(default_factory=lambda: {"seed": 0})
     scannet_scenes: tuple[str, ...] = ()
@@ -126,7 +126,7 @@ class RunContext:
                   strict_timing=strict_timing)
         if extended and not quick:
             ctx.synthetic_long = dict(LONG_SYNTHETIC)
-            ctx.voxel_sizes_beside = EXTENDED_VOXEL_SIZES
+            ctx.resolutions_beside = EXTENDED_RESOLUTIONS
             ctx.reference_on_synthetic = True
         if quick:
             ctx.synthetic.update(frames=8, width=320, height=240)
@@ -151,9 +151,9 @@ class RunContext:
         """The speed cells' timing rule."""
         return TimingPolicy(**self.timing)
 
-    def voxel_sizes(self) -> list[float]:
+    def resolutions(self) -> list[float]:
         """Table IV's voxel size, then those mapped beside it."""
-        return [self.voxel_size, *(v for v in self.voxel_sizes_beside if v != self.voxel_size)]
+        return [self.resolution, *(v for v in self.resolutions_beside if v != self.resolution)]
 
     # -- where things are -------------------------------------------------------------------
     def roots(self) -> list[Path]:

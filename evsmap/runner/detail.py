@@ -125,7 +125,7 @@ def sensitivity_runs(ctx: RunContext, segmenter: Component) -> list[MappingRun]:
                 str(source.model), str(source.dataset)) is None:
             runs.append(MappingRun(
                 sensitivity_row(source.slug), "TESAMap and EVSMap, a proxy network's labels",
-                segmenter, evsmap_updater, SENSITIVITY_SEQUENCE, ctx.voxel_size,
+                segmenter, evsmap_updater, SENSITIVITY_SEQUENCE, ctx.resolution,
                 labels=source, views=False))
             continue
         for row_id in SENSITIVITY_ROWS:
@@ -133,7 +133,7 @@ def sensitivity_runs(ctx: RunContext, segmenter: Component) -> list[MappingRun]:
             assert updater is not None
             runs.append(MappingRun(sensitivity_row(source.slug, row_id),
                                    f"{LABELS[row_id]}, labels: {source.slug}", segmenter,
-                                   updater, SENSITIVITY_SEQUENCE, ctx.voxel_size,
+                                   updater, SENSITIVITY_SEQUENCE, ctx.resolution,
                                    labels=source, views=False))
     return runs
 
@@ -158,7 +158,7 @@ def detail_runs(ctx: RunContext) -> list[MappingRun]:
             assert system.updater is not None
             runs.append(MappingRun(detail_row(row_id), LABELS[row_id],
                                    segmenter if system.segmenter is not None else None,
-                                   system.updater, seq, ctx.voxel_size))
+                                   system.updater, seq, ctx.resolution))
     assert segmenter is not None
     return runs + sensitivity_runs(ctx, segmenter)
 

@@ -28,7 +28,7 @@ SAME_RUN_NOTE = ("mapped once with {key}: the same updater, network, labels, fra
 def run_identity(run: MappingRun) -> tuple[Any, ...]:
     """What a mapping run's map and timing depend on (not its row, label or views)."""
     labels = None if run.labels is None else json.dumps(run.labels.as_dict(), sort_keys=True)
-    return (run.segmenter, run.updater, run.sequence, run.voxel_size, run.own_labels, labels)
+    return (run.segmenter, run.updater, run.sequence, run.resolution, run.own_labels, labels)
 
 
 def same_runs(runs: list[MappingRun]) -> tuple[list[MappingRun], dict[str, list[MappingRun]]]:

@@ -35,10 +35,9 @@ def sequence_identity(sequence: FrameSequence) -> str:
     own = sequence.frames_identity()
     if own is not None:
         return own
-    path = getattr(sequence, "root", None) or getattr(sequence, "path", None)
-    if path is None:
-        return str(getattr(sequence, "name", "unknown"))
-    p = Path(path).resolve()
+    if sequence.folder is None:
+        return sequence.name
+    p = sequence.folder.resolve()
     try:
         st = p.stat()
         return f"{p}:{st.st_mtime_ns}:{st.st_size}"

@@ -25,9 +25,9 @@ MAPPING_PREFIX = "extra/mapping/"
 """What every mapping run's key starts with (:func:`mapping_key`)."""
 
 
-def mapping_key(row: str, sequence: str, voxel_size: float) -> str:
+def mapping_key(row: str, sequence: str, resolution: float) -> str:
     """The key of a mapping run's record: ``extra/mapping/<row>/<sequence>@<voxel>m``."""
-    return f"{MAPPING_PREFIX}{row}/{sequence}@{voxel_size:g}m"
+    return f"{MAPPING_PREFIX}{row}/{sequence}@{resolution:g}m"
 
 
 REFERENCE_ROW = "octomap-cpp"
@@ -106,7 +106,7 @@ class MappingRun:
     segmenter: Component | None
     updater: Component
     sequence: str
-    voxel_size: float
+    resolution: float
     own_labels: bool = False
     """The segmenter is not a network: its own predictions are the labels (no weights, no
     oracle); a user's system (``--systems``) with such a segmenter."""
@@ -123,14 +123,14 @@ class MappingRun:
 
     @property
     def key(self) -> str:
-        return mapping_key(self.row, self.sequence, self.voxel_size)
+        return mapping_key(self.row, self.sequence, self.resolution)
 
     def base_fields(self) -> dict[str, Any]:
         """The fields every record of this run carries (key, row, inputs, ...)."""
         inputs: dict[str, Any] = {
             "segmenter": self.segmenter.spec if self.segmenter else None,
             "updater": self.updater.spec, "sequence": self.sequence,
-            "voxel_size": self.voxel_size}
+            "resolution": self.resolution}
         if self.labels is not None:
             inputs["labels"] = self.labels.as_dict()
         return {"key": self.key, "table": "extra", "row": self.row, "label": self.label,
@@ -147,34 +147,34 @@ run (:mod:`evsmap.mapping.generator`), so the report shows what the front end ch
 from the node update."""
 
 
-def mapping_runs(sequences: list[str], voxel_sizes: Sequence[float],
+def mapping_runs(sequences: list[str], resolutions: Sequence[float],
                  systems: Sequence[ExtraSystem] = (), *,
                  reference_on_synthetic: bool = True) -> list[MappingRun]:
     """Table IV's systems (and :data:`VARIANT_ROWS`) plus the C++ OctoMap reference, then the
-    user's ``systems`` (``--systems``), on each of ``sequences`` at each of ``voxel_sizes``.
+    user's ``systems`` (``--systems``), on each of ``sequences`` at each of ``resolutions``.
     ``reference_on_synthetic=False`` leaves the reference out on the built-in sequences (the
     Python binding inserts a 640x480 frame at 2 cm in about 1.5 s: 94 s for the synthetic
     room's 60 frames, the longest mapping run; the real sequences keep it)."""
     table = mapping_table()
     runs = []
-    for voxel_size in voxel_sizes:
+    for resolution in resolutions:
         for seq in sequences:
             for system in table.rows:
                 if system.implemented and system.updater is not None:
                     segmenter = system.segmenter_for(MAPPING_WEIGHTS)
                     runs.append(MappingRun(system.id, system.label, segmenter, system.updater,
-                                           seq, voxel_size))
+                                           seq, resolution))
                     if system.id in VARIANT_ROWS:
                         suffix, label, options = VARIANT_ROWS[system.id]
                         runs.append(MappingRun(system.id + suffix, label, segmenter,
                                                system.updater.with_options(options), seq,
-                                               voxel_size))
+                                               resolution))
             if reference_on_synthetic or seq not in SYNTHETIC_SEQUENCES:
                 runs.append(MappingRun(REFERENCE_ROW, "OctoMap (C++)", None,
-                                       Component("octomap-cpp"), seq, voxel_size))
+                                       Component("octomap-cpp"), seq, resolution))
             for extra in systems:
                 runs.append(MappingRun(extra.id, extra.label, extra.segmenter, extra.updater,
-                                       seq, voxel_size, own_labels=extra.segmenter is not None
+                                       seq, resolution, own_labels=extra.segmenter is not None
                                        and not extra.segmenter_is_network))
     return runs
 

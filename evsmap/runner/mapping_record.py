@@ -60,7 +60,7 @@ def mapping_record(run: MappingRun, ctx: RunContext) -> CellRecord:
         if labels.origin:
             details["labels"] = labels.origin
     notes = labels.notes + [
-        f"{n} frames of {sequence.name} at {run.voxel_size:g} m; rates are medians over "
+        f"{n} frames of {sequence.name} at {run.resolution:g} m; rates are medians over "
         f"frames (update only; segmentation + update = the median segmentation time + the "
         f"median update time)"]
     _add_contention(machine, details, notes)
@@ -83,7 +83,7 @@ def _map(run: MappingRun, ctx: RunContext, sequence: FrameSequence, indices: lis
 
     n = len(indices)
     return run_mapping(
-        sequence, lambda: UPDATERS.create(run.updater.name, resolution=run.voxel_size,
+        sequence, lambda: UPDATERS.create(run.updater.name, resolution=run.resolution,
                                           **run.updater.config),
         observations=observations, indices=indices,
         evaluators=[MapStatistics(), MapFiles(), PrunedShare()],
@@ -130,8 +130,8 @@ def _ground_truth(run: MappingRun, ctx: RunContext, sequence: FrameSequence) -> 
     if run.sequence in SYNTHETIC_SEQUENCES:
         from evsmap.synth.cached import cached_ground_truth
 
-        return cached_ground_truth(synthetic_options(ctx, run.sequence), run.voxel_size)
-    return sequence.ground_truth(run.voxel_size) if sequence.has_ground_truth else None
+        return cached_ground_truth(synthetic_options(ctx, run.sequence), run.resolution)
+    return sequence.ground_truth(run.resolution) if sequence.has_ground_truth else None
 
 
 def _add_quality(truth: Any, updater: MapUpdater, values: dict[str, float],
@@ -153,7 +153,7 @@ def _save_artifacts(run: MappingRun, ctx: RunContext, updater: MapUpdater,
                     sequence: FrameSequence,
                     indices: list[int], labels: Labels) -> None:
     """The map's points (for the views of Table IV's maps) and one segmented frame."""
-    if run.voxel_size == ctx.voxel_size:  # the views show Table IV's maps
+    if run.resolution == ctx.resolution:  # the views show Table IV's maps
         _save_map_artifact(updater, run, ctx)
     if labels.observations is not None:
         middle = len(indices) // 2
@@ -172,7 +172,7 @@ def _save_map_artifact(updater: MapUpdater, run: MappingRun, ctx: RunContext) ->
         folder / f"map-{run.row}-{run.sequence}.npz", centres=centres.astype(np.float32),
         labels=labels if labels is not None else np.full(n, -1, dtype=np.int16),
         colors=rgb if rgb is not None else np.zeros((n, 3), dtype=np.uint8),
-        resolution=np.float64(run.voxel_size))
+        resolution=np.float64(run.resolution))
 
 
 def _save_segmentation_artifact(sequence: FrameSequence, index: int,

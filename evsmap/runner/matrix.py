@@ -125,7 +125,7 @@ def plan(ctx: RunContext, tables: Iterable[str] | None = None,
         sequences = ["synthetic"] + (["synthetic-long"] if ctx.synthetic_long else []) + [
             d for d in ("tum", "rtabmap", "asl", "ours1", "ours2")
             if ctx.dataset_path(d) is not None]
-    runs = mapping_runs(sequences, ctx.voxel_sizes(), systems,
+    runs = mapping_runs(sequences, ctx.resolutions(), systems,
                         reference_on_synthetic=ctx.reference_on_synthetic) if sequences else []
     if sequences:  # the semantic-detail section: Table IV's updates, one network, 3D scores
         from evsmap.runner.detail import detail_runs

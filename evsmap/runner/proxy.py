@@ -196,20 +196,20 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
         return [_record(mapping_key(row, room), row, f"{systems[row].label} + proxy {model}",
                         "mapping", status="na", needs=[f"weights:{model}@{DATASET}"],
                         reason=f"n/a - no {DATASET} weights of {model} (training failed)",
-                        inputs={"sequence": sequence_name, "voxel_size": ctx.voxel_size})
+                        inputs={"sequence": sequence_name, "resolution": ctx.resolution})
                 for row in MAPPING_ROWS]
     sequence = READERS.create(DATASET, path=str(data), room=room)
     n = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
     net = build_segmenter(Component(model), backend="torch", weights=str(choice.path))
     frames, observations, segment_ms = _segmented(sequence, n, net)
     truth = SyntheticSequence(scene=info["scene"], seed=int(info["seed"])).ground_truth(
-        ctx.voxel_size)
+        ctx.resolution)
     for row in MAPPING_ROWS:
         system = systems[row]
         component = system.updater
         if component is None:
             raise EvsmapError(f"the mapping table's row {row} has no updater")
-        updater = UPDATERS.create(component.name, resolution=ctx.voxel_size,
+        updater = UPDATERS.create(component.name, resolution=ctx.resolution,
                                   **component.config)
         update_ms = []
         for frame, obs in zip(frames, observations, strict=True):
@@ -225,13 +225,13 @@ def proxy_mapping(ctx: RunContext, model: str, data: Path) -> list[CellRecord]:
             mapping_key(row, room), row, f"{system.label} + proxy {model}", "mapping",
             status="ok", values=values,
             notes=[f"{n} frames of {DATASET} test room {room} ({info['scene']}, layout seed "
-                   f"{info['seed']}) at {ctx.voxel_size:g} m, labels from {model} (torch) with "
+                   f"{info['seed']}) at {ctx.resolution:g} m, labels from {model} (torch) with "
                    f"proxy weights {choice.file}; map scored against the room's ground-truth "
                    f"voxels", choice.note()],
             details={"quality": quality, "update_ms": update_ms, "segment_ms": segment_ms,
                      "room": room, "scene": info["scene"], "seed": info["seed"]},
             inputs={"segmenter": model, "updater": component.spec,
-                    "sequence": sequence_name, "voxel_size": ctx.voxel_size,
+                    "sequence": sequence_name, "resolution": ctx.resolution,
                     "weights": choice.file}))
     return records
 

@@ -70,7 +70,7 @@ def realtime_record(ctx: RunContext, network: str) -> CellRecord:
         key=realtime_key(network), table="extra", row=f"realtime-{network}",
         label=f"EVSMap + {network} int8, end to end", kind="mapping", metrics=[],
         inputs={"segmenter": network, "updater": UPDATER, "sequence": SEQUENCE,
-                "voxel_size": ctx.voxel_size}, started=started)
+                "resolution": ctx.resolution}, started=started)
     try:
         sequence = open_mapping_sequence(ctx, SEQUENCE)
         frames = len(sequence) if ctx.frames is None else min(ctx.frames, len(sequence))
@@ -79,7 +79,7 @@ def realtime_record(ctx: RunContext, network: str) -> CellRecord:
         runs: dict[str, list[dict[str, Any]]] = {post: [] for post in POSTPROCESSES}
         for round_ in range(1 if ctx.quick else 2):
             for post in POSTPROCESSES if round_ % 2 == 0 else POSTPROCESSES[::-1]:
-                rec = map_sequence(sequence, UPDATERS.create(UPDATER, resolution=ctx.voxel_size),
+                rec = map_sequence(sequence, UPDATERS.create(UPDATER, resolution=ctx.resolution),
                                    updater_name=UPDATER, segmenter=segs[post],
                                    segmenter_name=network, frames=frames, pipeline=True)
                 runs[post].append({"wall_hz": rec.wall_hz, "stage_ms": rec.stage_medians(),
@@ -91,7 +91,7 @@ def realtime_record(ctx: RunContext, network: str) -> CellRecord:
                    "int8_scheme": quant.get("int8_scheme"),
                    "int8_scheme_chosen_by": quant.get("int8_scheme_chosen_by"),
                    "frames": frames}
-        notes = [f"{frames} frames of {sequence.name} at {ctx.voxel_size:g} m, pipelined, "
+        notes = [f"{frames} frames of {sequence.name} at {ctx.resolution:g} m, pipelined, "
                  f"int8 {quant.get('int8_scheme')} on {quant.get('instruction_set')}; median "
                  f"of {len(runs['network'])} alternating runs per path"]
         return CellRecord(**base, status="ok", values=values, notes=notes, details=details,

@@ -1,4 +1,4 @@
-"""The keys records used before the rates of a mapping run had one name each.
+"""The keys records used before the rates of a mapping run (and its leaf size) had one name each.
 
 Every record of a mapping run (``evsmap map --json``, the runner's ``extra/mapping/...`` records,
 the report's tables and figures, the benchmarks) names its rates ``update_hz``,
@@ -19,12 +19,14 @@ OLD_KEYS: Final[Mapping[str, str]] = {
     "hz_segment_update": "segment_update_hz",
     "hz_end_to_end": "wall_hz",
     "end_to_end_hz": "segment_update_hz",
+    "voxel_size": "resolution",
 }
 """Old key -> key, for records written before the rates had one name each: ``evsmap map``'s
 ``hz_median``, ``hz_segment_update`` and ``hz_end_to_end`` (frames / wall second), and the
-runner's ``end_to_end_hz`` (which was the segmentation + update rate, not the wall rate).
-:func:`renamed_keys` applies it to a record's ``values`` and ``details`` where a stored
-record is read (:meth:`evsmap.runner.records.CellRecord.from_json`)."""
+runner's ``end_to_end_hz`` (which was the segmentation + update rate, not the wall rate); and
+the map's leaf size, ``voxel_size`` in the runner's records until issue 55 and ``resolution``
+everywhere else. :func:`renamed_keys` applies it to a record's ``inputs``, ``values`` and
+``details`` where a stored record is read (:meth:`evsmap.runner.records.CellRecord.from_json`)."""
 
 
 def older_size_readings(values: Mapping[str, Any], inputs: Mapping[str, Any],

@@ -143,7 +143,7 @@ class CellRecord:
                 what = "a list of strings" if name in _STRING_LISTS else _KIND_NAMES[kind]
                 raise DataFormatError(f"{source}: not a cell record ({name!r} must be {what}, "
                                       f"not {type(value).__name__})")
-        data = {k: renamed_keys(v) if k in ("values", "details") else v  # old runs' rate keys
+        data = {k: renamed_keys(v) if k in _RENAMED else v  # old runs' keys (rates, leaf size)
                 for k, v in data.items()}
         if str(data.get("key", "")).startswith("extra/mapping/"):  # old runs' size readings
             data["values"] = older_size_readings(data.get("values") or {},
@@ -159,6 +159,7 @@ _JSON_TYPES: dict[str, Any] = {
     "metrics": list, "notes": list, "needs": list,
     "values": dict, "details": dict, "inputs": dict, "environment": dict}
 _STRING_LISTS = ("metrics", "notes", "needs")
+_RENAMED = ("inputs", "values", "details")
 _KIND_NAMES = {str: "a string", (int, float): "a number", int: "an integer", list: "a list",
                dict: "an object"}
 

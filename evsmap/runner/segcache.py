@@ -85,7 +85,7 @@ class SegmentationCache:
             obs, times = seg.results["observations"], seg.predict_ms
             (tmp / "meta.json").write_text(json.dumps(
                 {"key": key, "indices": indices, "predict_ms": times,
-                 "network_threads": getattr(segmenter, "network_threads", None)}, default=str))
+                 "network_threads": segmenter.network_threads}, default=str))
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -46,7 +46,7 @@ def table4_record(spec: CellSpec, runs: dict[str, CellRecord], ctx: RunContext) 
     wall rate ``wall_hz``), on the one sequence every row's rate comes from
     (:func:`runtime_sequence`), so the column compares systems on the same frames."""
     base = base_fields(spec)
-    voxel = spec.voxel_size or ctx.voxel_size
+    voxel = spec.resolution or ctx.resolution
 
     def run_of(seq: str) -> CellRecord | None:
         return runs.get(mapping_key(spec.row, seq, voxel))

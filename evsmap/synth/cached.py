@@ -51,6 +51,8 @@ class CachedSynthetic(Sequence):
             noise).
     """
 
+    folder: Path
+
     def __init__(self, **options) -> None:
         from evsmap.registry import READERS
 

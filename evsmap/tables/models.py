@@ -24,6 +24,7 @@ from collections.abc import Mapping, Sequence
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 from pydantic import (
+    AliasChoices,
     BaseModel,
     ConfigDict,
     Field,
@@ -44,6 +45,11 @@ from evsmap.tables.records import (
 )
 
 _ID_PATTERN = r"^[a-z0-9][a-z0-9_.+-]*$"
+
+OLD_COLUMN_KEYS: dict[str, tuple[str, ...]] = {
+    "resolution": ("voxel_size",), "resolution_source": ("voxel_size_source",)}
+"""A column's key -> the names it had before (a table file written then still loads): the map's
+leaf size was ``voxel_size`` in the tables and ``resolution`` everywhere else until issue 55."""
 
 Text = Annotated[str, Field(strict=True)]
 Flag = Annotated[bool, Field(strict=True)]
@@ -95,8 +101,10 @@ class ColumnModel(_Model):
     split: Text | None = None
     input_size: tuple[Pixels, Pixels] | None = None
     input_size_source: Source | None = None
-    voxel_size: Metres | None = None
-    voxel_size_source: Source | None = None
+    resolution: Metres | None = Field(None, validation_alias=AliasChoices(
+        "resolution", *OLD_COLUMN_KEYS["resolution"]))
+    resolution_source: Source | None = Field(None, validation_alias=AliasChoices(
+        "resolution_source", *OLD_COLUMN_KEYS["resolution_source"]))
     note: Text = ""
 
     @field_validator("id")
@@ -128,8 +136,8 @@ class ColumnModel(_Model):
         return Column(id=self.id, header=self.header, quantity=self.quantity, unit=self.unit,
                       datasets=tuple(self.dataset), split=self.split, input_size=self.input_size,
                       input_size_source=self.input_size_source,
-                      voxel_size=None if self.voxel_size is None else float(self.voxel_size),
-                      voxel_size_source=self.voxel_size_source, note=self.note)
+                      resolution=None if self.resolution is None else float(self.resolution),
+                      resolution_source=self.resolution_source, note=self.note)
 
     @model_validator(mode="after")
     def _consistent(self) -> ColumnModel:
@@ -139,7 +147,7 @@ class ColumnModel(_Model):
                          f"(allowed: {', '.join(map(repr, q.units))})")
         if q.kind in ("accuracy", "mapping") and not self.dataset:
             raise _error(f"a {self.quantity} column needs a dataset")
-        for key, value in (("input_size", self.input_size), ("voxel_size", self.voxel_size)):
+        for key, value in (("input_size", self.input_size), ("resolution", self.resolution)):
             if (value is None) != (getattr(self, f"{key}_source") is None):
                 raise _error(f"give {key}_source exactly when {key} is given")
         return self

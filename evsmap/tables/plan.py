@@ -42,7 +42,7 @@ class CellSpec:
         datasets: datasets or sequences (empty for complexity and speed).
         split: dataset split, if any.
         input_size: network input ``(height, width)``, if fixed by the column.
-        voxel_size: map resolution, metres (mapping cells).
+        resolution: map resolution, metres (mapping cells).
         hardware: the ``[hardware]`` id the paper measured on, if stated.
         metrics: the column ids this run fills.
         paper: the printed cells of those columns.
@@ -63,7 +63,7 @@ class CellSpec:
     datasets: tuple[str, ...]
     split: str | None
     input_size: tuple[int, int] | None
-    voxel_size: float | None
+    resolution: float | None
     hardware: str | None
     metrics: tuple[str, ...]
     paper: tuple[Cell, ...] = field(repr=False)
@@ -72,12 +72,12 @@ class CellSpec:
     needs: tuple[str, ...]
 
     @property
-    def resolution(self) -> str | None:
+    def printed_size(self) -> str | None:
         """``WxH`` input size or ``R m`` voxel size, as the paper prints it."""
         if self.input_size is not None:
             return f"{self.input_size[1]}x{self.input_size[0]}"
-        if self.voxel_size is not None:
-            return f"{self.voxel_size:g} m"
+        if self.resolution is not None:
+            return f"{self.resolution:g} m"
         return None
 
     @property
@@ -112,7 +112,7 @@ def _groups(table: PaperTable, system: System) -> list[tuple[list[Column], str |
         if col.kind == "complexity" and col.input_size is None:
             loose.append(col)
             continue
-        key = (col.kind, col.datasets, col.split, col.input_size, col.voxel_size, hw,
+        key = (col.kind, col.datasets, col.split, col.input_size, col.resolution, hw,
                col.timing)
         groups.setdefault(key, []).append(col)
     if loose:
@@ -157,7 +157,7 @@ def expand(table: PaperTable, *, available: Iterable[str] | None = None,
             first = cols[0]
             kind, datasets, split = first.kind, first.datasets, first.split
             size = next((c.input_size for c in cols if c.input_size is not None), None)
-            voxel = first.voxel_size
+            voxel = first.resolution
             timing = first.timing
             weights_ds: str | None
             if kind == "mapping":
@@ -181,7 +181,7 @@ def expand(table: PaperTable, *, available: Iterable[str] | None = None,
                 key=f"{table.id}/{system.id}/{what}", config_key=f"{systems}/{what}",
                 table=table.id, row=system.id, label=system.label, kind=kind,
                 segmenter=segmenter, updater=system.updater, datasets=datasets, split=split,
-                input_size=size, voxel_size=voxel, hardware=hw,
+                input_size=size, resolution=voxel, hardware=hw,
                 metrics=tuple(c.id for c in cols),
                 paper=tuple(table.cell(system.id, c.id) for c in cols),
                 fresh_process=timing, requires=requires,

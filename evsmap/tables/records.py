@@ -112,8 +112,8 @@ class Column:
         split: the dataset split (``test``, ``val``), if any.
         input_size: network input ``(height, width)``, if the column depends on it.
         input_size_source: ``paper`` (printed) or ``assumed``.
-        voxel_size: map resolution in metres (mapping columns).
-        voxel_size_source: ``paper`` or ``assumed``.
+        resolution: map resolution in metres (mapping columns).
+        resolution_source: ``paper`` or ``assumed``.
         note: anything the paper leaves open about the column.
     """
 
@@ -125,8 +125,8 @@ class Column:
     split: str | None = None
     input_size: tuple[int, int] | None = None
     input_size_source: str | None = None
-    voxel_size: float | None = None
-    voxel_size_source: str | None = None
+    resolution: float | None = None
+    resolution_source: str | None = None
     note: str = ""
 
     @property

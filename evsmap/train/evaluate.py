@@ -118,8 +118,7 @@ def open_test_split(opts: RunOptions, splits: Splits) -> tuple[Any, str | None]:
                            train_split=TEST_SPLIT, val_split=TEST_SPLIT, limit=opts.limit).val
     except EvsmapError as exc:
         return None, f"no {TEST_SPLIT} split to score ({exc})"
-    meta = getattr(test, "meta", None) or {}
-    if TEST_SPLIT in (meta.get("void_label_splits") or ()):
+    if TEST_SPLIT in (test.meta.get("void_label_splits") or ()):
         return None, f"the {TEST_SPLIT} labels of {splits.reader} are all void"
     return test, None
 

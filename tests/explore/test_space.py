@@ -25,7 +25,7 @@ def test_shipped_space_defaults_are_what_table_iv_runs_with() -> None:
         assert defaults[name] == pytest.approx(params[name].default), name
     # the clamps are left to the generator (None in the factory): SSMI's yaml values
     assert (defaults["clamp_min"], defaults["clamp_max"]) == (PROB_MIN, PROB_MAX)
-    voxel = {c.voxel_size for c in mapping_table().columns}
+    voxel = {c.resolution for c in mapping_table().columns}
     assert voxel == {defaults["resolution"]}
     assert [o.name for o in space.objectives] == ["map_size", "scene_miou"]
     assert space.baseline == "tesamap"

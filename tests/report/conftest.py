@@ -46,7 +46,7 @@ def rec(table: str, row: str, prefix: str, label: str, kind: str, metrics: list[
 def extra(row: str, label: str, seq: str, status: str, **kw) -> CellRecord:
     return CellRecord(key=f"extra/mapping/{row}/{seq}@0.05m", table="extra", row=row,
                       label=label, kind="mapping", metrics=[], status=status,
-                      inputs={"sequence": seq, "voxel_size": 0.05}, **kw)
+                      inputs={"sequence": seq, "resolution": 0.05}, **kw)
 
 
 def make_records() -> list[CellRecord]:

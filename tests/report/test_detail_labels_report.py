@@ -25,7 +25,7 @@ def _rec(row: str, miou: float | None, *, labels: dict | None = None,
          inputs_labels: dict | None = None, labels_from: str | None = None,
          status: str = "ok", reason: str | None = None, notes=()) -> CellRecord:
     inputs = {"segmenter": "feagnet-v2", "updater": "x", "sequence": "synthetic",
-              "voxel_size": 0.02}
+              "resolution": 0.02}
     if inputs_labels is not None:
         inputs["labels"] = inputs_labels
     details = {}

@@ -32,7 +32,7 @@ def _run(row: str, seq: str = "tum", voxel: float = 0.02, **override) -> CellRec
                "memory_bytes": values["octomap_memory_bytes"] * f // 4} for f in (1, 2, 3, 4)]
     return CellRecord(key=f"extra/mapping/{row}/{seq}@{voxel:g}m", table="extra", row=row,
                       label=row.upper(), kind="mapping", metrics=[], status="ok",
-                      values=values, inputs={"sequence": seq, "voxel_size": voxel},
+                      values=values, inputs={"sequence": seq, "resolution": voxel},
                       details={"growth": growth})
 
 

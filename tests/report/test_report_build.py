@@ -143,13 +143,13 @@ def test_proxy_maps_stay_out_of_the_mapping_plot():
 
     base = CellRecord(key="extra/mapping/evsmap/synthetic@0.05m", table="extra", row="evsmap",
                       label="EVSMap", kind="mapping", metrics=[], status="ok",
-                      inputs={"sequence": "synthetic", "voxel_size": 0.05},
+                      inputs={"sequence": "synthetic", "resolution": 0.05},
                       values={"update_hz": 20.0})
     proxy = CellRecord.from_dict({**base.as_dict(),
                                   "key": "extra/proxy-mapping/evsmap/synthrooms-room20",
                                   "label": "EVSMap + proxy feagnet-v1",
                                   "inputs": {"sequence": "synthrooms-room20",
-                                             "voxel_size": 0.05},
+                                             "resolution": 0.05},
                                   "values": {"update_hz": 58.0}})
     entries = mapping_entries([base, proxy])
     assert [(e["sequence"], e["update_hz"]) for e in entries] == [("synthetic", 20.0)]

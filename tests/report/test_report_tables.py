@@ -214,7 +214,7 @@ def test_extra_frame_base_units():
     assert len(frame) == 5
     ev = frame[frame["key"] == "extra/mapping/evsmap/synthetic@0.05m"].iloc[0]
     assert ev["map_bytes"] == 2.5e6 and ev["precision"] == pytest.approx(0.951)
-    assert ev["sequence"] == "synthetic" and ev["voxel_size"] == 0.05
+    assert ev["sequence"] == "synthetic" and ev["resolution"] == 0.05
     na = frame[frame["row"] == "tesamap"].iloc[0]
     assert na["status"] == "n/a" and pd.isna(na["update_hz"])
 
@@ -279,7 +279,7 @@ def test_cosmetics_headers_ratios_counts_and_skipped_cells(tables):
     rec = CellRecord(key="extra/mapping/evsmap/synthetic@0.05m", table="extra", row="evsmap",
                      label="EVSMap", kind="mapping", metrics=[], status="ok",
                      values={"map_bytes": 1234.0, "nodes": 7.0, "update_hz": 2.5},
-                     inputs={"sequence": "synthetic", "voxel_size": 0.05})
+                     inputs={"sequence": "synthetic", "resolution": 0.05})
     csv = extra_frame([rec]).to_csv(index=False)
     assert ",1234," in csv and ",7," in csv and "1234.0" not in csv
 

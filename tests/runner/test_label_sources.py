@@ -63,7 +63,7 @@ def test_without_proxy_weights_each_other_profile_twice_and_one_na_run(tmp_path)
         (p, row) for p in others for row in SENSITIVITY_ROWS]
     network = [r for r in runs if r.labels.kind == "network"]
     assert len(network) == 1 and sensitivity_system(network[0].row) is None
-    assert all(r.sequence == "synthetic" and r.voxel_size == ctx.voxel_size and not r.views
+    assert all(r.sequence == "synthetic" and r.resolution == ctx.resolution and not r.views
                for r in runs)
     # every source has its own record key; the default rows' keys are untouched
     keys = [r.key for r in runs]

@@ -20,7 +20,8 @@ def _old_mapping_record() -> dict:
 
 def test_the_old_keys_name_one_quantity_each():
     assert OLD_KEYS == {"hz_median": "update_hz", "hz_segment_update": "segment_update_hz",
-                        "hz_end_to_end": "wall_hz", "end_to_end_hz": "segment_update_hz"}
+                        "hz_end_to_end": "wall_hz", "end_to_end_hz": "segment_update_hz",
+                        "voxel_size": "resolution"}
     # ``map --json``'s old record: every rate under its new name, the other keys kept in order
     old = {"frames": 2, "hz_median": 50.0, "hz_end_to_end": 9.0, "hz_segment_update": 20.0,
            "wall_s": 0.2}
@@ -42,7 +43,8 @@ def test_a_stored_record_with_the_old_keys_loads_under_the_new_ones(tmp_path):
     assert rec.values == {"frames": 8.0, "update_hz": 40.0, "segment_update_hz": 12.5,
                           "map_bytes": 2.0e5, "map_bytes_message": 2.0e5}
     assert rec.details["segment_update_hz"] == 12.5 and "end_to_end_hz" not in rec.details
-    assert rec.inputs == data["inputs"]  # only values and details hold rates
+    # the leaf size, ``voxel_size`` in the inputs before issue 55, reads as ``resolution``
+    assert rec.inputs == {"sequence": "synthetic", "resolution": 0.02}
 
 
 def test_an_old_run_fills_the_tables_as_before(tmp_path):
@@ -51,6 +53,7 @@ def test_an_old_run_fills_the_tables_as_before(tmp_path):
     rec = CellRecord.from_json(_old_mapping_record(), source="old.json")
     row = extra_frame([rec]).iloc[0]
     assert row["update_hz"] == 40.0 and row["segment_update_hz"] == 12.5
+    assert row["resolution"] == 0.02 and row["sequence"] == "synthetic"
 
 
 def test_an_old_ssmi_record_reads_its_saved_file_and_its_message():

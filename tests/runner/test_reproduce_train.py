@@ -31,7 +31,7 @@ def fake_cells(monkeypatch):
         return CellRecord(key=run.key, table="extra", row=run.row, label=run.label,
                           kind="mapping", metrics=[], status="ok",
                           values={"segment_update_hz": 1.0, "update_hz": 1.0, "map_bytes": 1.0},
-                          inputs={"sequence": run.sequence, "voxel_size": run.voxel_size})
+                          inputs={"sequence": run.sequence, "resolution": run.resolution})
 
     monkeypatch.setattr(matrix, "execute_spec", execute_spec)
     monkeypatch.setattr(matrix, "execute_mapping", execute_mapping)

@@ -222,7 +222,7 @@ def test_mapping_run_on_the_synthetic_sequence(ctx):
     from evsmap.runner.execute import execute_mapping
 
     ctx.synthetic.update(frames=3, width=80, height=60)
-    ctx.voxel_size = 0.1  # Table IV's: its map is kept for the report's views
+    ctx.resolution = 0.1  # Table IV's: its map is kept for the report's views
     run = MappingRun("evsmap", "EVSMap", Component("oracle"), Component("multiclass-bayes"),
                      "synthetic", 0.1)
     # the oracle stands for a network here: its "timing" is the oracle's own
@@ -330,7 +330,7 @@ def test_a_contended_mapping_run_is_run_again_and_the_calmer_try_kept(ctx, monke
     tries = iter([_contended(2.0), _contended(1.1)])
     monkeypatch.setattr(matrix, "_mapping_worker", lambda run, data: next(tries).as_dict())
     monkeypatch.setattr(matrix.time, "sleep", lambda s: None)
-    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", voxel_size=0.05,
+    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", resolution=0.05,
                      updater=Component("multiclass-bayes"), segmenter=None)
     rec = matrix._timed_mapping(run, replace(ctx, strict_timing=strict), Inline)
     assert rec.status == "ok" and rec.details["contention"]["slowdown"] == 1.1
@@ -343,7 +343,7 @@ def test_strict_timing_refuses_a_mapping_run_contended_twice(ctx, monkeypatch):
     tries = iter([_contended(2.0), _contended(3.0)])
     monkeypatch.setattr(matrix, "_mapping_worker", lambda run, data: next(tries).as_dict())
     monkeypatch.setattr(matrix.time, "sleep", lambda s: None)
-    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", voxel_size=0.05,
+    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", resolution=0.05,
                      updater=Component("multiclass-bayes"), segmenter=None)
     loose = matrix._timed_mapping(run, ctx, Inline)
     assert loose.status == "ok" and loose.details["contention"]["slowdown"] == 2.0
@@ -361,7 +361,7 @@ def test_a_calm_mapping_run_runs_once(ctx, monkeypatch):
         return _contended(1.05).as_dict()
 
     monkeypatch.setattr(matrix, "_mapping_worker", worker)
-    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", voxel_size=0.05,
+    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", resolution=0.05,
                      updater=Component("multiclass-bayes"), segmenter=None)
     assert matrix._timed_mapping(run, ctx, Inline).status == "ok" and len(calls) == 1
 
@@ -384,7 +384,7 @@ def test_a_host_slowdown_with_idle_cores_is_flagged_not_timed_again(ctx, monkeyp
 
     monkeypatch.setattr(matrix, "_mapping_worker", worker)
     monkeypatch.setattr(matrix.time, "sleep", lambda s: None)
-    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", voxel_size=0.05,
+    run = MappingRun(row="evsmap", label="EVSMap", sequence="synthetic", resolution=0.05,
                      updater=Component("multiclass-bayes"), segmenter=None)
     rec = matrix._timed_mapping(run, ctx, Inline)
     assert len(calls) == 1 and rec.notes[-1] == HOST_SLOWDOWN_NOTE

@@ -49,7 +49,7 @@ def test_the_oracle_on_a_sequence_without_labels_is_not_applicable(tmp_path, tum
     assert ctx.dataset_path("tum") is not None
     plan = matrix.plan(ctx, ["table4"], [system])
     runs = [r for r in plan.runs if r.row == "mine" and r.sequence == "tum"
-            and r.voxel_size == ctx.voxel_size]
+            and r.resolution == ctx.resolution]
     assert len(runs) == 1 and runs[0].own_labels
     [record] = matrix.run_matrix(ctx, matrix.Plan(specs=[], runs=runs, sequences=["tum"]),
                                  pool=lambda n: ThreadPoolExecutor(1),

@@ -287,6 +287,30 @@ def test_unreadable_file(tmp_path):
         load_tables(tmp_path / "missing.toml")
 
 
+def test_a_table_file_with_the_old_name_of_the_leaf_size_loads(raw, tmp_path):
+    """Until issue 55 a mapping column's leaf size was ``voxel_size`` (and
+    ``voxel_size_source``): a user's table file written so reads as ``resolution``."""
+    old = copy.deepcopy(raw)
+    for col in old["tables"]["table4"]["columns"]:
+        col["voxel_size"], col["voxel_size_source"] = (col.pop("resolution"),
+                                                       col.pop("resolution_source"))
+    columns = parse_tables(old).tables["table4"].columns
+    assert columns == parse_tables(raw).tables["table4"].columns
+    assert {(c.resolution, c.resolution_source) for c in columns} == {(0.02, "assumed")}
+    path = tmp_path / "mine.toml"
+    path.write_text(default_path().read_text()
+                     .replace("resolution = 0.02", "voxel_size = 0.02")
+                     .replace("resolution_source =", "voxel_size_source ="))
+    assert [c.key for c in expand_all(load_tables(path))] == [
+        c.key for c in expand_all(load_tables())]
+
+
+def test_the_leaf_size_and_its_source_go_together(raw):
+    broken = _broken(raw, lambda d: d["tables"]["table4"]["columns"][0].pop("resolution_source"))
+    with pytest.raises(TableSchemaError, match="give resolution_source exactly when resolution"):
+        parse_tables(broken)
+
+
 # ---------------------------------------------------------------------------- expansion
 def test_expansion_is_deterministic_and_keys_unique(tables):
     a, b = expand_all(tables), expand_all(load_tables())
@@ -312,7 +336,7 @@ def test_expansion_of_table1(tables):
     assert sun.segmenter.config == {"num_classes": 37}
     comp = by_key["table1/feagnet-v2/complexity@640x480[params,flops]"]
     assert comp.metrics == ("params", "flops") and comp.requires == ()
-    assert comp.input_size == (480, 640) and comp.resolution == "640x480"
+    assert comp.input_size == (480, 640) and comp.printed_size == "640x480"
     assert [c.printed for c in comp.paper] == ["4.5", "7.8"]
     fast = by_key["table1/feagnet-v2-jetson/speed@640x480#jetson-tensorrt[fps]"]
     assert fast.fresh_process and fast.hardware == "jetson-tensorrt"
@@ -353,6 +377,6 @@ def test_expansion_of_tables_3_and_4(tables):
     ev = {c.key: c for c in t4 if c.row == "evsmap"}
     size = ev["table4/evsmap/mapping/tum@0.02m[map_size]"]
     assert size.requires == ("dataset:tum", "weights:feagnet-v2@nyuv2")
-    assert size.voxel_size == 0.02 and size.resolution == "0.02 m" and not size.fresh_process
+    assert size.resolution == 0.02 and size.printed_size == "0.02 m" and not size.fresh_process
     runtime = ev["table4/evsmap/mapping/tum+rtabmap+asl+ours1+ours2@0.02m[runtime_hz]"]
     assert runtime.fresh_process and len(runtime.datasets) == 5

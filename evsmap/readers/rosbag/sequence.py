@@ -81,6 +81,7 @@ class RosbagSequence(_FramePoseMixin, Sequence):
 
         bag = Path(path)
         self.path = bag
+        self.folder = bag
         self.label = str(path)
         if not bag.exists():
             raise DataFormatError(f"{self.label}: no such file or folder")
