@@ -17,7 +17,7 @@ from evsmap.updaters.factories import given, octree_factory
 
 if TYPE_CHECKING:
     from baselines.octomap_adapters import OctoMapAdapter
-    from evsmap.updaters.base import OctreeUpdater
+    from evsmap.updaters.tree_map import OctreeMap
 
 
 CLASSIC: dict[str, Any] = {"front_end": "generator", "raycast_range": 2.0, "clamp_min": None,
@@ -26,7 +26,7 @@ CLASSIC: dict[str, Any] = {"front_end": "generator", "raycast_range": 2.0, "clam
 own, semantic_slam's ``octomap_generator.yaml`` 0.12 / 0.97 with the generator)."""
 
 
-def classic(rule: str, *, front_end: str, **options: Any) -> OctreeUpdater:
+def classic(rule: str, *, front_end: str, **options: Any) -> OctreeMap:
     """semantic_slam's map with fusion ``rule`` (``bayes``, ``max``): its own pipeline
     (:class:`~baselines.semantic_slam.SemanticSlamMap`) or, ``front_end="direct"``, evsmap's cleaner
     variant (:class:`~baselines.classic_semantic.ClassicSemanticMap`)."""
