@@ -468,6 +468,8 @@ class Sequence(abc.ABC):
     """
 
     folder: Path | None = None
+    _class_names: tuple[str, ...] = ()
+    _num_classes: int | None = None
 
     def __init__(self, name: str, intrinsics: Intrinsics | None, meta: dict | None = None
                  ) -> None:
@@ -489,7 +491,7 @@ class Sequence(abc.ABC):
 
     @property
     def class_names(self) -> tuple[str, ...]:
-        own = getattr(self, "_class_names", ())
+        own = self._class_names
         if own:
             return own
         return tuple(str(n) for n in (self.meta.get("class_names") or ()))
@@ -500,7 +502,7 @@ class Sequence(abc.ABC):
 
     @property
     def num_classes(self) -> int | None:
-        own = getattr(self, "_num_classes", None) or self.meta.get("num_classes")
+        own = self._num_classes or self.meta.get("num_classes")
         if own:
             return int(own)
         return len(self.class_names) or None

@@ -279,7 +279,7 @@ class RayExecutor(CellExecutor):
              "cpus": int(n["Resources"]["CPU"]), "head": HEAD_RESOURCE in n["Resources"]}
             for n, p in zip(nodes, probes, strict=True)]
         self._max_cpus = max(n["cpus"] for n in self._nodes)
-        self._gpu = getattr(ctx, "device", "cpu") != "cpu"
+        self._gpu = ctx.device != "cpu"
         candidates = [n for n in self._nodes if n["gpus"] >= 1 and n["gpu"]] if self._gpu \
             else self._nodes
         if not candidates:

@@ -72,7 +72,7 @@ class Normalization:
             png = ((mm << 3) | (mm >> 13)) & 0xFFFF
             out[valid] = png[valid]
             return out
-        scale = getattr(frame, "disparity_scale", None)
+        scale = None if frame is None else frame.disparity_scale
         if scale is None:
             name = f"frame {frame.name!r}" if frame is not None and frame.name else "this frame"
             raise InvalidDataError(
