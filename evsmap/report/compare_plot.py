@@ -47,7 +47,7 @@ def speed_plot(comparison: Comparison, path: Path) -> bool:
     series = [(i, pts) for i, pts in series if pts]
     if not series:
         return False
-    fig = new_figure(7.5, 6.5, layout="constrained")
+    fig = new_figure(7.5, 8.2, layout="constrained")
     ax = fig.add_subplot(1, 1, 1)
     low = min(min(p["x"], p["y"]) for _, pts in series for p in pts) / 1.5
     high = max(max(p["x"], p["y"]) for _, pts in series for p in pts) * 1.5
@@ -79,7 +79,8 @@ def speed_plot(comparison: Comparison, path: Path) -> bool:
     ax.set_title("Speed cells of both runs (error bars: each median's 95 % interval)",
                  fontsize=9)
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    ax.legend(fontsize=7, loc="upper left")
+    # outside the axes: every corner of a log-log comparison can hold points
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1, fontsize=7)
     save_figure(fig, path)
     return True
 
