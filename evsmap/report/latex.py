@@ -120,7 +120,8 @@ def _measured_latex(line: Mapping[str, Any], cell: Cell, column: Column, notes: 
 def _caption(table: PaperTable, run: Mapping[str, Any]) -> str:
     quick = " (a \\texttt{--quick} run)" if run.get("quick") else ""
     started = str(run.get("started") or "")[:10]
-    return (f"Table {escape(table.number)}: {escape(table.title)}. Measured by evsmap on "
+    return (f"{escape(table.title)} (the paper's Table {escape(table.number)}). Measured by "
+            f"evsmap on "
             f"{escape(machine_text(run))}, commit \\texttt{{{escape(commit_of(run)[:10])}}}"
             f"{quick}{', ' + escape(started) if started else ''}, beside the paper's figures; "
             f"a timed value is its median $\\pm$ the half-width of its 95\\,\\% interval.")
@@ -157,7 +158,7 @@ def table_latex(table: PaperTable, frame: pd.DataFrame, run: Mapping[str, Any]) 
             measured = ("--" if line is None else _measured_latex(line, cell, col, notes))
             cells += [measured, _paper_latex(cell)]
         body.append(" & ".join(cells) + r" \\")
-    marks = [f"{escape(m)}: {escape(t)}" for m, t in table.footnotes.items()]
+    marks = [f"{escape(m)}: {escape(t.rstrip('. '))}" for m, t in table.footnotes.items()]
     out = [r"\begin{table}[htbp]", r"\centering", r"\small",
            f"\\caption{{{_caption(table, run)}}}", f"\\label{{tab:evsmap-{table.id}}}",
            f"\\begin{{tabular}}{{{align}}}", r"\toprule", " & ".join(head) + r" \\"]
