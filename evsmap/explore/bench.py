@@ -179,8 +179,12 @@ class Bench:
         observations and the cache identity its own."""
         other = copy.copy(self)
         other.inputs = inputs
-        other._observations, other._identity = None, {}
+        other.forget_observations()
         return other
+
+    def forget_observations(self) -> None:
+        """Drop the observations and their cache identity (made again on first use)."""
+        self._observations, self._identity = None, {}
 
     def labelled_map(self, name: str, options: dict[str, Any],
                      shared: dict[str, Any]) -> dict[str, Any]:

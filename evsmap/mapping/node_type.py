@@ -162,7 +162,7 @@ class NodeType:
     def __reduce__(self) -> tuple[Callable[[str], NodeType], tuple[str]]:
         """A registered node type pickles as its id (its rules may be lambdas or closures), so
         an updater holding one can cross a process boundary."""
-        if NODE_TYPES._types.get(self.tree_id) is not self:
+        if not NODE_TYPES.holds(self):
             raise TypeError(f"node type {self.tree_id!r} is not registered: only registered node "
                             f"types pickle (by their id)")
         return (_registered, (self.tree_id,))
@@ -262,6 +262,10 @@ class NodeTypeRegistry:
         """Import the module of built-in ``tree_id`` if it is not registered yet."""
         if tree_id not in self._types and tree_id in self._builtins:
             importlib.import_module(self._builtins[tree_id])
+
+    def holds(self, node_type: NodeType) -> bool:
+        """Whether ``node_type`` itself is the one registered under its id."""
+        return self._types.get(node_type.tree_id) is node_type
 
     def names(self) -> list[str]:
         """The ids registered and the built-in ones."""
