@@ -97,9 +97,9 @@ def test_bad_values_and_combinations_are_one_line(capsys, tiny, argv, words):
 
 def test_the_spelled_out_names_match_the_measure_layer():
     from evsmap.cli import speed_cmd
-    from evsmap.measure import batch_sweep, speed
+    from evsmap.measure import batch_sweep, speed_backends
 
-    assert speed_cmd.COMPILE_MODES == speed.COMPILE_MODES
-    assert sorted(speed_cmd.BACKENDS) == sorted(speed.BACKENDS)
+    assert speed_cmd.COMPILE_MODES == speed_backends.COMPILE_MODES
+    assert sorted(speed_cmd.BACKENDS) == sorted(speed_backends.BACKENDS)
     assert speed_cmd.DEFAULT_BATCHES == batch_sweep.DEFAULT_BATCHES
     assert speed_cmd.REFERENCE == batch_sweep.REFERENCE

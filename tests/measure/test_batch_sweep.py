@@ -26,15 +26,17 @@ POLICY = TimingPolicy(target_rel_ci=0.2, min_runs=3, budget_s=0.5, max_runs=5, w
 
 
 def _net(name: str, module: nn.Module | None = None) -> SweepNetwork:
-    return SweepNetwork(name, module or nn.Conv2d(3, 4, 3, padding=1),
-                        (torch.rand(1, 3, 16, 24),), macs=1)
+    module = module or nn.Conv2d(3, 4, 3, padding=1)
+    module.sweep_name = name  # which network the fake timing was handed
+    return SweepNetwork(name, module, (torch.rand(1, 3, 16, 24),), macs=1)
 
 
 def _fake_measure(ms: dict[str, float], calls: list[tuple[str, int]]):
     """A timing function whose pass takes ``ms[name] * batch`` ms for batch sizes, noting each
     call."""
 
-    def measure(module, inputs, *, key, **kw):
+    def measure(module, inputs, **kw):
+        key = module.sweep_name
         batch = inputs[0].shape[0]
         calls.append((key, batch))
         assert kw["policy"] is POLICY and kw["macs"] == batch  # one rule; MACs scale
