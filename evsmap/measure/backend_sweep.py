@@ -72,11 +72,6 @@ class Variant:
         """The share of pixels that must keep eager fp32's label (1.0: all of them)."""
         return REDUCED_PRECISION_AGREEMENT if self.reduced_precision else 1.0
 
-    @property
-    def autocast(self) -> str | None:
-        """torch's autocast dtype (None for fp32 and ONNX Runtime's variants)."""
-        return self.precision if self.reduced_precision and self.provider is None else None
-
     def make(self, onnx: Mapping[str, Any] | None = None) -> Backend:
         """The :class:`~evsmap.measure.speed_backends.Backend` that runs this variant;
         ``onnx``: ONNX Runtime's export and session fields (``key``, ``input_names``,
